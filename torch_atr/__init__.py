@@ -1,0 +1,20 @@
+"""torch_atr: joint target tracking and recognition with a shape-based generative model.
+
+The package follows the method of the thesis in ``shared/mission`` (chapters 4-6):
+vehicles -> rendering -> shape encoding -> model (rbf, tensor, identity, generative).
+
+Dimension letters used in every docstring:
+
+    N   queries or particles (a batch)
+    K   training vehicles
+    V   views (θ, φ pairs)
+    Nc  RBF kernel centres on the view hemisphere
+    P   Nc + 4, the length of Ψ(Θ) = [κ(‖u − u(Υₗ)‖)…, 1, u]
+    H×W template size in pixels; d = H·W pixels of a flattened template
+    r   rank of the truncated pixel basis (d -> r)
+    M   points (vertices) of a mesh or point set
+
+Angles are radians. Frames and conventions: ``shared/mission/METHOD.md``.
+"""
+
+__version__ = "0.1.0"

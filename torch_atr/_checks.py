@@ -1,0 +1,48 @@
+"""Input validation for public entry points: one helper, messages say expected vs. got."""
+
+from __future__ import annotations
+
+from typing import Sequence
+
+import numpy as np
+import torch
+
+
+def check_shape(name: str, x: torch.Tensor, shape: Sequence[int | str | None]) -> None:
+    """Raise ``ValueError`` unless ``x`` has ``len(shape)`` dims matching ``shape``.
+
+    ``shape`` entries are ints (exact size), or a letter / ``None`` (any size). Equal letters
+    must have equal sizes, e.g. ``check_shape("pts", pts, ("N", 3))``.
+    """
+    expected = "(" + ", ".join("*" if s is None else str(s) for s in shape) + ")"
+    if not isinstance(x, torch.Tensor):
+        raise ValueError(f"Expected {name} to be a tensor of shape {expected}; got {type(x).__name__}")
+    ok = x.dim() == len(shape)
+    sizes: dict[str, int] = {}
+    if ok:
+        for s, n in zip(shape, x.shape):
+            if isinstance(s, int) and s != n:
+                ok = False
+            elif isinstance(s, str) and sizes.setdefault(s, n) != n:
+                ok = False
+    if not ok:
+        raise ValueError(f"Expected {name} to have shape {expected}; got {tuple(x.shape)}")
+
+
+def as_float_tensor(name: str, x, like: torch.Tensor | None = None) -> torch.Tensor:
+    """Convert a tensor, array, list or scalar to a floating tensor.
+
+    Keeps a floating tensor's dtype and device; other inputs become ``like``'s dtype and
+    device when given, else float32 on the CPU.
+    """
+    if isinstance(x, torch.Tensor):
+        if x.is_floating_point():
+            return x
+        return x.to(like.dtype if like is not None else torch.float32)
+    try:
+        arr = np.asarray(x, dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"Expected {name} to be numeric; got {type(x).__name__}") from exc
+    dtype = like.dtype if like is not None else torch.float32
+    device = like.device if like is not None else None
+    return torch.as_tensor(arr, dtype=dtype, device=device)

@@ -1,0 +1,160 @@
+"""Pinhole camera in the sensor frame of METHOD.md (x right, y up, z along the optical axis).
+
+Pixels: u to the right, v down, (0, 0) the centre of the top-left pixel. Lens distortion is
+OpenCV's (k1, k2, p1, p2, k3), applied in OpenCV's camera frame, which is the sensor frame
+with y flipped; :meth:`Camera.from_opencv` and :meth:`Camera.opencv_pose` convert poses.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+from torch import nn
+
+from torch_atr._checks import as_float_tensor, check_shape
+
+# Sensor frame (y up) <-> OpenCV camera frame (y down).
+_FLIP_Y = np.diag([1.0, -1.0, 1.0])
+
+
+class Camera(nn.Module):
+    """A pinhole camera with intrinsics, distortion and a world -> sensor pose.
+
+    Args:
+        fx, fy: focal lengths in pixels.
+        cx, cy: principal point in pixels.
+        width, height: image size in pixels.
+        dist: (5,) OpenCV distortion (k1, k2, p1, p2, k3); zeros if None.
+        R: (3, 3) rotation world -> sensor; identity if None (world = sensor frame).
+        t: (3,) translation world -> sensor in metres: p_s = R p_w + t; zeros if None.
+    """
+
+    def __init__(self, fx: float, fy: float, cx: float, cy: float, width: int, height: int,
+                 dist=None, R=None, t=None, dtype: torch.dtype = torch.float64):
+        super().__init__()
+        if not (fx > 0 and fy > 0):
+            raise ValueError(f"Expected positive focal lengths; got fx={fx}, fy={fy}")
+        if width <= 0 or height <= 0:
+            raise ValueError(f"Expected a positive image size; got {width} x {height}")
+        self.width, self.height = int(width), int(height)
+        K = torch.tensor([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]], dtype=dtype)
+        dist = torch.zeros(5, dtype=dtype) if dist is None else torch.as_tensor(dist, dtype=dtype).flatten()
+        R = torch.eye(3, dtype=dtype) if R is None else torch.as_tensor(R, dtype=dtype)
+        t = torch.zeros(3, dtype=dtype) if t is None else torch.as_tensor(t, dtype=dtype).flatten()
+        check_shape("dist", dist, (5,))
+        check_shape("R", R, (3, 3))
+        check_shape("t", t, (3,))
+        self.register_buffer("K", K)
+        self.register_buffer("dist", dist)
+        self.register_buffer("R", R)
+        self.register_buffer("t", t)
+
+    @property
+    def fx(self) -> float:
+        return float(self.K[0, 0])
+
+    @property
+    def fy(self) -> float:
+        return float(self.K[1, 1])
+
+    @property
+    def cx(self) -> float:
+        return float(self.K[0, 2])
+
+    @property
+    def cy(self) -> float:
+        return float(self.K[1, 2])
+
+    def extra_repr(self) -> str:
+        return (f"fx={self.fx:.1f}, fy={self.fy:.1f}, cx={self.cx:.1f}, cy={self.cy:.1f}, "
+                f"size={self.width}x{self.height}")
+
+    def world_to_sensor(self, points: torch.Tensor) -> torch.Tensor:
+        """points: (..., 3) world metres -> (..., 3) sensor-frame metres."""
+        points = as_float_tensor("points", points, like=self.K)
+        if points.shape[-1:] != (3,):
+            raise ValueError(f"Expected points to have shape (..., 3); got {tuple(points.shape)}")
+        R, t = self.R.to(points), self.t.to(points)
+        return points @ R.T + t  # p_s = R p_w + t
+
+    def project(self, points: torch.Tensor, world: bool = True) -> tuple[torch.Tensor, torch.Tensor]:
+        """Project 3D points to pixels.
+
+        Args:
+            points: (..., 3) metres, in the world frame (or the sensor frame if ``world=False``).
+        Returns:
+            uv: (..., 2) pixels (u right, v down); depth: (..., ) metres along the optical axis.
+            Points at or behind the camera (depth <= 0) get non-finite ``uv``.
+        """
+        p = self.world_to_sensor(points) if world else as_float_tensor("points", points, like=self.K)
+        if p.shape[-1:] != (3,):
+            raise ValueError(f"Expected points to have shape (..., 3); got {tuple(p.shape)}")
+        z = p[..., 2]
+        # OpenCV normalised coordinates: y points down.
+        x, y = p[..., 0] / z, -p[..., 1] / z
+        k1, k2, p1, p2, k3 = self.dist.to(p).unbind(0)
+        r2 = x * x + y * y
+        radial = 1 + k1 * r2 + k2 * r2 * r2 + k3 * r2 * r2 * r2
+        xd = x * radial + 2 * p1 * x * y + p2 * (r2 + 2 * x * x)
+        yd = y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y
+        K = self.K.to(p)
+        u = K[0, 0] * xd + K[0, 2]
+        v = K[1, 1] * yd + K[1, 2]
+        uv = torch.stack([u, v], dim=-1)
+        uv = torch.where((z > 0).unsqueeze(-1), uv, torch.full_like(uv, float("nan")))
+        return uv, z
+
+    def pixel_rays(self, uv: torch.Tensor) -> torch.Tensor:
+        """uv: (..., 2) undistorted pixels -> (..., 3) sensor-frame ray directions with z = 1."""
+        uv = as_float_tensor("uv", uv, like=self.K)
+        if uv.shape[-1:] != (2,):
+            raise ValueError(f"Expected uv to have shape (..., 2); got {tuple(uv.shape)}")
+        K = self.K.to(uv)
+        x = (uv[..., 0] - K[0, 2]) / K[0, 0]
+        y = -(uv[..., 1] - K[1, 2]) / K[1, 1]
+        return torch.stack([x, y, torch.ones_like(x)], dim=-1)
+
+    @classmethod
+    def from_opencv(cls, K, dist, rvec, tvec, width: int, height: int) -> "Camera":
+        """Build from OpenCV calibration results (K (3, 3), dist, rvec (3,), tvec (3,))."""
+        import cv2
+
+        R_cv, _ = cv2.Rodrigues(np.asarray(rvec, dtype=np.float64).reshape(3, 1))
+        t_cv = np.asarray(tvec, dtype=np.float64).reshape(3)
+        K = np.asarray(K, dtype=np.float64)
+        d = np.zeros(5)
+        dist = np.asarray(dist, dtype=np.float64).ravel()[:5]
+        d[: dist.size] = dist
+        return cls(K[0, 0], K[1, 1], K[0, 2], K[1, 2], width, height, dist=d,
+                   R=_FLIP_Y @ R_cv, t=_FLIP_Y @ t_cv)
+
+    def opencv_pose(self) -> tuple[np.ndarray, np.ndarray]:
+        """(rvec (3,), tvec (3,)) of this camera's pose in OpenCV's convention."""
+        import cv2
+
+        R_cv = _FLIP_Y @ self.R.cpu().numpy()
+        t_cv = _FLIP_Y @ self.t.cpu().numpy()
+        rvec, _ = cv2.Rodrigues(R_cv)
+        return rvec.ravel(), t_cv
+
+    def to_dict(self) -> dict:
+        """A JSON-ready description (for ``camera.json``)."""
+        return {"fx": self.fx, "fy": self.fy, "cx": self.cx, "cy": self.cy,
+                "width": self.width, "height": self.height,
+                "dist": self.dist.tolist(), "R": self.R.tolist(), "t": self.t.tolist()}
+
+    @classmethod
+    def from_dict(cls, d: dict, source: str = "camera") -> "Camera":
+        """Inverse of :meth:`to_dict`; a missing or bad key raises ``ValueError`` naming it."""
+        required = ("fx", "fy", "cx", "cy", "width", "height")
+        missing = [k for k in required if k not in d]
+        if missing:
+            raise ValueError(f"{source}: missing key(s) {', '.join(missing)}")
+        unknown = sorted(set(d) - set(required) - {"dist", "R", "t"})
+        if unknown:
+            raise ValueError(f"{source}: unknown key(s) {', '.join(unknown)}")
+        try:
+            return cls(float(d["fx"]), float(d["fy"]), float(d["cx"]), float(d["cy"]),
+                       int(d["width"]), int(d["height"]), dist=d.get("dist"), R=d.get("R"), t=d.get("t"))
+        except (TypeError, ValueError) as exc:
+            raise ValueError(f"{source}: {exc}") from exc
