@@ -1,0 +1,244 @@
+"""Calibration against known cameras: IR focal length from targets, checkerboards rendered with a
+known K, R, t (cv2.warpPerspective of a board texture, supersampled, blurred, noisy)."""
+
+import cv2
+import numpy as np
+import pytest
+import torch
+
+from torch_atr.calibration import (_canonical_order, calibrate_checkerboard, camera_from_focal, draw_cubes, find_checkerboard,
+                                   floor_pose, focal_from_target)
+from torch_atr.camera import Camera
+
+# ---------------------------------------------------------------- IR: focal length from targets
+
+F_IR, W_IR, H_IR = 2100.0, 640, 512
+PP = ((W_IR - 1) / 2, (H_IR - 1) / 2)
+
+
+def _ir_targets(rng: np.random.Generator, n: int, far: float = 3500.0) -> torch.Tensor:
+    """(n, 3) sensor-frame target centres at 1000 m to ``far``, inside the field of view."""
+    z = rng.uniform(1000, far, n)
+    x = z * rng.uniform(-0.13, 0.13, n)  # |u - cx| < 0.13 f = 273 px
+    y = z * rng.uniform(-0.1, 0.1, n)
+    return torch.tensor(np.stack([x, y, z], -1))
+
+
+def test_focal_from_position_recovers_f():
+    rng = np.random.default_rng(0)
+    cam = camera_from_focal(F_IR, W_IR, H_IR)
+    p = _ir_targets(rng, 40)
+    uv, _ = cam.project(p, world=False)
+    rng_m = p.norm(dim=-1)  # slant range
+    assert abs(focal_from_target(uv[0], rng_m[0], position_xy=p[0, :2], principal_point=PP) / F_IR - 1) < 1e-9
+    noisy = uv + torch.tensor(rng.normal(0, 0.3, uv.shape))
+    f = focal_from_target(noisy, rng_m, position_xy=p[:, :2], principal_point=PP)
+    assert abs(f / F_IR - 1) < 0.005
+
+
+def test_focal_from_size_recovers_f():
+    """A target of known length across the image plane (aspect 90°) and its pixel extent."""
+    rng = np.random.default_rng(1)
+    cam = camera_from_focal(F_IR, W_IR, H_IR)
+    p = _ir_targets(rng, 30, far=2000.0)  # the thesis picks a near, side-on frame
+    length = torch.tensor(rng.uniform(4.0, 7.0, 30))
+    half = torch.stack([length / 2, torch.zeros(30), torch.zeros(30)], -1)
+    (uv0, _), (uv1, _), (uv, _) = (cam.project(q, world=False) for q in (p - half, p + half, p))
+    extent = (uv1[:, 0] - uv0[:, 0]).numpy()
+    one = focal_from_target(uv[0].numpy(), float(p[0].norm()), size_m=float(length[0]),
+                            extent_px=float(extent[0]), principal_point=PP)
+    assert abs(one / F_IR - 1) < 1e-9
+    noisy = extent + rng.normal(0, 0.1, 30)  # extents of 4 to 15 px
+    f = focal_from_target(uv, p.norm(dim=-1), size_m=length, extent_px=noisy, principal_point=PP)
+    assert abs(f / F_IR - 1) < 0.005
+
+
+def test_camera_from_focal_projects_like_the_pinhole():
+    cam = camera_from_focal(800.0, 320, 240)
+    uv, _ = cam.project(torch.tensor([[1.0, 2.0, 10.0]], dtype=torch.float64))
+    torch.testing.assert_close(uv, torch.tensor([[159.5 + 80.0, 119.5 - 160.0]], dtype=torch.float64))
+    cam = camera_from_focal(800.0, 320, 240, principal_point=(150.0, 110.0))
+    assert (cam.cx, cam.cy, cam.fx, cam.fy) == (150.0, 110.0, 800.0, 800.0)
+
+
+def test_focal_from_target_errors():
+    uv = np.array([[400.0, 300.0], [200.0, 100.0]])
+    with pytest.raises(ValueError, match="exactly one"):
+        focal_from_target(uv, [1000.0, 1000.0], principal_point=PP)
+    with pytest.raises(ValueError, match="exactly one"):
+        focal_from_target(uv, [1000.0, 1000.0], principal_point=PP, position_xy=np.ones((2, 2)), size_m=4.0)
+    with pytest.raises(ValueError, match=r"range_m\[1\]"):
+        focal_from_target(uv, [1000.0, 5.0], principal_point=PP, position_xy=[[10.0, 2.0], [10.0, 2.0]])
+    with pytest.raises(ValueError, match=r"range_m\[0\]"):
+        focal_from_target(uv, [-1.0, 5.0], principal_point=PP, position_xy=np.ones((2, 2)))
+    with pytest.raises(ValueError, match=r"position_xy.*\(3, 2\)"):
+        focal_from_target(uv, 1000.0, principal_point=PP, position_xy=np.ones((3, 2)))
+    with pytest.raises(ValueError, match=r"pixel_uv.*\(2, 3\)"):
+        focal_from_target(np.ones((2, 3)), 1000.0, principal_point=PP, position_xy=np.ones((2, 2)))
+    with pytest.raises(ValueError, match="optical axis"):
+        focal_from_target(uv, 1000.0, principal_point=PP, position_xy=np.zeros((2, 2)))
+    with pytest.raises(ValueError, match="both size_m and extent_px"):
+        focal_from_target(uv, 1000.0, principal_point=PP, size_m=4.0)
+    with pytest.raises(ValueError, match=r"extent_px\[1\]"):
+        focal_from_target(uv, 1000.0, principal_point=PP, size_m=4.0, extent_px=[3.0, 0.0])
+
+
+# ---------------------------------------------------------------- visible: checkerboards
+
+W, H = 640, 480
+K = np.array([[610.0, 0.0, 317.0], [0.0, 615.0, 244.0], [0.0, 0.0, 1.0]])
+PATTERN, SQUARE = (9, 6), 0.04
+COLS, ROWS = PATTERN
+# Board frame: inner corner (c, r) at (c, r, 0) * SQUARE; the square diagonal from corner 0 is dark;
+# cameras are on the +Z side. That is the floor frame calibration.py documents.
+CORNERS = np.array([[c * SQUARE, r * SQUARE, 0.0] for r in range(ROWS) for c in range(COLS)])
+CENTRE = np.array([(COLS - 1) * SQUARE / 2, (ROWS - 1) * SQUARE / 2, 0.0])
+# (azimuth°, elevation°, distance m, roll°) of the calibration views
+VIEWS = [(0, 55, 0.85, 10), (60, 45, 0.9, 100), (120, 60, 0.8, 200), (180, 50, 0.95, 290),
+         (240, 40, 0.9, 45), (300, 65, 0.8, 160), (30, 75, 0.85, 250)]
+
+
+def _pose(az: float, el: float, dist: float, roll: float, aim=np.zeros(3)):
+    """OpenCV world -> camera (R (3, 3), t (3,)) of a camera looking at the board centre."""
+    a, e = np.deg2rad(az), np.deg2rad(el)
+    centre = CENTRE + dist * np.array([np.cos(e) * np.cos(a), np.cos(e) * np.sin(a), np.sin(e)])
+    z = CENTRE + aim - centre
+    z /= np.linalg.norm(z)
+    x = np.cross(z, [0.0, 0.0, 1.0])
+    x /= np.linalg.norm(x)
+    R = np.stack([x, np.cross(z, x), z])  # rows: camera x right, y down, z forward
+    c, s = np.cos(np.deg2rad(roll)), np.sin(np.deg2rad(roll))
+    R = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]) @ R
+    return R, -R @ centre
+
+
+def _render(R: np.ndarray, t: np.ndarray, rng: np.random.Generator, ss: int = 3) -> np.ndarray:
+    """(H, W) uint8 image of the board, rendered at ss x resolution and area-averaged down."""
+    ppm, margin = 2000.0, SQUARE  # texture pixels per metre; white margin around the squares
+    x0 = -SQUARE - margin
+    size = int(round(((COLS + 1) * SQUARE + 2 * margin) * ppm)), int(round(((ROWS + 1) * SQUARE + 2 * margin) * ppm))
+    X = (np.arange(size[0]) + 0.5) / ppm + x0
+    Y = (np.arange(size[1]) + 0.5) / ppm + x0
+    i, j = np.floor(X / SQUARE)[None, :] + 1, np.floor(Y / SQUARE)[:, None] + 1  # square indices
+    dark = (i >= 0) & (i <= COLS) & (j >= 0) & (j <= ROWS) & ((i + j) % 2 == 0)
+    texture = np.where(dark, 25, 230).astype(np.uint8)
+    tex_to_board = np.array([[1 / ppm, 0, 0.5 / ppm + x0], [0, 1 / ppm, 0.5 / ppm + x0], [0, 0, 1]])
+    Ks = K * [[ss], [ss], [1]]
+    Ks[:2, 2] += (ss - 1) / 2  # pixel centres of the fine grid
+    homography = Ks @ np.column_stack([R[:, 0], R[:, 1], t]) @ tex_to_board
+    fine = cv2.warpPerspective(texture, homography, (W * ss, H * ss), flags=cv2.INTER_LINEAR, borderValue=128)
+    img = cv2.GaussianBlur(cv2.resize(fine, (W, H), interpolation=cv2.INTER_AREA), (0, 0), 0.7)
+    return np.clip(img + rng.normal(0, 2.0, img.shape), 0, 255).astype(np.uint8)
+
+
+def _truth_pixels(R, t, points=CORNERS):
+    uv, _ = cv2.projectPoints(points, cv2.Rodrigues(R)[0], t, K, None)
+    return uv.reshape(-1, 2)
+
+
+@pytest.fixture(scope="module")
+def views():
+    rng = np.random.default_rng(0)
+    out = []
+    for view in VIEWS:
+        R, t = _pose(*view, aim=rng.uniform(-0.04, 0.04, 3))
+        px = _truth_pixels(R, t)
+        assert ((px > 20) & (px < [W - 20, H - 20])).all(), f"test setup: view {view} leaves the image"
+        out.append((_render(R, t, rng), R, t))
+    return out
+
+
+def test_find_checkerboard_corners_in_floor_frame_order(views):
+    for image, R, t in views:
+        corners = find_checkerboard(image, PATTERN)
+        assert corners.shape == (COLS * ROWS, 2)
+        assert np.abs(corners - _truth_pixels(R, t)).max() < 0.25
+    colour = np.repeat(views[0][0][..., None], 3, axis=2)
+    np.testing.assert_allclose(find_checkerboard(colour, PATTERN), find_checkerboard(views[0][0], PATTERN))
+    assert find_checkerboard(np.full((H, W), 128, np.uint8), PATTERN) is None
+
+
+@pytest.mark.parametrize("order", ["same", "half turn", "rows reversed", "columns reversed"])
+def test_corner_order_is_canonical_whatever_the_detector_returns(views, order):
+    """The detector may start at any board corner; the floor-frame order must not depend on it."""
+    image, R, t = views[1]
+    truth = _truth_pixels(R, t).reshape(ROWS, COLS, 2).astype(np.float32)
+    shuffled = {"same": truth, "half turn": truth[::-1, ::-1], "rows reversed": truth[::-1],
+                "columns reversed": truth[:, ::-1]}[order]
+    np.testing.assert_array_equal(_canonical_order(image, shuffled), truth)
+
+
+def test_calibrate_checkerboard_recovers_intrinsics(views):
+    camera, rms = calibrate_checkerboard([v[0] for v in views], PATTERN, SQUARE)
+    assert rms < 0.2
+    got = np.array([camera.fx, camera.fy, camera.cx, camera.cy])
+    want = np.array([K[0, 0], K[1, 1], K[0, 2], K[1, 2]])
+    assert np.abs(got / want - 1).max() < 0.01, got
+    assert (camera.width, camera.height) == (W, H)
+
+
+def test_calibrate_checkerboard_names_the_image_without_a_board(views):
+    images = [v[0] for v in views[:4]]
+    images[2] = np.full((H, W), 200, np.uint8)
+    with pytest.raises(ValueError, match="image 2"):
+        calibrate_checkerboard(images, PATTERN, SQUARE)
+    with pytest.raises(ValueError, match="image 1"):
+        calibrate_checkerboard([images[0], images[0][:100], images[0]], PATTERN, SQUARE)
+    with pytest.raises(ValueError, match="at least 3"):
+        calibrate_checkerboard(images[:2], PATTERN, SQUARE)
+    with pytest.raises(ValueError, match="uint8"):
+        calibrate_checkerboard([images[0].astype(np.uint16)] * 3, PATTERN, SQUARE)
+
+
+def _angle_deg(Ra: np.ndarray, Rb: np.ndarray) -> float:
+    return float(np.degrees(np.arccos(np.clip((np.trace(Ra @ Rb.T) - 1) / 2, -1, 1))))
+
+
+@pytest.mark.parametrize("view", [(20, 50, 0.9, 0), (200, 35, 1.0, 180), (110, 70, 0.8, 75)])
+def test_floor_pose_matches_truth(view):
+    rng = np.random.default_rng(1)
+    R, t = _pose(*view)
+    image = _render(R, t, rng)
+    intrinsics = Camera(K[0, 0], K[1, 1], K[0, 2], K[1, 2], W, H)
+    got = floor_pose(intrinsics, image, PATTERN, SQUARE)
+    # truth in the sensor frame (y up): flip OpenCV's y row
+    R_true, t_true = np.diag([1.0, -1.0, 1.0]) @ R, np.diag([1.0, -1.0, 1.0]) @ t
+    assert _angle_deg(got.R.numpy(), R_true) < 0.5
+    assert np.linalg.norm(got.t.numpy() - t_true) / np.linalg.norm(t_true) < 0.01
+    # the camera sits above the floor (+Z) in the floor frame
+    assert (-got.R.numpy().T @ got.t.numpy())[2] > 0
+
+
+def test_floor_pose_errors():
+    intrinsics = Camera(K[0, 0], K[1, 1], K[0, 2], K[1, 2], W, H)
+    with pytest.raises(ValueError, match="no 9x6 checkerboard"):
+        floor_pose(intrinsics, np.zeros((H, W), np.uint8), PATTERN, SQUARE)
+    with pytest.raises(ValueError, match="480 x 640"):
+        floor_pose(intrinsics, np.zeros((100, 100), np.uint8), PATTERN, SQUARE)
+    with pytest.raises(ValueError, match="square_m"):
+        floor_pose(intrinsics, np.zeros((H, W), np.uint8), PATTERN, 0.0)
+
+
+def test_draw_cubes_paints_the_projected_corners():
+    rng = np.random.default_rng(2)
+    R, t = _pose(40, 45, 0.9, 20)
+    image = _render(R, t, rng)
+    camera = Camera.from_opencv(K, np.zeros(5), cv2.Rodrigues(R)[0], t, W, H)
+    size, positions = 0.05, np.array([[0.0, 0.0, 0.0], [0.2, 0.12, 0.0]])
+    red = (0, 0, 255)
+    out = draw_cubes(image, camera, size, positions, color=red)
+    assert out.shape == (H, W, 3) and image.ndim == 2  # input untouched, output BGR
+    unit = np.array([[i & 1, (i >> 1) & 1, (i >> 2) & 1] for i in range(8)], dtype=np.float64)
+    for p in positions:
+        for u, v in np.rint(_truth_pixels(R, t, p + size * unit)).astype(int):
+            assert tuple(out[v, u]) == red, (u, v)
+    painted = (out != np.repeat(image[..., None], 3, axis=2)).any(-1)
+    corners = np.rint(_truth_pixels(R, t, np.concatenate([p + size * unit for p in positions])))
+    (u0, v0), (u1, v1) = corners.min(0).astype(int), corners.max(0).astype(int)
+    assert painted.sum() > 100 and not painted[:v0].any() and not painted[v1 + 1:].any()
+    assert not painted[:, :u0].any() and not painted[:, u1 + 1:].any()
+    # a cube behind the camera is left out without error
+    behind = -R.T @ t + 2 * (-R.T @ t - CENTRE)
+    np.testing.assert_array_equal(draw_cubes(out, camera, size, behind[None]), out)
+    with pytest.raises(ValueError, match=r"positions.*\(C, 3\)"):
+        draw_cubes(image, camera, size, np.zeros((2, 2)))

@@ -1,0 +1,201 @@
+"""Background subtraction on synthetic sequences; helpers against scipy.ndimage references."""
+
+import logging
+
+import cv2
+import numpy as np
+import pytest
+from scipy import ndimage
+
+from torch_atr.config import ConfigError, load_config
+from torch_atr.segmentation import (ForegroundSegmenter, SegmentationConfig, clean_mask, normalise_ir,
+                                    select_blob)
+
+H, W = 120, 160
+# (background level, texture amplitude, per-frame noise sigma, target contrast) per pixel format
+LEVELS = {"uint16": (20000.0, 2000.0, 40.0, 1500.0), "uint8": (100.0, 30.0, 2.0, 45.0),
+          "bgr": (100.0, 30.0, 2.0, 45.0), "float32": (290.0, 5.0, 0.1, 4.0)}
+
+
+def _background(rng: np.random.Generator) -> np.ndarray:
+    """(H, W) smooth texture in [-1, 1]: coarse noise upsampled."""
+    coarse = rng.uniform(-1, 1, size=(H // 12, W // 12))
+    return np.clip(cv2.resize(coarse, (W, H), interpolation=cv2.INTER_CUBIC), -1, 1)
+
+
+def _rect(u0: int, v0: int, w: int, h: int) -> np.ndarray:
+    m = np.zeros((H, W), bool)
+    m[v0:v0 + h, u0:u0 + w] = True
+    return m
+
+
+def _frame(kind: str, texture: np.ndarray, targets: list[np.ndarray], rng: np.random.Generator,
+           offset: float = 0.0) -> np.ndarray:
+    level, amplitude, noise, contrast = LEVELS[kind]
+    img = level + amplitude * texture + rng.normal(0, noise, (H, W)) + offset
+    for t in targets:
+        img = img + contrast * t
+    if kind == "uint16":
+        return np.clip(np.rint(img), 0, 65535).astype(np.uint16)
+    if kind == "float32":
+        return img.astype(np.float32)
+    grey = np.clip(np.rint(img), 0, 255).astype(np.uint8)
+    return np.repeat(grey[..., None], 3, axis=2) if kind == "bgr" else grey
+
+
+def _iou(a: np.ndarray, b: np.ndarray) -> float:
+    return (a & b).sum() / max((a | b).sum(), 1)
+
+
+def _warmed(kind: str, seed: int = 0, cfg: SegmentationConfig | None = None):
+    rng = np.random.default_rng(seed)
+    texture = _background(rng)
+    seg = ForegroundSegmenter(cfg or SegmentationConfig(warmup_frames=30))
+    seg.warm_up(_frame(kind, texture, [], rng) for _ in range(40))  # only 30 are read
+    return seg, texture, rng
+
+
+@pytest.mark.parametrize("kind", ["uint16", "uint8", "bgr", "float32"])
+def test_moving_blob_iou(kind):
+    seg, texture, rng = _warmed(kind)
+    ious = []
+    for k in range(10):
+        truth = _rect(10 + 12 * k, 40 + k, 26, 12)
+        mask = seg(_frame(kind, texture, [truth], rng))
+        assert mask.shape == (H, W) and mask.dtype == bool
+        ious.append(_iou(mask, truth))
+    assert min(ious) >= 0.8, ious
+
+
+def test_uint16_target_over_bright_background_is_kept():
+    """A warm target on the brightest background must not be lost to clipping at 255."""
+    seg, texture, rng = _warmed("uint16")
+    v, u = np.unravel_index(np.argmax(cv2.blur(texture, (15, 15))), texture.shape)
+    truth = _rect(int(np.clip(u - 6, 0, W - 12)), int(np.clip(v - 4, 0, H - 8)), 12, 8)
+    assert _iou(seg(_frame("uint16", texture, [truth], rng)), truth) >= 0.8
+
+
+def test_near_picks_the_nearest_blob():
+    seg, texture, rng = _warmed("uint8", seed=1)
+    big, small = _rect(15, 20, 40, 20), _rect(110, 80, 20, 12)
+    frame = _frame("uint8", texture, [big, small], rng)
+    assert _iou(seg(frame), big) >= 0.8
+    assert _iou(seg(frame, near=(125.0, 70.0)), small) >= 0.8  # a prediction just above the small blob
+    assert _iou(seg(frame, near=(30, 25)), big) >= 0.8
+
+
+def test_empty_frame_gives_empty_mask(caplog):
+    seg, texture, rng = _warmed("uint16", seed=2)
+    with caplog.at_level(logging.DEBUG, logger="torch_atr.segmentation"):
+        mask = seg(_frame("uint16", texture, [], rng))
+    assert not mask.any()
+    assert "empty" in caplog.text
+
+
+def test_global_change_gives_large_foreground():
+    seg, texture, rng = _warmed("uint16", seed=3)
+    mask = seg(_frame("uint16", texture, [], rng, offset=4000.0))
+    assert mask.mean() > 0.9
+
+
+def test_background_stays_frozen_by_default():
+    """With learning_rate = 0 a target that stops is still foreground many frames later."""
+    seg, texture, rng = _warmed("uint8", seed=4)
+    truth = _rect(60, 50, 24, 14)
+    masks = [seg(_frame("uint8", texture, [truth], rng)) for _ in range(30)]
+    assert _iou(masks[-1], truth) >= 0.8
+
+
+def test_bad_frames_raise():
+    seg, texture, rng = _warmed("uint8")
+    with pytest.raises(ValueError, match=r"\(120, 160, 2\)"):
+        seg(np.zeros((H, W, 2), np.uint8))
+    with pytest.raises(ValueError, match="int32"):
+        seg(np.zeros((H, W), np.int32))
+    with pytest.raises(ValueError, match=r"\(60, 80\)"):
+        seg(np.zeros((60, 80), np.uint8))
+    with pytest.raises(ValueError, match="uint16"):  # warm-up was uint8
+        seg(np.zeros((H, W), np.uint16))
+    with pytest.raises(ValueError, match=r"\(4, 4, 4\)"):
+        ForegroundSegmenter().warm_up([np.zeros((4, 4, 4), np.uint8)])
+    with pytest.raises(ValueError, match="warm-up frame 1"):
+        ForegroundSegmenter().warm_up([np.zeros((4, 4), np.uint8), np.zeros((4, 5), np.uint8)])
+    with pytest.raises(ValueError, match="none"):
+        ForegroundSegmenter().warm_up([])
+    with pytest.raises(RuntimeError, match="warm_up"):
+        ForegroundSegmenter()(np.zeros((4, 4), np.uint8))
+    with pytest.raises(ValueError, match="near"):
+        seg(_frame("uint8", texture, [], rng), near=(1.0, float("nan")))
+
+
+def test_config_validation_and_loading(tmp_path):
+    with pytest.raises(ConfigError, match="var_threshold=-1"):
+        SegmentationConfig(var_threshold=-1.0)
+    with pytest.raises(ConfigError, match="low_percentile"):
+        SegmentationConfig(low_percentile=60.0, high_percentile=50.0)
+    path = tmp_path / "seg.yaml"
+    path.write_text("history: 50\nopen_px: 0\n")
+    assert load_config(SegmentationConfig, path, ["headroom=0.25"]) == SegmentationConfig(
+        history=50, open_px=0, headroom=0.25)
+    with pytest.raises(ConfigError, match="histroy"):
+        load_config(SegmentationConfig, overrides=["histroy=3"])
+
+
+def test_normalise_ir_matches_interp():
+    rng = np.random.default_rng(5)
+    frame = rng.integers(0, 65536, size=(50, 70), dtype=np.uint16)
+    out = normalise_ir(frame, 10000.0, 50000.0)
+    ref = np.rint(np.interp(frame.astype(np.float64), [10000.0, 50000.0], [0.0, 255.0]))  # clips outside
+    assert out.dtype == np.uint8
+    assert np.abs(out.astype(int) - ref).max() <= 1
+    assert (out == ref).mean() > 0.99
+    with pytest.raises(ValueError, match="lo < hi"):
+        normalise_ir(frame, 5.0, 5.0)
+    with pytest.raises(ValueError, match=r"\(50, 70, 1\)"):
+        normalise_ir(frame[..., None], 0.0, 1.0)
+
+
+@pytest.mark.parametrize("open_px, close_px", [(3, 5), (5, 3), (0, 7), (3, 0)])
+def test_clean_mask_matches_scipy(open_px, close_px):
+    rng = np.random.default_rng(6)
+    mask = np.zeros((80, 90), bool)
+    mask[10:-10, 10:-10] = rng.random((60, 70)) < 0.6  # a margin, so border conventions do not matter
+    ref = mask
+    if open_px > 1:
+        ref = ndimage.binary_opening(ref, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (open_px,) * 2))
+    if close_px > 1:
+        ref = ndimage.binary_closing(ref, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (close_px,) * 2))
+    np.testing.assert_array_equal(clean_mask(mask, open_px, close_px), ref)
+
+
+def test_clean_mask_removes_specks_and_fills_holes():
+    mask = _rect(40, 40, 30, 20)
+    mask[50, 55] = False  # a hole
+    mask[10, 10] = True  # a speck
+    out = clean_mask(mask, 3, 5)
+    assert not out[10, 10] and out[50, 55]
+    np.testing.assert_array_equal(out[38:62, 38:72], clean_mask(_rect(40, 40, 30, 20), 3, 5)[38:62, 38:72])
+
+
+def test_select_blob_matches_brute_force():
+    rng = np.random.default_rng(7)
+    mask = rng.random((60, 60)) < 0.35
+    labels, n = ndimage.label(mask, structure=np.ones((3, 3)))
+    sizes = np.bincount(labels.ravel())[1:]
+    np.testing.assert_array_equal(select_blob(mask), labels == 1 + np.argmax(sizes))
+    for u, v in [(3.0, 4.0), (30.5, 12.2), (59.0, 59.0)]:
+        def distance(k):
+            return min((c - u) ** 2 + (r - v) ** 2 for r, c in zip(*np.nonzero(labels == k)))
+        best = min(range(1, n + 1), key=distance)
+        np.testing.assert_array_equal(select_blob(mask, near=(u, v)), labels == best)
+    # min_area excludes small components even when they are nearest
+    small = 1 + np.flatnonzero(sizes < 3)[0]
+    r, c = np.nonzero(labels == small)
+    kept = select_blob(mask, near=(c[0], r[0]), min_area=3)
+    assert kept.sum() >= 3 and not kept[r[0], c[0]]
+
+
+def test_select_blob_empty_and_full():
+    assert not select_blob(np.zeros((5, 6), bool)).any()
+    assert select_blob(np.ones((5, 6), bool), near=(100.0, -3.0)).all()
+    assert not select_blob(_rect(5, 5, 2, 2), min_area=5).any()

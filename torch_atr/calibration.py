@@ -1,0 +1,317 @@
+"""Camera calibration: IR cameras from target metadata (thesis 3.2), visible cameras from a
+checkerboard (thesis 3.3).
+
+IR (SENSIAC): the database has no calibration, but each frame gives the target's slant range and
+its centre pixel. With the pinhole model (eq. 3.3-3.4), ``u - cx = f x / z`` and
+``v - cy = -f y / z`` in the sensor frame of METHOD.md (x right, y up, z forward), so a frame
+whose target position across the line of sight is known, or whose target has a known size
+across it (the thesis uses the frame where the aspect is 90°: the vehicle is seen side-on and
+spans its length), pins down ``f``. :func:`focal_from_target` solves that by least squares over
+any number of frames and :func:`camera_from_focal` turns ``f`` into a :class:`Camera`.
+
+Visible: OpenCV's checkerboard detector and calibration replace the MATLAB toolbox of the
+thesis. :func:`calibrate_checkerboard` gives the intrinsics and distortion from several views of
+a board, :func:`floor_pose` the extrinsics from one board lying on the floor, and
+:func:`draw_cubes` draws wireframe cubes standing on the floor to check the result (Fig. 3.7).
+
+**Floor frame** (the world frame of :func:`floor_pose` and :func:`draw_cubes`): origin at the
+board's first inner corner, the one whose diagonal inner square is dark; X along the board's
+rows (first corner -> second corner), Y along its columns, Z = X × Y up out of the floor, towards
+the camera; metres. The dark square fixes the origin only for a pattern with one odd and one even
+inner-corner count (e.g. 9 × 6); a pattern with both even or both odd is symmetric under a
+half turn and its origin may be either end.
+"""
+
+from __future__ import annotations
+
+import logging
+from typing import Sequence
+
+import cv2
+import numpy as np
+import torch
+
+from torch_atr._checks import as_float_tensor, check_shape
+from torch_atr.camera import Camera
+
+logger = logging.getLogger(__name__)
+
+# The 12 edges of a cube whose corners are numbered by bits (x, y, z) = (i & 1, i >> 1 & 1, i >> 2 & 1).
+_CUBE_CORNERS = np.array([[i & 1, (i >> 1) & 1, (i >> 2) & 1] for i in range(8)], dtype=np.float64)
+_CUBE_EDGES = [(a, b) for a in range(8) for b in range(a + 1, 8) if bin(a ^ b).count("1") == 1]
+_FLOAT64 = torch.zeros((), dtype=torch.float64)  # arrays and lists are read in double precision
+_MAX_ITERATIONS = 100  # fixed-point steps of the size method
+_EDGE_SAMPLES = 9  # points per drawn edge, so edges bend with the lens distortion
+
+
+def _per_frame(name: str, x, n: int | None = None, cols: int | None = None) -> torch.Tensor:
+    """A finite float64 tensor of shape (N,) or (N, cols). A single frame may omit N; with ``n``
+    given it is repeated to N = n, and any other N must equal n."""
+    t = as_float_tensor(name, x, like=_FLOAT64).to(torch.float64)
+    if t.dim() == (0 if cols is None else 1):
+        t = t.unsqueeze(0)
+        if n is not None:
+            t = t.expand(n, *t.shape[1:])
+    check_shape(name, t, ("N",) if cols is None else ("N", cols))
+    if n is not None and t.shape[0] != n:
+        raise ValueError(f"Expected {name} to have {n} rows like pixel_uv; got shape {tuple(t.shape)}")
+    if not torch.isfinite(t).all():
+        raise ValueError(f"Expected {name} to be finite; got non-finite values")
+    return t
+
+
+def _first_bad(name: str, values: torch.Tensor, bad: torch.Tensor, what: str) -> None:
+    """Raise ``ValueError`` naming the first frame where ``bad`` (N,) holds."""
+    if bad.any():
+        i = int(torch.nonzero(bad)[0])
+        raise ValueError(f"Expected {what}; got {name}[{i}] = {values[i].tolist()}")
+
+
+def focal_from_target(pixel_uv, range_m, *, principal_point: tuple[float, float],
+                      position_xy=None, size_m=None, extent_px=None) -> float:
+    """Focal length in pixels from target observations of known range (thesis 3.2).
+
+    Give either ``position_xy``, or ``size_m`` with ``extent_px``. Over several frames the
+    result is the least-squares fit; for one frame it is the thesis's one-frame solution.
+
+    Args:
+        pixel_uv: (N, 2) or (2,) pixels of the target centre (u right, v down), undistorted.
+        range_m: (N,) or scalar slant range, metres: the distance camera -> target centre.
+        principal_point: (2,) (cx, cy) pixels, e.g. the image centre ((W - 1) / 2, (H - 1) / 2).
+        position_xy: (N, 2) or (2,) sensor-frame x (right) and y (up) of the target centre,
+            metres. Depth z = sqrt(r² - x² - y²); residuals of u - cx = f x / z and
+            v - cy = -f y / z (eq. 3.4) are linear in f, so f = Σ a·b / Σ a·a with
+            a = (x / z, -y / z), b = (u - cx, v - cy).
+        size_m: (N,) or scalar size of the target parallel to the image plane, metres (e.g. its
+            length at aspect 90°; with a narrow field of view, across the line of sight).
+        extent_px: (N,) or scalar pixel extent of that size: e = f s / z, with
+            z = r / sqrt(1 + ρ² / f²) and ρ the centre's pixel distance from the principal
+            point. f minimises Σ (e - f s / z)² (pixel residuals), found by fixed-point steps
+            that re-solve the linear least squares with z from the previous f.
+    Returns:
+        f in pixels.
+    Raises:
+        ValueError: on bad shapes or values (naming the argument and frame), on both or neither
+            kind of knowledge, or when f is not observable (every target on the optical axis).
+    """
+    uv = _per_frame("pixel_uv", pixel_uv, cols=2)
+    n = uv.shape[0]
+    r = _per_frame("range_m", range_m, n)
+    _first_bad("range_m", r, r <= 0, "positive ranges")
+    pp = as_float_tensor("principal_point", principal_point, like=_FLOAT64).to(torch.float64)
+    check_shape("principal_point", pp, (2,))
+    b = uv - pp  # (N, 2) pixel offsets from (cx, cy)
+    by_position = position_xy is not None
+    if by_position == (size_m is not None or extent_px is not None):
+        raise ValueError("Give either position_xy, or size_m with extent_px (exactly one of the two)")
+    if by_position:
+        xy = _per_frame("position_xy", position_xy, n, cols=2)
+        z2 = r * r - (xy * xy).sum(-1)
+        _first_bad("range_m", r, z2 <= 0, "ranges longer than the lateral offsets position_xy")
+        a = torch.stack([xy[:, 0], -xy[:, 1]], dim=-1) / z2.sqrt().unsqueeze(-1)  # (N, 2) = (x/z, -y/z)
+        aa = (a * a).sum()
+        if aa <= 0:
+            raise ValueError("focal length not observable: every target lies on the optical axis (x = y = 0)")
+        return float((a * b).sum() / aa)
+    if size_m is None or extent_px is None:
+        raise ValueError("The size method needs both size_m and extent_px")
+    s = _per_frame("size_m", size_m, n)
+    e = _per_frame("extent_px", extent_px, n)
+    _first_bad("size_m", s, s <= 0, "positive sizes")
+    _first_bad("extent_px", e, e <= 0, "positive extents")
+    # e = f s / z is linear in f once z is known; z = r / sqrt(1 + ρ²/f²) depends on f only through
+    # the off-axis term, so fixed-point steps of the linear least squares converge (from z = r).
+    rho2 = (b * b).sum(-1)
+    f = torch.zeros((), dtype=torch.float64)
+    for _ in range(_MAX_ITERATIONS):
+        a = s / r if f == 0 else s / r * torch.sqrt(1 + rho2 / f**2)  # (N,) = s / z
+        f, previous = (a * e).sum() / (a * a).sum(), f
+        if abs(f - previous) <= 1e-12 * f:
+            return float(f)
+    raise ValueError(f"focal length did not converge in {_MAX_ITERATIONS} steps (last f = {float(f)})")
+
+
+def camera_from_focal(f: float, width: int, height: int,
+                      principal_point: tuple[float, float] | None = None) -> Camera:
+    """A distortion-free camera with fx = fy = f, posed at the world origin (world = sensor frame).
+
+    The principal point defaults to the image centre ((width - 1) / 2, (height - 1) / 2), pixel
+    (0, 0) being the centre of the top-left pixel.
+    """
+    cx, cy = ((width - 1) / 2, (height - 1) / 2) if principal_point is None else principal_point
+    return Camera(float(f), float(f), float(cx), float(cy), width, height)
+
+
+def _check_image(name: str, image) -> np.ndarray:
+    """A uint8 (H, W) or (H, W, 3) BGR image -> (H, W) grey."""
+    if not isinstance(image, np.ndarray):
+        raise ValueError(f"Expected {name} to be a numpy array; got {type(image).__name__}")
+    if image.dtype != np.uint8:
+        raise ValueError(f"Expected {name} to be uint8; got {image.dtype}")
+    if image.ndim == 2:
+        return image
+    if image.ndim == 3 and image.shape[2] == 3:
+        return cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
+    raise ValueError(f"Expected {name} to have shape (H, W) or (H, W, 3); got {image.shape}")
+
+
+def _check_pattern(pattern) -> tuple[int, int]:
+    try:
+        cols, rows = (int(p) for p in pattern)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"Expected pattern to be (columns, rows) of inner corners; got {pattern!r}") from exc
+    if cols < 2 or rows < 2:
+        raise ValueError(f"Expected pattern to have at least 2 x 2 inner corners; got {pattern!r}")
+    return cols, rows
+
+
+def _board_points(pattern: tuple[int, int], square_m: float) -> np.ndarray:
+    """(P, 3) float32 board corners in the floor frame, row by row: corner k at (k % cols, k // cols, 0) · square."""
+    if not square_m > 0:
+        raise ValueError(f"Expected a positive square_m; got {square_m}")
+    cols, rows = pattern
+    c, r = np.meshgrid(np.arange(cols), np.arange(rows))
+    return (np.stack([c.ravel(), r.ravel(), np.zeros(cols * rows)], -1) * square_m).astype(np.float32)
+
+
+def _canonical_order(grey: np.ndarray, grid: np.ndarray) -> np.ndarray:
+    """Reorder a (rows, cols, 2) corner grid into the floor-frame order of the module docstring."""
+    # Z = X × Y points towards the camera iff X -> Y turns counter-clockwise on screen; with v
+    # pointing down that is a negative cross product of the image vectors.
+    x_dir, y_dir = grid[0, 1] - grid[0, 0], grid[1, 0] - grid[0, 0]
+    if x_dir[0] * y_dir[1] - x_dir[1] * y_dir[0] > 0:
+        grid = grid[::-1]
+    rows, cols = grid.shape[:2]
+    if (rows + cols) % 2:  # the two end squares differ in colour: put the dark one at the origin
+        c, r = np.meshgrid(np.arange(cols), np.arange(rows))
+        H, _ = cv2.findHomography(np.stack([c.ravel(), r.ravel()], -1).astype(np.float32), grid.reshape(-1, 2))
+        centres = cv2.perspectiveTransform(np.array([[[0.5, 0.5], [cols - 1.5, rows - 1.5]]], np.float32), H)[0]
+        first, last = (float(cv2.getRectSubPix(grey, (3, 3), tuple(map(float, p))).mean()) for p in centres)
+        if first > last:
+            grid = grid[::-1, ::-1]
+    return np.ascontiguousarray(grid)
+
+
+def find_checkerboard(image: np.ndarray, pattern: tuple[int, int]) -> np.ndarray | None:
+    """The inner corners of a checkerboard, refined to sub-pixel, or None if none is found.
+
+    Args:
+        image: (H, W) grey or (H, W, 3) BGR uint8.
+        pattern: (columns, rows) of inner corners, e.g. (9, 6).
+    Returns:
+        (P, 2) float32 pixels, P = columns · rows, row by row in the floor-frame order of the
+        module docstring (corner k sits at board position (k % columns, k // columns)).
+    """
+    cols, rows = _check_pattern(pattern)
+    grey = _check_image("image", image)
+    found, corners = cv2.findChessboardCorners(
+        grey, (cols, rows), flags=cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE)
+    if not found:
+        return None
+    grid = corners.reshape(rows, cols, 2)
+    spacing = min(np.linalg.norm(np.diff(grid, axis=0), axis=-1).min(),
+                  np.linalg.norm(np.diff(grid, axis=1), axis=-1).min())
+    half = int(np.clip(0.4 * spacing, 2, 11))  # the search window must not reach the next corner
+    criteria = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 50, 1e-4)
+    corners = cv2.cornerSubPix(grey, corners, (half, half), (-1, -1), criteria)
+    return _canonical_order(grey, corners.reshape(rows, cols, 2)).reshape(-1, 2)
+
+
+def calibrate_checkerboard(images: Sequence[np.ndarray], pattern: tuple[int, int], square_m: float,
+                           flags: int = cv2.CALIB_FIX_K3) -> tuple[Camera, float]:
+    """Intrinsics and distortion from views of a checkerboard (thesis 3.3, Fig. 3.5).
+
+    Args:
+        images: at least 3 uint8 images, (H, W) grey or (H, W, 3) BGR, all the same size.
+        pattern: (columns, rows) of inner corners.
+        square_m: side of a board square, metres.
+        flags: ``cv2.calibrateCamera`` flags; the default fits k1, k2, p1, p2 and keeps k3 = 0,
+            as the MATLAB toolbox the thesis used does.
+    Returns:
+        (camera, rms): the camera posed at the world origin (world = sensor frame), and the RMS
+        reprojection error in pixels.
+    Raises:
+        ValueError: fewer than 3 images, an image of another size, or an image without the
+            board (naming its index).
+    """
+    pattern = _check_pattern(pattern)
+    obj = _board_points(pattern, square_m)
+    if len(images) < 3:
+        raise ValueError(f"Expected at least 3 checkerboard images; got {len(images)}")
+    size = None
+    img_points = []
+    for i, image in enumerate(images):
+        grey = _check_image(f"images[{i}]", image)
+        if size is None:
+            size = grey.shape
+        elif grey.shape != size:
+            raise ValueError(f"image {i}: size {grey.shape} differs from image 0's {size}")
+        corners = find_checkerboard(grey, pattern)
+        if corners is None:
+            raise ValueError(f"image {i}: no {pattern[0]}x{pattern[1]} checkerboard found")
+        img_points.append(corners)
+    height, width = size
+    rms, K, dist, _, _ = cv2.calibrateCamera([obj] * len(img_points), img_points, (width, height),
+                                             None, None, flags=flags)
+    logger.info("checkerboard calibration from %d images: rms %.3f px", len(img_points), rms)
+    camera = Camera(K[0, 0], K[1, 1], K[0, 2], K[1, 2], width, height, dist=dist.ravel()[:5])
+    return camera, float(rms)
+
+
+def floor_pose(camera: Camera, image: np.ndarray, pattern: tuple[int, int], square_m: float) -> Camera:
+    """The camera's pose w.r.t. the floor, from one image of a checkerboard lying on it (Fig. 3.6).
+
+    Args:
+        camera: the calibrated intrinsics and distortion (its pose is ignored).
+        image: (H, W) grey or (H, W, 3) BGR uint8, the camera's size.
+        pattern: (columns, rows) of inner corners; square_m: side of a square, metres.
+    Returns:
+        A copy of ``camera`` whose R, t map the floor frame of the module docstring to the
+        sensor frame.
+    """
+    pattern = _check_pattern(pattern)
+    obj = _board_points(pattern, square_m)
+    grey = _check_image("image", image)
+    if grey.shape != (camera.height, camera.width):
+        raise ValueError(f"Expected the floor image to be {camera.height} x {camera.width} like the camera; "
+                         f"got {grey.shape[0]} x {grey.shape[1]}")
+    corners = find_checkerboard(grey, pattern)
+    if corners is None:
+        raise ValueError(f"floor image: no {pattern[0]}x{pattern[1]} checkerboard found")
+    K, dist = camera.K.cpu().numpy(), camera.dist.cpu().numpy()
+    ok, rvec, tvec = cv2.solvePnP(obj, corners, K, dist)
+    if not ok:
+        raise ValueError("floor image: solvePnP found no pose for the checkerboard")
+    return Camera.from_opencv(K, dist, rvec, tvec, camera.width, camera.height)
+
+
+def draw_cubes(image: np.ndarray, camera: Camera, cube_size: float, positions,
+               color: tuple[int, int, int] = (255, 255, 255), thickness: int = 1) -> np.ndarray:
+    """Wireframe cubes standing on the floor, projected with ``camera`` (Fig. 3.7).
+
+    Args:
+        image: (H, W) grey or (H, W, 3) BGR uint8; not modified.
+        camera: a posed camera (e.g. from :func:`floor_pose`).
+        cube_size: edge length, metres.
+        positions: (C, 3) world metres of each cube's corner with the smallest x, y, z; a cube
+            spans ``cube_size`` from there along +X, +Y and +Z.
+        color: BGR; thickness: line width in pixels.
+    Returns:
+        (H, W, 3) uint8 BGR copy of the image with the cubes drawn. Edges with a point behind the
+        camera are left out.
+    """
+    out = _check_image("image", image)
+    out = cv2.cvtColor(out, cv2.COLOR_GRAY2BGR) if image.ndim == 2 else image.copy()
+    if not cube_size > 0:
+        raise ValueError(f"Expected a positive cube_size; got {cube_size}")
+    pos = as_float_tensor("positions", positions, like=camera.K)
+    check_shape("positions", pos, ("C", 3))
+    corners = pos[:, None] + cube_size * torch.as_tensor(_CUBE_CORNERS).to(pos)  # (C, 8, 3)
+    a, b = (torch.tensor(i, device=pos.device) for i in zip(*_CUBE_EDGES))
+    s = torch.linspace(0, 1, _EDGE_SAMPLES).to(pos)[:, None]  # (S, 1)
+    edges = corners[:, a, None] * (1 - s) + corners[:, b, None] * s  # (C, 12, S, 3)
+    uv, _ = camera.project(edges)  # (C, 12, S, 2)
+    for line in uv.reshape(-1, _EDGE_SAMPLES, 2).cpu().numpy():
+        if np.isfinite(line).all():
+            cv2.polylines(out, [np.round(line).astype(np.int32)], False, color, thickness)
+    return out
