@@ -1,0 +1,314 @@
+"""Sequence abstraction, open_sequence and our folder format: round trips and malformed input."""
+
+import json
+import math
+import re
+import types
+
+import numpy as np
+import pytest
+
+from torch_atr.camera import Camera
+from torch_atr.data import (
+    FolderSequence,
+    FrameTruth,
+    Sequence,
+    load_camera_json,
+    open_sequence,
+    register_scheme,
+    save_sequence,
+)
+from torch_atr.data import sequence as sequence_module
+
+
+class ListSequence(Sequence):
+    """An in-memory sequence to feed the writers."""
+
+    def __init__(self, frames, truths=None, camera=None, name="mem", fps=25.0, fail_at=None):
+        self.frames, self.truths = frames, truths
+        self.camera, self.name, self.fps, self.meta = camera, name, fps, {"made_by": "test"}
+        self.fail_at = fail_at
+
+    def __len__(self):
+        return len(self.frames)
+
+    def _read_frame(self, i):
+        if i == self.fail_at:
+            raise RuntimeError("disk on fire")
+        return self.frames[i].copy()
+
+    def _truth(self, i):
+        return None if self.truths is None else self.truths[i]
+
+
+def _camera(w, h):
+    return Camera(500.0, 510.0, w / 2 - 0.5, h / 2 + 0.25, w, h, dist=[0.01, -0.002, 0.0, 0.0, 0.0],
+                  R=np.eye(3), t=[0.5, -1.0, 2.0])
+
+
+def _truths(n):
+    rng = np.random.default_rng(1)
+    out = []
+    for i in range(n):
+        if i == 2:
+            out.append(None)
+            continue
+        out.append(FrameTruth(x=float(rng.normal()), y=-1.5, z=float(1000 + 10 * i),
+                              heading=float(rng.uniform(0, 6.28)),
+                              speed=3.25, u=320.5 + i, v=256.0, u0=300.0, v0=240.0, u1=341.0, v1=272.0,
+                              vehicle="BTR70, APC" if i % 2 else "T72", vehicle_class="apc",
+                              range_m=1000.5, aspect=0.1 * i, time_s=1.08e9 + i / 30))
+    out[3] = FrameTruth(vehicle="only-a-name")
+    return out
+
+
+@pytest.mark.parametrize("kind", ["uint16", "uint8", "rgb"])
+def test_folder_round_trip(tmp_path, kind):
+    rng = np.random.default_rng(0)
+    n, h, w = 6, 24, 32
+    if kind == "uint16":
+        frames = [rng.integers(0, 65536, (h, w), dtype=np.uint16) for _ in range(n)]
+    elif kind == "uint8":
+        frames = [rng.integers(0, 256, (h, w), dtype=np.uint8) for _ in range(n)]
+    else:
+        frames = [rng.integers(0, 256, (h, w, 3), dtype=np.uint8) for _ in range(n)]
+    truths = _truths(n)
+    seq = ListSequence(frames, truths, camera=_camera(w, h), name="run1")
+    out = save_sequence(seq, tmp_path / "seq", progress=False)
+    assert out == tmp_path / "seq"
+    back = open_sequence(str(out))
+    assert isinstance(back, FolderSequence)
+    assert len(back) == n and back.name == "run1" and back.fps == 25.0
+    for i in range(n):
+        f = back.frame(i)
+        assert f.dtype == frames[i].dtype and f.shape == frames[i].shape
+        assert f.tobytes() == frames[i].tobytes()
+        assert back.truth(i) == truths[i]
+    assert [f.tobytes() for f in back] == [f.tobytes() for f in frames]
+    assert back.camera.to_dict() == seq.camera.to_dict()
+    meta = json.loads((out / "meta.json").read_text())
+    assert meta["frames"] == n and meta["dtype"] == str(frames[0].dtype) and meta["shape"] == list(frames[0].shape)
+    assert meta["source"] == "ListSequence" and meta["source_meta"] == {"made_by": "test"}
+    assert open_sequence(f"folder:{out}").frame(-1).tobytes() == frames[-1].tobytes()
+
+
+def test_truth_csv_is_readable_by_hand(tmp_path):
+    """The CSV holds exactly the values written (csv module as the independent reader)."""
+    import csv
+
+    seq = ListSequence([np.zeros((4, 5), np.uint8)] * 2, [FrameTruth(z=12.5, vehicle="a,b"), None])
+    save_sequence(seq, tmp_path / "s", progress=False)
+    rows = list(csv.DictReader(open(tmp_path / "s" / "truth.csv", newline="")))
+    assert rows[0]["z"] == "12.5" and rows[0]["vehicle"] == "a,b" and rows[0]["x"] == ""
+    assert all(v == "" for v in rows[1].values())
+
+
+def test_no_truth_no_camera(tmp_path):
+    seq = ListSequence([np.ones((3, 4), np.uint16)], fps=math.nan)
+    save_sequence(seq, tmp_path / "s", progress=False)
+    assert not (tmp_path / "s" / "truth.csv").exists() and not (tmp_path / "s" / "camera.json").exists()
+    back = open_sequence(str(tmp_path / "s"))
+    assert back.camera is None and back.truth(0) is None and math.isnan(back.fps)
+
+
+def test_save_refuses_non_empty_folder_and_overwrites(tmp_path):
+    target = tmp_path / "s"
+    target.mkdir()
+    (target / "keep.txt").write_text("x")
+    seq = ListSequence([np.full((3, 4), 7, np.uint8)])
+    with pytest.raises(FileExistsError, match=re.escape(str(target))):
+        save_sequence(seq, target, progress=False)
+    assert (target / "keep.txt").exists()
+    save_sequence(seq, target, progress=False, overwrite=True)
+    assert not (target / "keep.txt").exists()
+    assert open_sequence(str(target)).frame(0)[0, 0] == 7
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["s"]
+
+
+def test_save_crash_leaves_nothing(tmp_path):
+    seq = ListSequence([np.zeros((3, 4), np.uint8)] * 5, fail_at=3)
+    with pytest.raises(RuntimeError, match="disk on fire"):
+        save_sequence(seq, tmp_path / "s", progress=False)
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_save_rejects_mixed_frames(tmp_path):
+    seq = ListSequence([np.zeros((3, 4), np.uint8), np.zeros((3, 5), np.uint8)], name="mixed")
+    with pytest.raises(ValueError, match=r"mixed: frame 1 is \(3, 5\)"):
+        save_sequence(seq, tmp_path / "s", progress=False)
+    seq = ListSequence([np.zeros((3, 4), np.float32)], name="floaty")
+    with pytest.raises(ValueError, match="floaty: frame 0: expected"):
+        save_sequence(seq, tmp_path / "s", progress=False)
+    assert list(tmp_path.iterdir()) == []
+
+
+@pytest.fixture
+def saved(tmp_path):
+    seq = ListSequence([np.full((3, 4), i, np.uint8) for i in range(4)], _truths(4)[:4])
+    return save_sequence(seq, tmp_path / "s", progress=False)
+
+
+def test_missing_and_extra_frames(saved):
+    (saved / "frames" / "000002.png").unlink()
+    with pytest.raises(ValueError, match=r"frames.*1 of the 4 frames in meta.json are missing, e.g. 000002.png"):
+        FolderSequence(saved)
+
+
+def test_extra_frame(saved):
+    (saved / "frames" / "000004.png").write_bytes((saved / "frames" / "000000.png").read_bytes())
+    with pytest.raises(ValueError, match=r"1 frames beyond the 4 frames in meta.json, e.g. 000004.png"):
+        FolderSequence(saved)
+
+
+def _rewrite_csv_line(saved, line_no, new):
+    path = saved / "truth.csv"
+    lines = path.read_text().splitlines()
+    lines[line_no - 1] = new
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+def test_csv_wrong_column_count(saved):
+    path = _rewrite_csv_line(saved, 3, "1,2,3")
+    with pytest.raises(ValueError, match=re.escape(f"{path}, line 3 (frame 1): expected 18 columns; got 3")):
+        FolderSequence(saved)
+
+
+def test_csv_non_numeric(saved):
+    cells = [""] * 18
+    cells[2] = "far"  # z
+    path = _rewrite_csv_line(saved, 4, ",".join(cells))
+    want = f"{path}, line 4 (frame 2), column 'z': expected a number; got 'far'"
+    with pytest.raises(ValueError, match=re.escape(want)):
+        FolderSequence(saved)
+
+
+def test_csv_unknown_column_and_row_count(saved):
+    path = saved / "truth.csv"
+    text = path.read_text()
+    path.write_text(text.replace("time_s", "colour", 1))
+    with pytest.raises(ValueError, match=r"line 1: unknown column\(s\) 'colour'"):
+        FolderSequence(saved)
+    path.write_text("\n".join(text.splitlines()[:-1]) + "\n")
+    with pytest.raises(ValueError, match=r"truth.csv: 3 rows for the 4 frames"):
+        FolderSequence(saved)
+
+
+def test_bad_meta(saved):
+    meta = json.loads((saved / "meta.json").read_text())
+    (saved / "meta.json").write_text(json.dumps({**meta, "dtype": "float32"}))
+    with pytest.raises(ValueError, match=r"meta.json: shape \[3, 4\] with dtype 'float32'"):
+        FolderSequence(saved)
+    (saved / "meta.json").write_text(json.dumps({**meta, "frames": 0}))
+    with pytest.raises(ValueError, match="frames must be a positive integer; got 0"):
+        FolderSequence(saved)
+    (saved / "meta.json").unlink()
+    with pytest.raises(FileNotFoundError, match="meta.json is missing"):
+        open_sequence(str(saved))
+
+
+def test_index_errors_name_index_and_length(saved):
+    seq = FolderSequence(saved)
+    with pytest.raises(IndexError, match="frame index 4 out of range for a sequence of 4 frames"):
+        seq.frame(4)
+    with pytest.raises(IndexError, match="frame index -5 out of range for a sequence of 4 frames"):
+        seq.truth(-5)
+    with pytest.raises(TypeError, match="frame index must be an integer"):
+        seq.frame(1.0)
+    assert seq.frame(np.int64(3))[0, 0] == 3 and seq.frame(-4)[0, 0] == 0
+
+
+def test_frame_truth_checks_and_equality():
+    a = FrameTruth(x=1, vehicle="T72")
+    assert a == FrameTruth(x=1.0, vehicle="T72") and a != FrameTruth(x=1.0)
+    assert isinstance(a.x, float) and math.isnan(a.y)
+    assert FrameTruth().is_unknown() and not a.is_unknown()
+    with pytest.raises(ValueError, match="FrameTruth.z: expected a number; got 'far'"):
+        FrameTruth(z="far")
+    with pytest.raises(ValueError, match="FrameTruth.vehicle: expected a string"):
+        FrameTruth(vehicle=3)
+
+
+def test_open_sequence_errors(tmp_path):
+    unknown = r"Unknown scheme 'nosuch' in sequence spec 'nosuch:x'; known schemes: .*folder"
+    with pytest.raises(ValueError, match=unknown):
+        open_sequence("nosuch:x")
+    with pytest.raises(FileNotFoundError, match=re.escape(str(tmp_path / "absent"))):
+        open_sequence(str(tmp_path / "absent"))
+    (tmp_path / "clip.avi").write_bytes(b"x")
+    with pytest.raises(ValueError, match="is a file, not a sequence folder; open a video with 'video:PATH'"):
+        open_sequence(str(tmp_path / "clip.avi"))
+    with pytest.raises(ValueError, match="Expected a sequence spec string"):
+        open_sequence("  ")
+    with pytest.raises(ValueError, match=r"unknown option 'speed'; allowed: calib, color, fps"):
+        open_sequence(f"video:{tmp_path / 'clip.avi'},speed=2")
+    with pytest.raises(ValueError, match=r"expected key=value; got 'color'"):
+        open_sequence(f"video:{tmp_path / 'clip.avi'},color")
+    with pytest.raises(ValueError, match="names no file"):
+        open_sequence("video:,color=1")
+    with pytest.raises(ValueError, match="option 'fps' given twice"):
+        open_sequence(f"video:{tmp_path / 'clip.avi'},fps=3,fps=4")
+
+
+def test_register_scheme(monkeypatch, tmp_path):
+    monkeypatch.setattr(sequence_module, "_SCHEMES", dict(sequence_module._SCHEMES))
+    made = []
+
+    def opener(rest):
+        made.append(rest)
+        return ListSequence([np.zeros((2, 2), np.uint8)], name=rest)
+
+    register_scheme("toy", opener)
+    register_scheme("toy", opener)  # same opener again: fine (module re-import)
+    assert open_sequence("toy:a,b=c").name == "a,b=c" and made == ["a,b=c"]
+    assert open_sequence("TOY:x").name == "x"
+    with pytest.raises(ValueError, match="'toy' is already registered"):
+        register_scheme("toy", lambda rest: None)
+    register_scheme("toy", lambda rest: "replaced", replace=True)
+    assert open_sequence("toy:q") == "replaced"
+    for bad in ("c", "Toy", "1x", "a-b"):
+        with pytest.raises(ValueError, match="Scheme name must match"):
+            register_scheme(bad, opener)
+
+
+def test_unknown_scheme_is_looked_up_as_a_module(monkeypatch):
+    monkeypatch.setattr(sequence_module, "_SCHEMES", dict(sequence_module._SCHEMES))
+    imported = []
+
+    def import_module(name):
+        imported.append(name)
+        if name == "torch_atr.data.plugged":
+            register_scheme("plugged", lambda rest: rest.upper())
+            return
+        raise ModuleNotFoundError(f"No module named {name!r}", name=name)
+
+    monkeypatch.setattr(sequence_module, "importlib", types.SimpleNamespace(import_module=import_module))
+    assert open_sequence("plugged:abc") == "ABC"
+    assert open_sequence("plugged:d") == "D"
+    with pytest.raises(ValueError, match="Unknown scheme 'missing'"):
+        open_sequence("missing:x")
+    assert imported == ["torch_atr.data.plugged", "torch_atr.data.missing"]
+
+
+def test_load_camera_json_errors(tmp_path):
+    cam = _camera(40, 30)
+    path = tmp_path / "cam.json"
+    path.write_text(json.dumps(cam.to_dict()))
+    assert load_camera_json(path).to_dict() == cam.to_dict()
+    d = cam.to_dict()
+    del d["fy"]
+    path.write_text(json.dumps(d))
+    with pytest.raises(ValueError, match=re.escape(f"{path}: missing key(s) fy")):
+        load_camera_json(path)
+    path.write_text("{not json")
+    with pytest.raises(ValueError, match=re.escape(f"{path}: not valid JSON")):
+        load_camera_json(path)
+    with pytest.raises(FileNotFoundError, match="nope.json"):
+        load_camera_json(tmp_path / "nope.json")
+
+
+def test_camera_size_must_match_frames(tmp_path):
+    seq = ListSequence([np.zeros((3, 4), np.uint8)], camera=_camera(40, 30))
+    save_sequence(seq, tmp_path / "s", progress=False)
+    with pytest.raises(ValueError, match=r"camera.json: camera is 40 x 30 px; frames are 4 x 3"):
+        open_sequence(str(tmp_path / "s"))

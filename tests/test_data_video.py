@@ -1,0 +1,148 @@
+"""Video files and image folders: what cv2 wrote comes back (MJPG is lossy, PNG exact)."""
+
+import json
+import math
+import re
+
+import cv2
+import numpy as np
+import pytest
+
+from torch_atr.camera import Camera
+from torch_atr.data import VideoSequence, open_sequence, save_sequence
+
+H, W, N = 48, 64, 12
+
+
+def _scene(i):
+    """BGR frame i: grey level 20 i on the left half, a red block whose column moves with i."""
+    img = np.zeros((H, W, 3), np.uint8)
+    img[:, : W // 2] = 20 * i
+    img[8:24, 34 + 2 * i: 42 + 2 * i] = (0, 0, 255)
+    return img
+
+
+@pytest.fixture(scope="module")
+def avi(tmp_path_factory):
+    path = tmp_path_factory.mktemp("vid") / "clip.avi"
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), 15.0, (W, H), True)
+    assert writer.isOpened()
+    for i in range(N):
+        writer.write(_scene(i))
+    writer.release()
+    return path
+
+
+def test_video_grey_frames(avi):
+    seq = open_sequence(f"video:{avi}")
+    assert isinstance(seq, VideoSequence) and len(seq) == N and seq.fps == 15.0 and seq.camera is None
+    assert seq.meta["kind"] == "video" and seq.meta["fourcc"] == "MJPG" and seq.name == "clip"
+    for i, f in enumerate(seq):
+        assert f.shape == (H, W) and f.dtype == np.uint8
+        want = cv2.cvtColor(_scene(i), cv2.COLOR_BGR2GRAY).astype(float)
+        assert np.abs(f.astype(float) - want).mean() < 3.0
+
+
+def test_video_random_access_matches_sequential(avi):
+    seq = VideoSequence(avi)
+    sequential = [f.copy() for f in seq]
+    for i in (7, 2, 3, 11, 0, 0, 5):
+        np.testing.assert_array_equal(seq.frame(i), sequential[i])
+    with pytest.raises(IndexError, match=f"frame index {N} out of range for a sequence of {N} frames"):
+        seq.frame(N)
+    seq.close()
+    with pytest.raises(ValueError, match="closed"):
+        seq.frame(0)
+
+
+def test_video_color_is_rgb(avi):
+    seq = open_sequence(f"video:{avi},color=yes,fps=30")
+    assert seq.fps == 30.0
+    f = seq.frame(4)
+    assert f.shape == (H, W, 3) and f.dtype == np.uint8
+    block = f[10:22, 36 + 8: 40 + 8].reshape(-1, 3).mean(0)
+    assert block[0] > 200 and block[1] < 40 and block[2] < 40  # red lands in channel 0
+    want = cv2.cvtColor(_scene(4), cv2.COLOR_BGR2RGB).astype(float)
+    assert np.abs(f.astype(float) - want).mean() < 4.0
+
+
+def _write_images(folder, n=N, name="frame{}.png"):
+    folder.mkdir()
+    for i in range(n):  # unpadded numbers: natural order differs from string order
+        cv2.imwrite(str(folder / name.format(i + 1)), _scene(i))
+    (folder / "notes.txt").write_text("ignored")
+
+
+def test_image_folder_natural_order_exact(tmp_path):
+    _write_images(tmp_path / "imgs")
+    seq = open_sequence(f"video:{tmp_path / 'imgs'}")
+    assert len(seq) == N and math.isnan(seq.fps) and seq.name == "imgs"
+    for i in range(N):
+        np.testing.assert_array_equal(seq.frame(i), cv2.cvtColor(_scene(i), cv2.COLOR_BGR2GRAY))
+    rgb = VideoSequence(tmp_path / "imgs", color=True, fps=10.0)
+    np.testing.assert_array_equal(rgb.frame(10), cv2.cvtColor(_scene(10), cv2.COLOR_BGR2RGB))
+    out = save_sequence(rgb, tmp_path / "folder", progress=False)
+    back = open_sequence(str(out))
+    assert back.fps == 10.0
+    for i in range(N):
+        np.testing.assert_array_equal(back.frame(i), rgb.frame(i))
+
+
+def test_glob_and_16_bit(tmp_path):
+    (tmp_path / "ir").mkdir()
+    rng = np.random.default_rng(0)
+    frames = [rng.integers(0, 65536, (H, W), dtype=np.uint16) for _ in range(3)]
+    for i, f in enumerate(frames):
+        cv2.imwrite(str(tmp_path / "ir" / f"ir_{i}.png"), f)
+    cv2.imwrite(str(tmp_path / "ir" / "other_0.png"), frames[0])
+    seq = open_sequence(f"video:{tmp_path / 'ir' / 'ir_*.png'}")
+    assert len(seq) == 3 and seq.meta["kind"] == "images"
+    for i in range(3):
+        got = seq.frame(i)
+        assert got.dtype == np.uint16
+        np.testing.assert_array_equal(got, frames[i])
+
+
+def test_mixed_image_sizes(tmp_path):
+    (tmp_path / "m").mkdir()
+    cv2.imwrite(str(tmp_path / "m" / "a1.png"), np.zeros((4, 5), np.uint8))
+    cv2.imwrite(str(tmp_path / "m" / "a2.png"), np.zeros((4, 6), np.uint8))
+    seq = VideoSequence(tmp_path / "m")
+    with pytest.raises(ValueError, match=r"a2.png: image is \(4, 6\) uint8; a1.png was \(4, 5\) uint8"):
+        seq.frame(1)
+
+
+def test_calibration_option(avi, tmp_path):
+    cam = Camera(600.0, 610.0, 31.5, 23.5, W, H, dist=[0.1, 0, 0, 0, 0])
+    calib = tmp_path / "cam.json"
+    calib.write_text(json.dumps(cam.to_dict()))
+    seq = open_sequence(f"video:{avi},calib={calib}")
+    assert seq.camera.to_dict() == cam.to_dict()
+    d = cam.to_dict()
+    del d["cx"]
+    calib.write_text(json.dumps(d))
+    with pytest.raises(ValueError, match=re.escape(f"{calib}: missing key(s) cx")):
+        open_sequence(f"video:{avi},calib={calib}")
+    calib.write_text(json.dumps(Camera(600.0, 610.0, 31.5, 23.5, 2 * W, H).to_dict()))
+    with pytest.raises(ValueError, match=f"the camera is {2 * W} x {H} px but the frames are {W} x {H}"):
+        open_sequence(f"video:{avi},calib={calib}")
+    with pytest.raises(FileNotFoundError, match="absent.json"):
+        open_sequence(f"video:{avi},calib={tmp_path / 'absent.json'}")
+
+
+def test_video_errors(tmp_path):
+    want = f"Video file or image folder not found: {tmp_path / 'x.avi'}"
+    with pytest.raises(FileNotFoundError, match=re.escape(want)):
+        open_sequence(f"video:{tmp_path / 'x.avi'}")
+    with pytest.raises(FileNotFoundError, match="No files match the pattern"):
+        open_sequence(f"video:{tmp_path / '*.png'}")
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(FileNotFoundError, match="empty: no image files"):
+        open_sequence(f"video:{tmp_path / 'empty'}")
+    (tmp_path / "junk.avi").write_bytes(b"not a video at all")
+    with pytest.raises(ValueError, match="junk.avi"):
+        open_sequence(f"video:{tmp_path / 'junk.avi'}")
+    with pytest.raises(ValueError, match="color must be one of"):
+        open_sequence(f"video:{tmp_path / 'junk.avi'},color=maybe")
+    with pytest.raises(ValueError, match="fps must be a positive number"):
+        VideoSequence(tmp_path / "junk.avi", fps=0.0)

@@ -1,0 +1,271 @@
+"""Our on-disk sequence format: a folder any image viewer and spreadsheet can open.
+
+    FOLDER/
+      frames/000000.png ...  one PNG per frame: 16-bit for uint16 frames, 8-bit otherwise
+      meta.json              format, format_version, name, fps, frames, dtype, shape, source
+      camera.json            ``Camera.to_dict()``; absent = uncalibrated
+      truth.csv              one row per frame, header = FrameTruth fields, empty cell = unknown
+                             (a row of empty cells = no truth for that frame); absent = no truth
+
+:func:`save_sequence` writes the folder into a temporary folder beside the target and renames
+it into place at the end, so a crash leaves no half-written sequence. :class:`FolderSequence`
+reads it lazily: opening checks the file list and parses the small CSV, frames are read on demand.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import logging
+import math
+import os
+import re
+import shutil
+import tempfile
+from pathlib import Path
+
+import cv2
+import numpy as np
+from tqdm import tqdm
+
+from torch_atr.data.sequence import (
+    TEXT_FIELDS,
+    TRUTH_FIELDS,
+    FrameTruth,
+    Sequence,
+    load_camera_json,
+    register_scheme,
+)
+
+logger = logging.getLogger(__name__)
+
+FORMAT = "torch_atr.sequence"
+FORMAT_VERSION = 1
+_FRAME_RE = re.compile(r"\d{6,}\.png")
+
+
+def _frame_filename(i: int) -> str:
+    """File name of frame ``i`` inside ``frames/``."""
+    return f"{i:06d}.png"
+
+
+def _check_frame(name: str, i: int, img, like: np.ndarray | None = None) -> None:
+    """Raise ``ValueError`` unless ``img`` is a frame we store, shaped like ``like`` if given.
+
+    Frames are (H, W) uint8 or uint16, or (H, W, 3) uint8 (RGB).
+    """
+    if not isinstance(img, np.ndarray):
+        raise ValueError(f"{name}: frame {i}: expected a numpy array; got {type(img).__name__}")
+    ok = (img.ndim == 2 and img.dtype in (np.uint8, np.uint16)) or (
+        img.ndim == 3 and img.shape[2] == 3 and img.dtype == np.uint8)
+    if not ok:
+        raise ValueError(f"{name}: frame {i}: expected (H, W) uint8/uint16 or (H, W, 3) uint8; "
+                         f"got {img.shape} {img.dtype}")
+    if like is not None and (img.shape != like.shape or img.dtype != like.dtype):
+        raise ValueError(f"{name}: frame {i} is {img.shape} {img.dtype}; frame 0 was {like.shape} {like.dtype}")
+
+
+class FolderSequence(Sequence):
+    """A sequence stored in our folder format (see the module docstring)."""
+
+    def __init__(self, folder: str | os.PathLike):
+        self.folder = Path(folder)
+        if not self.folder.exists():
+            raise FileNotFoundError(f"Sequence folder not found: {self.folder}")
+        if not self.folder.is_dir():
+            raise ValueError(f"{self.folder} is a file, not a sequence folder; open a video with "
+                             f"'video:PATH' or an ARF with 'sensiac:PATH'")
+        self.meta = _read_meta(self.folder / "meta.json")
+        self.name = self.meta["name"]
+        self.fps = math.nan if self.meta["fps"] is None else float(self.meta["fps"])
+        self._n = self.meta["frames"]
+        self._shape = tuple(self.meta["shape"])
+        self._dtype = np.dtype(self.meta["dtype"])
+        _check_frame_files(self.folder / "frames", self._n)
+        cam_path = self.folder / "camera.json"
+        self.camera = load_camera_json(cam_path) if cam_path.exists() else None
+        if self.camera is not None and (self.camera.height, self.camera.width) != self._shape[:2]:
+            raise ValueError(f"{cam_path}: camera is {self.camera.width} x {self.camera.height} px; "
+                             f"frames are {self._shape[1]} x {self._shape[0]}")
+        truth_path = self.folder / "truth.csv"
+        self._truths = _read_truth_csv(truth_path, self._n) if truth_path.exists() else None
+
+    def __len__(self) -> int:
+        return self._n
+
+    def _read_frame(self, i: int) -> np.ndarray:
+        path = self.folder / "frames" / _frame_filename(i)
+        img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+        if img is None:
+            raise ValueError(f"{path}: cannot be read as an image")
+        if img.ndim == 3 and img.shape[2] == 3:
+            img = cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
+        if img.shape != self._shape or img.dtype != self._dtype:
+            raise ValueError(f"{path}: image is {img.shape} {img.dtype}; meta.json says "
+                             f"{self._shape} {self._dtype}")
+        return img
+
+    def _truth(self, i: int) -> FrameTruth | None:
+        return None if self._truths is None else self._truths[i]
+
+
+def _read_meta(path: Path) -> dict:
+    if not path.is_file():
+        raise FileNotFoundError(f"Not a sequence folder: {path} is missing")
+    try:
+        meta = json.loads(path.read_text(encoding="utf-8"))
+    except json.JSONDecodeError as exc:
+        raise ValueError(f"{path}: not valid JSON ({exc})") from exc
+    if not isinstance(meta, dict):
+        raise ValueError(f"{path}: expected a JSON object; got {type(meta).__name__}")
+    missing = [k for k in ("format", "format_version", "name", "fps", "frames", "dtype", "shape") if k not in meta]
+    if missing:
+        raise ValueError(f"{path}: missing key(s) {', '.join(missing)}")
+    if meta["format"] != FORMAT:
+        raise ValueError(f"{path}: format is {meta['format']!r}; expected {FORMAT!r}")
+    if not isinstance(meta["format_version"], int) or not 1 <= meta["format_version"] <= FORMAT_VERSION:
+        raise ValueError(f"{path}: format_version {meta['format_version']!r} is not supported "
+                         f"(this reader knows 1..{FORMAT_VERSION})")
+    if not isinstance(meta["name"], str):
+        raise ValueError(f"{path}: name must be a string; got {meta['name']!r}")
+    fps = meta["fps"]
+    if fps is not None and (isinstance(fps, bool) or not isinstance(fps, (int, float)) or not fps > 0):
+        raise ValueError(f"{path}: fps must be a positive number or null; got {fps!r}")
+    n = meta["frames"]
+    if isinstance(n, bool) or not isinstance(n, int) or n < 1:
+        raise ValueError(f"{path}: frames must be a positive integer; got {n!r}")
+    shape, dtype = meta["shape"], meta["dtype"]
+    dims_ok = isinstance(shape, list) and all(isinstance(s, int) and not isinstance(s, bool) and s > 0
+                                              for s in shape)
+    valid = dims_ok and (
+        (len(shape) == 2 and dtype in ("uint8", "uint16")) or (len(shape) == 3 and shape[2] == 3 and dtype == "uint8"))
+    if not valid:
+        raise ValueError(f"{path}: shape {shape!r} with dtype {dtype!r} is not a frame we store "
+                         f"([H, W] uint8/uint16 or [H, W, 3] uint8)")
+    return meta
+
+
+def _check_frame_files(frames_dir: Path, n: int) -> None:
+    if not frames_dir.is_dir():
+        raise FileNotFoundError(f"Frames folder not found: {frames_dir}")
+    present = {p.name for p in frames_dir.iterdir() if not p.name.startswith(".")}
+    expected = {_frame_filename(i) for i in range(n)}
+    missing = sorted(expected - present)
+    extra = sorted(present - expected)
+    if missing:
+        raise ValueError(f"{frames_dir}: {len(missing)} of the {n} frames in meta.json are missing, "
+                         f"e.g. {', '.join(missing[:3])}")
+    if extra:
+        kind = "frames beyond" if all(_FRAME_RE.fullmatch(e) for e in extra) else "files not among"
+        raise ValueError(f"{frames_dir}: {len(extra)} {kind} the {n} frames in meta.json, "
+                         f"e.g. {', '.join(extra[:3])}")
+
+
+def _cell(value) -> str:
+    if isinstance(value, str):
+        return value
+    return "" if math.isnan(value) else repr(value)
+
+
+def _write_truth_csv(path: Path, truths: list[FrameTruth | None]) -> None:
+    with open(path, "w", newline="", encoding="utf-8") as fh:
+        writer = csv.writer(fh)
+        writer.writerow(TRUTH_FIELDS)
+        for t in truths:
+            writer.writerow(["" if t is None else _cell(getattr(t, f)) for f in TRUTH_FIELDS])
+
+
+def _read_truth_csv(path: Path, n: int) -> list[FrameTruth | None]:
+    """Rows of ``truth.csv``: a FrameTruth per row, None for a row of empty cells."""
+    truths: list[FrameTruth | None] = []
+    with open(path, newline="", encoding="utf-8") as fh:
+        reader = csv.reader(fh)
+        header = next(reader, None)
+        if header is None:
+            raise ValueError(f"{path}: empty file; expected a header row of FrameTruth fields")
+        unknown = [c for c in header if c not in TRUTH_FIELDS]
+        if unknown:
+            raise ValueError(f"{path}, line 1: unknown column(s) {', '.join(map(repr, unknown))}; "
+                             f"known: {', '.join(TRUTH_FIELDS)}")
+        if len(set(header)) != len(header):
+            raise ValueError(f"{path}, line 1: repeated column names in {header}")
+        for cells in reader:
+            where = f"{path}, line {reader.line_num} (frame {len(truths)})"
+            if len(cells) != len(header):
+                raise ValueError(f"{where}: expected {len(header)} columns; got {len(cells)}")
+            values: dict = {}
+            for key, cell in zip(header, cells):
+                if cell == "":
+                    continue
+                if key in TEXT_FIELDS:
+                    values[key] = cell
+                    continue
+                try:
+                    values[key] = float(cell)
+                except ValueError:
+                    raise ValueError(f"{where}, column {key!r}: expected a number; got {cell!r}") from None
+            truths.append(FrameTruth(**values) if values else None)
+    if len(truths) != n:
+        raise ValueError(f"{path}: {len(truths)} rows for the {n} frames in meta.json")
+    return truths
+
+
+def save_sequence(seq: Sequence, folder: str | os.PathLike, progress: bool = True,
+                  overwrite: bool = False) -> Path:
+    """Write ``seq`` (frames, camera, truth, meta) to ``folder`` in our format; return the folder.
+
+    Refuses an existing non-empty ``folder`` unless ``overwrite=True``. Everything is written
+    into a temporary folder beside ``folder`` and renamed into place at the end.
+    """
+    folder = Path(folder)
+    n = len(seq)
+    if n == 0:
+        raise ValueError(f"{seq.name}: cannot save a sequence with no frames")
+    if folder.exists():
+        if not folder.is_dir():
+            raise FileExistsError(f"{folder} exists and is not a folder")
+        if any(folder.iterdir()) and not overwrite:
+            raise FileExistsError(f"{folder} is not empty; pass overwrite=True to replace it")
+    folder.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{folder.name}.", suffix=".tmp", dir=folder.parent))
+    try:
+        (tmp / "frames").mkdir()
+        first = None
+        truths = []
+        for i in tqdm(range(n), desc=f"saving {seq.name}", unit="frame", disable=not progress):
+            img = seq.frame(i)
+            _check_frame(seq.name, i, img, like=first)
+            first = img if first is None else first
+            out = tmp / "frames" / _frame_filename(i)
+            if not cv2.imwrite(str(out), cv2.cvtColor(img, cv2.COLOR_RGB2BGR) if img.ndim == 3 else img):
+                raise OSError(f"cv2.imwrite could not write {out}")
+            truths.append(seq.truth(i))
+        if any(t is not None for t in truths):
+            _write_truth_csv(tmp / "truth.csv", truths)
+        if seq.camera is not None:
+            (tmp / "camera.json").write_text(json.dumps(seq.camera.to_dict(), indent=1), encoding="utf-8")
+        meta = {"format": FORMAT, "format_version": FORMAT_VERSION, "name": seq.name,
+                "fps": seq.fps if math.isfinite(seq.fps) else None, "frames": n,
+                "dtype": str(first.dtype), "shape": list(first.shape),
+                "source": type(seq).__name__, "source_meta": seq.meta}
+        (tmp / "meta.json").write_text(json.dumps(meta, indent=1, default=str), encoding="utf-8")
+        _swap_in(tmp, folder)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    logger.info("saved %d frames of %s to %s", n, seq.name, folder)
+    return folder
+
+
+def _swap_in(tmp: Path, folder: Path) -> None:
+    """Rename ``tmp`` to ``folder``, moving an existing ``folder`` aside first and deleting it after."""
+    if not folder.exists():
+        os.replace(tmp, folder)
+        return
+    old = Path(tempfile.mkdtemp(prefix=f".{folder.name}.", suffix=".old.tmp", dir=folder.parent))
+    os.replace(folder, old / folder.name)
+    os.replace(tmp, folder)
+    shutil.rmtree(old)
+
+
+register_scheme("folder", FolderSequence)

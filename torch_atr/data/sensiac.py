@@ -1,0 +1,533 @@
+"""Readers (and writers, for tests and conversion) of the SENSIAC / DSIAC ATR database files.
+
+``.arf`` video. A 32-byte big-endian header of eight uint32 (magic 0xBBBBBAAD, version, rows,
+cols, image type, frame count, data offset, subheader flags), then per frame rows x cols
+big-endian uint16 pixels. Some files follow each frame with a 40-byte trailer (in public
+readers: ten uint32 x, y, azimuth, elevation, year, day, hour, min, sec, ms), some do not; the
+layout is detected from the file size and recorded in ``meta["arf_layout"]`` as
+``"contiguous"`` or ``"trailer40"``. Frames are memory-mapped, never read ahead.
+
+``.agt`` ground truth ("ARF Ground Truth", a small keyword language). A bare word followed by
+``{`` opens a block, ``}`` closes it; every other line is ``Key value...`` with quoted strings
+or numbers, e.g. ``TgtType "BTR70"``, ``Range "1000.5"``, ``PixLoc 320 256``,
+``Time year julian_day hour min sec ms``. A value may also sit on the line after its key. The
+frames are the ``TgtUpd`` blocks of ``Agt -> TgtSect``, in order; a frame's target is its first
+``Tgt``. ``Aspect`` is in degrees, 0 when the target faces the sensor, clockwise; it is kept
+as SENSIAC gives it (in radians) in ``FrameTruth.aspect``, and not converted to METHOD.md's Θ,
+which needs the calibration module.
+
+``.bbox_met`` per-frame bounding-box metadata, a comma-separated file of 18 columns and no
+header. The only public loader we found (a DSIAC tool on GitHub) names the first eleven
+columns: site, ?, ?, sensor, scenario, frame (1-based), ply_id, ?, ?, upper-left x, upper-left
+y; and it takes the box as symmetric about the AGT ``PixLoc`` (width = 2 (PixLoc - upper
+left)). We follow it: ``BBOX_MET_COLUMNS`` names those columns, ``unknown_K`` the others, which
+are kept verbatim; the lower-right corner is 2 PixLoc - upper-left when the AGT gives PixLoc.
+
+Companion files are found by stem beside the ARF, or in the DSIAC layout ``../agt/STEM.agt``
+and ``../metric/STEM.bbox_met``; each is optional.
+"""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import logging
+import math
+import os
+import re
+import struct
+from dataclasses import dataclass, field
+from datetime import datetime, timedelta, timezone
+from pathlib import Path
+from typing import Iterable
+
+import numpy as np
+
+from torch_atr.camera import Camera
+from torch_atr.data.sequence import (
+    FrameTruth,
+    Sequence,
+    load_camera_json,
+    parse_fps,
+    parse_spec_options,
+    register_scheme,
+)
+from torch_atr.io import atomic_path
+
+logger = logging.getLogger(__name__)
+
+ARF_MAGIC = 0xBBBBBAAD
+ARF_HEADER = struct.Struct(">8I")
+ARF_TRAILER_BYTES = 40
+ARF_VERSION = 2
+ARF_IMAGE_TYPE_U16 = 5  # "short_word" in public ARF readers
+SENSIAC_FPS = 30.0  # thesis ch. 6.2; the ARF header carries no frame rate
+
+
+@dataclass(frozen=True)
+class ArfHeader:
+    """The eight header words of an ARF file."""
+
+    magic: int
+    version: int
+    rows: int
+    cols: int
+    image_type: int
+    frames: int
+    offset: int
+    flags: int
+
+    @property
+    def frame_bytes(self) -> int:
+        return self.rows * self.cols * 2
+
+
+def read_arf_header(path: str | os.PathLike) -> tuple[ArfHeader, str]:
+    """Read and check an ARF header; return it and the layout (``"contiguous"``/``"trailer40"``).
+
+    Raises ``ValueError`` naming the file and byte offset for a bad magic, zero rows, cols or
+    frames, a truncated file, or a size that matches neither layout.
+    """
+    path = Path(path)
+    size = path.stat().st_size
+    with open(path, "rb") as fh:
+        raw = fh.read(ARF_HEADER.size)
+    if len(raw) < ARF_HEADER.size:
+        raise ValueError(f"{path}: truncated ARF header: the file ends at byte offset {size}, "
+                         f"inside the {ARF_HEADER.size}-byte header")
+    h = ArfHeader(*ARF_HEADER.unpack(raw))
+    if h.magic != ARF_MAGIC:
+        raise ValueError(f"{path}: bad ARF magic 0x{h.magic:08X} at byte offset 0; expected 0x{ARF_MAGIC:08X}")
+    if h.rows == 0 or h.cols == 0:
+        raise ValueError(f"{path}: ARF header gives rows={h.rows}, cols={h.cols} (byte offsets 8, 12); "
+                         f"a frame needs at least one pixel")
+    if h.frames == 0:
+        raise ValueError(f"{path}: ARF header gives a frame count of 0 (byte offset 20)")
+    if h.offset < ARF_HEADER.size:
+        raise ValueError(f"{path}: ARF data offset {h.offset} (byte offset 24) points inside the "
+                         f"{ARF_HEADER.size}-byte header")
+    fb = h.frame_bytes
+    contiguous = h.offset + h.frames * fb
+    trailed = h.offset + h.frames * (fb + ARF_TRAILER_BYTES)
+    if size == contiguous:
+        return h, "contiguous"
+    if size == trailed:
+        return h, "trailer40"
+    if size < contiguous:
+        k = max(0, (size - h.offset) // fb)
+        raise ValueError(f"{path}: truncated ARF: frame {k} of {h.frames} starts at byte offset "
+                         f"{h.offset + k * fb} and needs {fb} bytes, but the file ends at byte offset {size}")
+    raise ValueError(f"{path}: ARF size {size} bytes matches neither layout: {contiguous} bytes "
+                     f"without per-frame trailers, {trailed} bytes with {ARF_TRAILER_BYTES}-byte trailers")
+
+
+def write_arf(path: str | os.PathLike, frames: Iterable[np.ndarray], gap: bool = False) -> int:
+    """Write (H, W) uint16 frames as an ARF file; return the frame count.
+
+    ``frames``: an (N, H, W) uint16 array or any iterable of (H, W) uint16 arrays (a Sequence
+    works). ``gap=True`` follows each frame with a 40-byte trailer of zeros. The header says
+    version 2, image type 5 (16-bit), data offset 32, no subheaders. Written atomically.
+    """
+    path = Path(path)
+    n, shape = 0, None
+    with atomic_path(path) as tmp, open(tmp, "wb") as fh:
+        fh.write(bytes(ARF_HEADER.size))
+        for img in frames:
+            if not isinstance(img, np.ndarray) or img.ndim != 2 or img.dtype != np.uint16:
+                got = f"{img.shape} {img.dtype}" if isinstance(img, np.ndarray) else type(img).__name__
+                raise ValueError(f"{path}: frame {n}: expected an (H, W) uint16 array; got {got}")
+            if shape is not None and img.shape != shape:
+                raise ValueError(f"{path}: frame {n} is {img.shape}; frame 0 was {shape}")
+            shape = img.shape
+            fh.write(img.astype(">u2", copy=False).tobytes())
+            if gap:
+                fh.write(bytes(ARF_TRAILER_BYTES))
+            n += 1
+        if n == 0:
+            raise ValueError(f"{path}: no frames to write; an ARF needs at least one")
+        fh.seek(0)
+        fh.write(ARF_HEADER.pack(ARF_MAGIC, ARF_VERSION, shape[0], shape[1], ARF_IMAGE_TYPE_U16, n,
+                                 ARF_HEADER.size, 0))
+    return n
+
+
+# --------------------------------------------------------------------------------------- AGT
+
+@dataclass
+class AgtAttr:
+    """One ``Key value...`` line: the values as written (quotes removed) and its line number."""
+
+    key: str
+    values: tuple[str, ...]
+    line: int
+
+
+@dataclass
+class AgtBlock:
+    """One ``Name { ... }`` block: its attributes and sub-blocks in file order (unknown keys kept)."""
+
+    name: str
+    line: int
+    attrs: list[AgtAttr] = field(default_factory=list)
+    blocks: list["AgtBlock"] = field(default_factory=list)
+
+    def find(self, name: str) -> list["AgtBlock"]:
+        """Sub-blocks called ``name``, in order."""
+        return [b for b in self.blocks if b.name == name]
+
+    def attr(self, key: str) -> AgtAttr | None:
+        """The first attribute called ``key``, or None."""
+        return next((a for a in self.attrs if a.key == key), None)
+
+
+_IDENT_RE = re.compile(r"[A-Za-z_][A-Za-z0-9_#]*")
+_AGT_TOKEN_RE = re.compile(r'"[^"]*"|"|[{}]|[^\s{}"]+')
+
+
+def _agt_tokens(text: str, source: str) -> list[tuple[str, str, int, bool]]:
+    """(kind, text, line, first_on_line); kind is ``{``, ``}``, ``str`` (quoted) or ``word``."""
+    tokens = []
+    for line_no, line in enumerate(text.splitlines(), start=1):
+        for j, m in enumerate(_AGT_TOKEN_RE.finditer(line)):
+            tok = m.group()
+            if tok == '"':
+                raise ValueError(f"{source}, line {line_no}: unterminated string")
+            kind = tok if tok in "{}" else "str" if tok.startswith('"') else "word"
+            tokens.append((kind, tok[1:-1] if kind == "str" else tok, line_no, j == 0))
+    return tokens
+
+
+def _opens_value(token: tuple[str, str, int, bool]) -> bool:
+    kind, tok, _, _ = token
+    return kind == "str" or (kind == "word" and not _IDENT_RE.fullmatch(tok))
+
+
+def parse_agt(text: str, source: str = "<agt>") -> AgtBlock:
+    """Parse AGT text into its ``Agt`` block; ``ValueError`` naming ``source`` and the line."""
+    tokens = _agt_tokens(text, source)
+    root = AgtBlock("", 0)
+    stack = [root]
+    i = 0
+    while i < len(tokens):
+        kind, tok, line, _ = tokens[i]
+        if kind == "}":
+            if len(stack) == 1:
+                raise ValueError(f"{source}, line {line}: '}}' closes no open block")
+            stack.pop()
+            i += 1
+            continue
+        if kind == "{":
+            raise ValueError(f"{source}, line {line}: '{{' opens a block with no name")
+        if kind == "str" or not _IDENT_RE.fullmatch(tok):
+            raise ValueError(f"{source}, line {line}: value {tok!r} has no keyword before it")
+        if i + 1 < len(tokens) and tokens[i + 1][0] == "{":
+            block = AgtBlock(tok, line)
+            stack[-1].blocks.append(block)
+            stack.append(block)
+            i += 2
+            continue
+        values, j = [], i + 1
+        while j < len(tokens) and tokens[j][2] == line and tokens[j][0] in ("str", "word"):
+            values.append(tokens[j][1])
+            j += 1
+        # A key alone on its line takes its values from the next line if that opens with a
+        # quoted string or a number (the layout of the 1999 spec's examples).
+        if not values and j < len(tokens) and tokens[j][3] and _opens_value(tokens[j]):
+            cont = tokens[j][2]
+            while j < len(tokens) and tokens[j][2] == cont and tokens[j][0] in ("str", "word"):
+                values.append(tokens[j][1])
+                j += 1
+        if stack[-1] is root:
+            raise ValueError(f"{source}, line {line}: attribute {tok!r} outside any block")
+        stack[-1].attrs.append(AgtAttr(tok, tuple(values), line))
+        i = j
+    if len(stack) > 1:
+        last = tokens[-1][2]
+        raise ValueError(f"{source}, line {stack[-1].line}: block {stack[-1].name!r} opened here is "
+                         f"never closed (the file ends at line {last})")
+    agts = root.find("Agt")
+    others = [b for b in root.blocks if b.name != "Agt"]
+    if others:
+        raise ValueError(f"{source}, line {others[0].line}: top-level block {others[0].name!r}; "
+                         f"expected a single 'Agt' block")
+    if not agts:
+        raise ValueError(f"{source}: no 'Agt' block")
+    if len(agts) > 1:
+        raise ValueError(f"{source}, line {agts[1].line}: a second 'Agt' block; expected exactly one")
+    return agts[0]
+
+
+def read_agt(path: str | os.PathLike) -> AgtBlock:
+    """Parse an ``.agt`` file into its ``Agt`` block (errors name the file and line)."""
+    path = Path(path)
+    return parse_agt(path.read_text(encoding="utf-8", errors="replace"), source=str(path))
+
+
+def _numbers(attr: AgtAttr, count: int, source: str) -> list[float]:
+    if len(attr.values) != count:
+        raise ValueError(f"{source}, line {attr.line}: {attr.key} expects {count} number(s); "
+                         f"got {len(attr.values)}: {' '.join(attr.values) or '(none)'}")
+    out = []
+    for v in attr.values:
+        try:
+            out.append(float(v))
+        except ValueError:
+            raise ValueError(f"{source}, line {attr.line}: {attr.key} expects a number; got {v!r}") from None
+        if not math.isfinite(out[-1]):
+            raise ValueError(f"{source}, line {attr.line}: {attr.key} expects a finite number; got {v!r}")
+    return out
+
+
+def _agt_time(attr: AgtAttr, source: str) -> float:
+    """``Time year julian_day hour min sec ms`` -> POSIX seconds, taking the time as UTC."""
+    nums = _numbers(attr, 6, source)
+    if any(not x.is_integer() for x in nums):
+        raise ValueError(f"{source}, line {attr.line}: Time expects six integers; got {' '.join(attr.values)}")
+    year, day, hour, minute, sec, ms = (int(x) for x in nums)
+    if not (1 <= year <= 9999 and 1 <= day <= 366 and 0 <= hour < 24 and 0 <= minute < 60
+            and 0 <= sec < 61 and 0 <= ms < 1000):
+        raise ValueError(f"{source}, line {attr.line}: Time {' '.join(attr.values)} is not a valid "
+                         f"year, julian day, hour, min, sec, ms")
+    t = datetime(year, 1, 1, tzinfo=timezone.utc) + timedelta(days=day - 1, hours=hour, minutes=minute,
+                                                                seconds=sec, milliseconds=ms)
+    return t.timestamp()
+
+
+def agt_frame_truths(agt: AgtBlock, source: str = "<agt>") -> list[FrameTruth | None]:
+    """Per-frame truth: one entry per ``TgtUpd`` (None when it holds no time and no target)."""
+    truths: list[FrameTruth | None] = []
+    multi = 0
+    for sect in agt.find("TgtSect"):
+        for upd in sect.find("TgtUpd"):
+            values: dict = {}
+            time = upd.attr("Time")
+            if time is not None:
+                values["time_s"] = _agt_time(time, source)
+            tgts = upd.find("Tgt")
+            multi += len(tgts) > 1
+            if tgts:
+                tgt = tgts[0]
+                if (a := tgt.attr("TgtType")) is not None:
+                    values["vehicle"] = " ".join(a.values)
+                if (a := tgt.attr("Range")) is not None:
+                    values["range_m"] = _numbers(a, 1, source)[0]
+                if (a := tgt.attr("Aspect")) is not None:
+                    values["aspect"] = math.radians(_numbers(a, 1, source)[0])
+                if (a := tgt.attr("PixLoc")) is not None:
+                    values["u"], values["v"] = _numbers(a, 2, source)
+                if (a := tgt.attr("PixBox")) is not None:
+                    values["u0"], values["v0"], values["u1"], values["v1"] = _numbers(a, 4, source)
+            truths.append(FrameTruth(**values) if values else None)
+    if multi:
+        logger.warning("%s: %d frames list more than one Tgt; using the first of each", source, multi)
+    return truths
+
+
+def _fmt(x: float) -> str:
+    return str(int(x)) if float(x).is_integer() and abs(x) < 1e15 else repr(float(x))
+
+
+def write_agt(path: str | os.PathLike, truths: Iterable[FrameTruth | None]) -> None:
+    """Write one ``TgtUpd`` per frame (an empty one for None) with the fields AGT can hold:
+    time, vehicle (``TgtType``), ``Range``, ``Aspect`` (degrees), ``PixLoc``, ``PixBox``.
+    Written atomically."""
+    lines = ["Agt", "{", "  TgtSect", "  {"]
+    for i, t in enumerate(truths):
+        lines += ["    TgtUpd", "    {"]
+        if t is not None and math.isfinite(t.time_s):
+            dt = datetime(1970, 1, 1, tzinfo=timezone.utc) + timedelta(milliseconds=round(t.time_s * 1000))
+            lines.append(f"      Time {dt.year} {dt.timetuple().tm_yday} {dt.hour} {dt.minute} {dt.second} "
+                         f"{dt.microsecond // 1000}")
+        tgt = []
+        if t is not None:
+            if '"' in t.vehicle or "\n" in t.vehicle:
+                raise ValueError(f"{path}: frame {i}: vehicle name {t.vehicle!r} cannot be quoted in AGT")
+            if t.vehicle:
+                tgt.append(f'TgtType "{t.vehicle}"')
+            if math.isfinite(t.range_m):
+                tgt.append(f'Range "{_fmt(t.range_m)}"')
+            if math.isfinite(t.aspect):
+                tgt.append(f'Aspect "{_fmt(math.degrees(t.aspect))}"')
+            if math.isfinite(t.u) and math.isfinite(t.v):
+                tgt.append(f"PixLoc {_fmt(t.u)} {_fmt(t.v)}")
+            box = (t.u0, t.v0, t.u1, t.v1)
+            if all(map(math.isfinite, box)):
+                tgt.append("PixBox " + " ".join(map(_fmt, box)))
+        if tgt:
+            lines += ["      Tgt", "      {"] + [f"        {s}" for s in tgt] + ["      }"]
+        lines.append("    }")
+    lines += ["  }", "}"]
+    with atomic_path(path) as tmp:
+        tmp.write_text("\n".join(lines) + "\n", encoding="utf-8")
+
+
+# --------------------------------------------------------------------------------- bbox_met
+
+BBOX_MET_COLUMNS: tuple[str, ...] = (
+    "site", "unknown_1", "unknown_2", "sensor", "scenario", "frame", "ply_id", "unknown_7",
+    "unknown_8", "upper_left_u", "upper_left_v", "unknown_11", "unknown_12", "unknown_13",
+    "unknown_14", "unknown_15", "unknown_16", "unknown_17")
+_COL = {name: k for k, name in enumerate(BBOX_MET_COLUMNS)}
+
+
+@dataclass(frozen=True)
+class BboxMetRow:
+    """One ``.bbox_met`` row: its 18 cells as written, and the parsed frame and corner.
+
+    ``frame`` is 1-based as in the file; ``upper_left`` is (u, v) in pixels.
+    """
+
+    cells: tuple[str, ...]
+    frame: int
+    upper_left: tuple[float, float]
+
+    def __getitem__(self, column: str) -> str:
+        """The cell of a named column (see ``BBOX_MET_COLUMNS``)."""
+        return self.cells[_COL[column]]
+
+
+def _bbox_met_row(cells: list[str], where: str) -> BboxMetRow:
+    if len(cells) != len(BBOX_MET_COLUMNS):
+        raise ValueError(f"{where}: expected {len(BBOX_MET_COLUMNS)} columns; got {len(cells)}")
+    cells = [c.strip() for c in cells]
+    frame_cell = cells[_COL["frame"]]
+    try:
+        frame = int(frame_cell)
+    except ValueError:
+        raise ValueError(f"{where}, column 'frame': expected an integer; got {frame_cell!r}") from None
+    if frame < 1:
+        raise ValueError(f"{where}, column 'frame': frames count from 1; got {frame}")
+    corner = []
+    for name in ("upper_left_u", "upper_left_v"):
+        try:
+            corner.append(float(cells[_COL[name]]))
+        except ValueError:
+            raise ValueError(f"{where}, column {name!r}: expected a number; got {cells[_COL[name]]!r}") from None
+    return BboxMetRow(tuple(cells), frame, (corner[0], corner[1]))
+
+
+def read_bbox_met(path: str | os.PathLike) -> list[BboxMetRow]:
+    """Rows of a ``.bbox_met`` file (blank lines skipped); errors name the file and line."""
+    path = Path(path)
+    rows = []
+    with open(path, newline="", encoding="utf-8", errors="replace") as fh:
+        reader = csv.reader(fh)
+        for cells in reader:
+            if cells and any(c.strip() for c in cells):
+                rows.append(_bbox_met_row(cells, f"{path}, line {reader.line_num}"))
+    return rows
+
+
+def write_bbox_met(path: str | os.PathLike, rows: Iterable[Iterable[object]]) -> None:
+    """Write rows of 18 cells (see ``BBOX_MET_COLUMNS``); each row is checked as the reader
+    would. Written atomically."""
+    path = Path(path)
+    checked = [_bbox_met_row([str(c) for c in row], f"{path}, row {k}") for k, row in enumerate(rows)]
+    with atomic_path(path) as tmp, open(tmp, "w", newline="", encoding="utf-8") as fh:
+        csv.writer(fh).writerows(r.cells for r in checked)
+
+
+# --------------------------------------------------------------------------------- sequence
+
+def _companion(arf: Path, given: str | os.PathLike | None, suffix: str, folder: str) -> Path | None:
+    if given is not None:
+        given = Path(given)
+        if not given.is_file():
+            raise FileNotFoundError(f"{suffix} file not found: {given}")
+        return given
+    for candidate in (arf.with_suffix(suffix), arf.parent.parent / folder / (arf.stem + suffix)):
+        if candidate.is_file():
+            return candidate
+    return None
+
+
+class SensiacSequence(Sequence):
+    """A SENSIAC sequence: frames from the ARF, truth from the AGT and bbox_met where present.
+
+    Args:
+        arf_path: the ``.arf`` file.
+        camera: a calibrated camera (SENSIAC ships none), or None.
+        fps: frame rate; SENSIAC records at 30 Hz and the ARF does not say.
+        agt_path, bbox_met_path: companion files; None = look beside the ARF by stem.
+    Frames are (rows, cols) native uint16, each a fresh copy out of the memory map.
+    """
+
+    def __init__(self, arf_path: str | os.PathLike, camera: Camera | None = None, fps: float = SENSIAC_FPS,
+                 agt_path: str | os.PathLike | None = None, bbox_met_path: str | os.PathLike | None = None):
+        arf = Path(arf_path)
+        if not arf.is_file():
+            raise FileNotFoundError(f"ARF file not found: {arf}")
+        header, layout = read_arf_header(arf)
+        logger.info("%s: ARF layout %s, %d frames of %d x %d", arf, layout, header.frames, header.cols, header.rows)
+        stride = header.frame_bytes + (ARF_TRAILER_BYTES if layout == "trailer40" else 0)
+        self._mm: np.memmap | None = np.memmap(arf, dtype=">u2", mode="r", offset=header.offset,
+                                               shape=(header.frames, stride // 2))
+        self._header = header
+        self.name = arf.stem
+        self.fps = float(fps)
+        if camera is not None and (camera.height, camera.width) != (header.rows, header.cols):
+            raise ValueError(f"{arf}: camera is {camera.width} x {camera.height} px; frames are "
+                             f"{header.cols} x {header.rows}")
+        self.camera = camera
+        agt = _companion(arf, agt_path, ".agt", "agt")
+        met = _companion(arf, bbox_met_path, ".bbox_met", "metric")
+        agt_truths = agt_frame_truths(read_agt(agt), str(agt)) if agt is not None else []
+        met_rows = read_bbox_met(met) if met is not None else []
+        self._truths = _merge_truth(header.frames, agt_truths, met_rows, str(arf))
+        self.meta = {"arf": str(arf), "agt": None if agt is None else str(agt),
+                     "bbox_met": None if met is None else str(met), "arf_layout": layout,
+                     "arf_version": header.version, "arf_image_type": header.image_type,
+                     "arf_flags": header.flags, "arf_data_offset": header.offset,
+                     "agt_frames": len(agt_truths), "bbox_met_rows": len(met_rows)}
+
+    def __len__(self) -> int:
+        return self._header.frames
+
+    def _read_frame(self, i: int) -> np.ndarray:
+        if self._mm is None:
+            raise ValueError(f"{self.name}: the sequence is closed")
+        h = self._header
+        return self._mm[i, : h.rows * h.cols].astype(np.uint16).reshape(h.rows, h.cols)
+
+    def _truth(self, i: int) -> FrameTruth | None:
+        return self._truths[i]
+
+    def close(self) -> None:
+        self._mm = None
+
+
+def _merge_truth(n: int, agt: list[FrameTruth | None], met: list[BboxMetRow], source: str) -> list[FrameTruth | None]:
+    """Per frame: the AGT truth, with the bbox_met upper-left corner (and the lower-right one
+    mirrored about PixLoc) where the AGT has no PixBox."""
+    if agt and len(agt) != n:
+        logger.warning("%s: the AGT has %d frames, the ARF %d; matching by index", source, len(agt), n)
+    corners: dict[int, tuple[float, float]] = {}
+    for row in met:
+        corners.setdefault(row.frame - 1, row.upper_left)
+    if len(corners) < len(met):
+        logger.warning("%s: %d bbox_met rows share a frame with another; using each frame's first",
+                       source, len(met) - len(corners))
+    beyond = sum(k >= n for k in corners)
+    if beyond:
+        logger.warning("%s: %d bbox_met rows name frames beyond the ARF's %d", source, beyond, n)
+    truths: list[FrameTruth | None] = []
+    for i in range(n):
+        t = agt[i] if i < len(agt) else None
+        if i in corners and (t is None or math.isnan(t.u0)):
+            u0, v0 = corners[i]
+            base = t if t is not None else FrameTruth()
+            u1 = 2 * base.u - u0  # NaN without PixLoc
+            v1 = 2 * base.v - v0
+            t = dataclasses.replace(base, u0=u0, v0=v0, u1=u1, v1=v1)
+        truths.append(t)
+    return truths
+
+
+def _open_spec(rest: str) -> SensiacSequence:
+    target, opts = parse_spec_options(rest, ("calib", "fps"))
+    camera = load_camera_json(opts["calib"]) if "calib" in opts else None
+    fps = parse_fps(opts["fps"], f"sensiac:{rest}") if "fps" in opts else SENSIAC_FPS
+    return SensiacSequence(target, camera=camera, fps=fps)
+
+
+register_scheme("sensiac", _open_spec)

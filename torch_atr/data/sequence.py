@@ -1,0 +1,273 @@
+"""One abstraction for every image sequence the tracker reads, and the one entry point to open one.
+
+A :class:`Sequence` yields frames lazily (a 1800-frame 640 x 512 uint16 sequence is 1.2 GB, so no
+reader holds more than the frame asked for), an optional :class:`~torch_atr.camera.Camera`, and
+optional per-frame ground truth (:class:`FrameTruth`).
+
+:func:`open_sequence` maps a spec string to a reader through a small scheme registry:
+
+    path/to/folder                      our folder format (``folder.py``)
+    folder:path/to/folder               the same, spelled out
+    sensiac:FILE.arf[,calib=..,fps=..]  a SENSIAC ARF with its AGT / bbox_met (``sensiac.py``)
+    video:FILE[,calib=..,color=..,fps=..]  a video, image folder or glob (``video.py``)
+    synthetic:...                       the scene simulator, once it registers itself
+
+A scheme ``NAME`` not registered yet is looked up as the module ``torch_atr.data.NAME``, which
+registers itself with :func:`register_scheme` when imported.
+"""
+
+from __future__ import annotations
+
+import abc
+import dataclasses
+import importlib
+import json
+import math
+import operator
+import re
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable, Iterator
+
+import numpy as np
+
+from torch_atr.camera import Camera
+
+TEXT_FIELDS: frozenset[str] = frozenset({"vehicle", "vehicle_class"})
+
+
+@dataclass(frozen=True, eq=False)
+class FrameTruth:
+    """Ground truth of one frame; NaN (or ``""`` for names) where unknown.
+
+    Attributes:
+        x, y, z: target position in the sensor frame (x right, y up, z forward), metres.
+        heading: direction of travel from +z towards +x, radians (METHOD.md).
+        speed: metres per second.
+        theta, phi: view Θ = (θ, φ) of the target, radians (METHOD.md).
+        u, v: target centre in pixels (u right, v down).
+        u0, v0, u1, v1: bounding box, upper-left (u0, v0) and lower-right (u1, v1) corners, pixels.
+        vehicle: vehicle name (e.g. SENSIAC's ``TgtType``); vehicle_class: its class.
+        range_m: sensor-to-target range as SENSIAC gives it, metres.
+        aspect: target aspect as SENSIAC gives it (0 = facing the sensor, clockwise), radians.
+        time_s: time stamp, POSIX seconds (UTC).
+
+    Equality treats NaN as equal to NaN, so a truth read back from disk equals the one written.
+    """
+
+    x: float = math.nan
+    y: float = math.nan
+    z: float = math.nan
+    heading: float = math.nan
+    speed: float = math.nan
+    theta: float = math.nan
+    phi: float = math.nan
+    u: float = math.nan
+    v: float = math.nan
+    u0: float = math.nan
+    v0: float = math.nan
+    u1: float = math.nan
+    v1: float = math.nan
+    vehicle: str = ""
+    vehicle_class: str = ""
+    range_m: float = math.nan
+    aspect: float = math.nan
+    time_s: float = math.nan
+
+    def __post_init__(self) -> None:
+        for f in dataclasses.fields(self):
+            value = getattr(self, f.name)
+            if f.name in TEXT_FIELDS:
+                if not isinstance(value, str):
+                    raise ValueError(f"FrameTruth.{f.name}: expected a string; got {value!r}")
+            else:
+                try:
+                    object.__setattr__(self, f.name, float(value))
+                except (TypeError, ValueError) as exc:
+                    raise ValueError(f"FrameTruth.{f.name}: expected a number; got {value!r}") from exc
+
+    def __eq__(self, other: object) -> bool:
+        if not isinstance(other, FrameTruth):
+            return NotImplemented
+        for f in dataclasses.fields(self):
+            a, b = getattr(self, f.name), getattr(other, f.name)
+            if a != b and not (isinstance(a, float) and math.isnan(a) and math.isnan(b)):
+                return False
+        return True
+
+    __hash__ = None  # NaN-aware equality has no matching hash
+
+    def is_unknown(self) -> bool:
+        """True when no field is known (every number NaN, every name empty)."""
+        return self == FrameTruth()
+
+
+TRUTH_FIELDS: tuple[str, ...] = tuple(f.name for f in dataclasses.fields(FrameTruth))
+
+
+class Sequence(abc.ABC):
+    """A lazily read image sequence.
+
+    Frames are ``(H, W)`` uint16 (IR) or uint8 (grey), or ``(H, W, 3)`` uint8 colour in RGB order.
+    Subclasses set ``name``, ``fps``, ``camera`` and ``meta`` and implement ``__len__`` and
+    ``_read_frame``; ``_truth`` defaults to "no ground truth".
+
+    Attributes:
+        name: a short name (file or folder stem).
+        fps: frames per second; NaN when the source does not say.
+        camera: the calibrated camera, or None for an uncalibrated sequence.
+        meta: source-specific facts (paths found, layouts detected, ...), JSON-ready.
+    """
+
+    name: str
+    fps: float
+    camera: Camera | None
+    meta: dict
+
+    @abc.abstractmethod
+    def __len__(self) -> int:
+        """Number of frames."""
+
+    @abc.abstractmethod
+    def _read_frame(self, i: int) -> np.ndarray:
+        """Frame ``i`` (already range-checked) as a new array the caller owns."""
+
+    def _truth(self, i: int) -> FrameTruth | None:
+        return None
+
+    def _index(self, i) -> int:
+        n = len(self)
+        try:
+            k = operator.index(i)
+        except TypeError as exc:
+            raise TypeError(f"{self.name}: frame index must be an integer; got {i!r}") from exc
+        if k < 0:
+            k += n
+        if not 0 <= k < n:
+            raise IndexError(f"{self.name}: frame index {i} out of range for a sequence of {n} frames")
+        return k
+
+    def frame(self, i: int) -> np.ndarray:
+        """Frame ``i`` (negative counts from the end): (H, W) or (H, W, 3), a fresh array."""
+        return self._read_frame(self._index(i))
+
+    def truth(self, i: int) -> FrameTruth | None:
+        """Ground truth of frame ``i``, or None where the source has none for it."""
+        return self._truth(self._index(i))
+
+    def __iter__(self) -> Iterator[np.ndarray]:
+        for i in range(len(self)):
+            yield self._read_frame(i)
+
+    def close(self) -> None:
+        """Release open files; the default holds none."""
+
+    def __enter__(self) -> "Sequence":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def __repr__(self) -> str:
+        calib = "calibrated" if self.camera is not None else "uncalibrated"
+        return f"{type(self).__name__}(name={self.name!r}, frames={len(self)}, fps={self.fps}, {calib})"
+
+
+Opener = Callable[[str], Sequence]
+_SCHEMES: dict[str, Opener] = {}
+_SCHEME_RE = re.compile(r"[a-z][a-z0-9_]+")
+_SPEC_RE = re.compile(r"([A-Za-z][A-Za-z0-9_]+):(.*)", re.DOTALL)
+
+
+def register_scheme(name: str, opener: Opener, replace: bool = False) -> None:
+    """Make ``open_sequence("NAME:REST")`` call ``opener("REST")``.
+
+    ``name`` is lower case, at least two characters (so a Windows drive letter is never a
+    scheme). Registering a taken name with a different opener needs ``replace=True``.
+    """
+    if not _SCHEME_RE.fullmatch(name):
+        raise ValueError(f"Scheme name must match [a-z][a-z0-9_]+; got {name!r}")
+    if not callable(opener):
+        raise ValueError(f"Scheme {name!r}: opener must be callable; got {type(opener).__name__}")
+    if not replace and _SCHEMES.get(name, opener) is not opener:
+        raise ValueError(f"Scheme {name!r} is already registered; pass replace=True to replace it")
+    _SCHEMES[name] = opener
+
+
+def registered_schemes() -> tuple[str, ...]:
+    """Names of the schemes registered so far, sorted."""
+    return tuple(sorted(_SCHEMES))
+
+
+def open_sequence(spec: str) -> Sequence:
+    """Open the sequence ``spec`` names (see the module docstring for the forms).
+
+    A spec without a ``scheme:`` prefix is a folder in our format. Raises ``ValueError`` for a
+    bad spec, unknown scheme or option, ``FileNotFoundError`` for a missing file, each naming it.
+    """
+    if not isinstance(spec, str) or not spec.strip():
+        raise ValueError(f"Expected a sequence spec string; got {spec!r}")
+    m = _SPEC_RE.fullmatch(spec)
+    if m is None:
+        scheme, rest = "folder", spec
+    else:
+        scheme, rest = m.group(1).lower(), m.group(2)
+    if scheme not in _SCHEMES and _SCHEME_RE.fullmatch(scheme):
+        try:
+            importlib.import_module(f"{__package__}.{scheme}")
+        except ModuleNotFoundError as exc:
+            if exc.name != f"{__package__}.{scheme}":
+                raise
+    if scheme not in _SCHEMES:
+        known = ", ".join(registered_schemes()) or "none"
+        raise ValueError(f"Unknown scheme {scheme!r} in sequence spec {spec!r}; known schemes: {known}")
+    return _SCHEMES[scheme](rest)
+
+
+def parse_spec_options(spec: str, allowed: tuple[str, ...]) -> tuple[str, dict[str, str]]:
+    """Split ``"TARGET,key=value,..."`` into the target and its options.
+
+    Raises ``ValueError`` naming the spec for an empty target, an option without ``=``, a
+    repeated option or one not in ``allowed``.
+    """
+    target, *parts = spec.split(",")
+    target = target.strip()
+    if not target:
+        raise ValueError(f"Sequence spec {spec!r} names no file")
+    options: dict[str, str] = {}
+    for part in parts:
+        key, sep, value = part.partition("=")
+        key = key.strip()
+        if not sep or not key:
+            raise ValueError(f"Sequence spec {spec!r}: expected key=value; got {part!r}")
+        if key not in allowed:
+            raise ValueError(f"Sequence spec {spec!r}: unknown option {key!r}; allowed: {', '.join(allowed)}")
+        if key in options:
+            raise ValueError(f"Sequence spec {spec!r}: option {key!r} given twice")
+        options[key] = value.strip()
+    return target, options
+
+
+def parse_fps(value: str, source: str) -> float:
+    """A positive finite frame rate from an option string; ``ValueError`` naming ``source``."""
+    try:
+        fps = float(value)
+    except ValueError:
+        fps = math.nan
+    if not (math.isfinite(fps) and fps > 0):
+        raise ValueError(f"{source}: fps must be a positive number; got {value!r}")
+    return fps
+
+
+def load_camera_json(path: str | Path) -> Camera:
+    """A :class:`Camera` from a ``Camera.to_dict()`` JSON file; errors name the file (and key)."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"Camera calibration file not found: {path}")
+    try:
+        d = json.loads(path.read_text(encoding="utf-8"))
+    except json.JSONDecodeError as exc:
+        raise ValueError(f"{path}: not valid JSON ({exc})") from exc
+    if not isinstance(d, dict):
+        raise ValueError(f"{path}: expected a JSON object; got {type(d).__name__}")
+    return Camera.from_dict(d, source=str(path))

@@ -1,0 +1,169 @@
+"""Video files (any codec OpenCV reads) and image folders or glob patterns as sequences.
+
+Frames come out grey uint8 (``color=False``, the default) or RGB uint8 (``color=True``); a
+16-bit grey image (an IR frame saved as PNG or TIFF) stays uint16 when read grey. Image files
+are ordered naturally (``frame2`` before ``frame10``). These sources carry no ground truth.
+"""
+
+from __future__ import annotations
+
+import glob
+import logging
+import math
+import os
+import re
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from torch_atr.camera import Camera
+from torch_atr.data.sequence import Sequence, load_camera_json, parse_fps, parse_spec_options, register_scheme
+
+logger = logging.getLogger(__name__)
+
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".pgm", ".ppm", ".pnm", ".webp")
+
+
+def natural_key(name: str) -> list:
+    """Sort key that orders embedded numbers by value: ``img2 < img10``."""
+    return [int(part) if part.isdigit() else part.lower() for part in re.split(r"(\d+)", name)]
+
+
+def _convert(img: np.ndarray, color: bool, source: str) -> np.ndarray:
+    """BGR(A) or grey OpenCV image -> grey (H, W) or RGB (H, W, 3) uint8 (uint16 grey kept)."""
+    if img.dtype not in (np.uint8, np.uint16):
+        raise ValueError(f"{source}: pixel type {img.dtype} is not supported (uint8 or uint16)")
+    if img.ndim == 3 and img.shape[2] == 1:
+        img = img[:, :, 0]
+    elif img.ndim == 3 and img.shape[2] == 4:
+        img = cv2.cvtColor(img, cv2.COLOR_BGRA2BGR)
+    elif img.ndim != 2 and not (img.ndim == 3 and img.shape[2] == 3):
+        raise ValueError(f"{source}: image of shape {img.shape} is neither grey nor colour")
+    if not color:
+        return img if img.ndim == 2 else cv2.cvtColor(img, cv2.COLOR_BGR2GRAY)
+    if img.dtype == np.uint16:
+        img = (img >> 8).astype(np.uint8)  # colour frames are 8-bit
+    return cv2.cvtColor(img, cv2.COLOR_GRAY2RGB if img.ndim == 2 else cv2.COLOR_BGR2RGB)
+
+
+class VideoSequence(Sequence):
+    """A video file, a folder of images, or a glob pattern of images.
+
+    Args:
+        path: a video file, an image folder, or a glob pattern such as ``"run/*.png"``.
+        camera: the calibrated camera, or None (uncalibrated).
+        color: RGB (H, W, 3) uint8 frames instead of grey (H, W).
+        fps: frame rate; None = the video's own rate, NaN for images (they carry none).
+    Video frames are read by seeking (``CAP_PROP_POS_FRAMES``) unless they follow the last one read.
+    """
+
+    def __init__(self, path: str | os.PathLike, camera: Camera | None = None, color: bool = False,
+                 fps: float | None = None):
+        self.path = str(path)
+        if fps is not None and not (math.isfinite(fps) and fps > 0):
+            raise ValueError(f"{self.path}: fps must be a positive number; got {fps!r}")
+        self.color = bool(color)
+        self.camera = camera
+        self._cap = None
+        self._files: list[Path] = []
+        p = Path(self.path)
+        if p.is_dir():
+            self._files = sorted((f for f in p.iterdir() if f.is_file() and f.suffix.lower() in IMAGE_SUFFIXES),
+                                 key=lambda f: natural_key(f.name))
+            if not self._files:
+                raise FileNotFoundError(f"{p}: no image files ({', '.join(IMAGE_SUFFIXES)})")
+            self.name = p.name
+        elif not p.exists() and any(c in self.path for c in "*?["):
+            self._files = sorted((Path(f) for f in glob.glob(self.path) if Path(f).is_file()),
+                                 key=lambda f: natural_key(f.name))
+            if not self._files:
+                raise FileNotFoundError(f"No files match the pattern {self.path!r}")
+            self.name = p.parent.name or self.path
+        elif p.is_file():
+            self._open_video(p)
+        else:
+            raise FileNotFoundError(f"Video file or image folder not found: {p}")
+        if self._files:
+            self._n = len(self._files)
+            self._first = self._read_image(0)
+            self._shape = self._first.shape
+            self.fps = math.nan
+            self.meta = {"path": self.path, "kind": "images", "color": self.color,
+                         "first_file": str(self._files[0]), "last_file": str(self._files[-1])}
+        if fps is not None:
+            self.fps = float(fps)
+        h, w = self._shape[:2]
+        if camera is not None and (camera.height, camera.width) != (h, w):
+            self.close()
+            raise ValueError(f"{self.path}: the camera is {camera.width} x {camera.height} px but the "
+                             f"frames are {w} x {h}")
+        logger.info("%s: %d frames of %d x %d (%s), fps %s", self.path, self._n, w, h, self.meta["kind"], self.fps)
+
+    def _open_video(self, p: Path) -> None:
+        cap = cv2.VideoCapture(str(p))
+        if not cap.isOpened():
+            raise ValueError(f"{p}: OpenCV cannot open it as a video")
+        n = int(cap.get(cv2.CAP_PROP_FRAME_COUNT))
+        if n <= 0:
+            cap.release()
+            raise ValueError(f"{p}: the video reports no frames")
+        w, h = int(cap.get(cv2.CAP_PROP_FRAME_WIDTH)), int(cap.get(cv2.CAP_PROP_FRAME_HEIGHT))
+        rate = cap.get(cv2.CAP_PROP_FPS)
+        fourcc = int(cap.get(cv2.CAP_PROP_FOURCC))
+        self._cap, self._pos, self._n = cap, 0, n
+        self._shape = (h, w, 3) if self.color else (h, w)
+        self.name = p.stem
+        self.fps = rate if rate > 0 else math.nan
+        self.meta = {"path": self.path, "kind": "video", "color": self.color, "video_fps": rate,
+                     "fourcc": "".join(chr((fourcc >> 8 * k) & 0xFF) for k in range(4)).strip("\0")}
+
+    def __len__(self) -> int:
+        return self._n
+
+    def _read_image(self, i: int) -> np.ndarray:
+        path = self._files[i]
+        img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+        if img is None:
+            raise ValueError(f"{path}: cannot be read as an image")
+        img = _convert(img, self.color, str(path))
+        if i > 0 and (img.shape != self._first.shape or img.dtype != self._first.dtype):
+            raise ValueError(f"{path}: image is {img.shape} {img.dtype}; {self._files[0].name} was "
+                             f"{self._first.shape} {self._first.dtype}")
+        return img
+
+    def _read_frame(self, i: int) -> np.ndarray:
+        if self._files:
+            return self._read_image(i)
+        if self._cap is None:
+            raise ValueError(f"{self.path}: the sequence is closed")
+        if i != self._pos:
+            self._cap.set(cv2.CAP_PROP_POS_FRAMES, i)
+        ok, img = self._cap.read()
+        if not ok:
+            self._pos = -1
+            raise ValueError(f"{self.path}: cannot read frame {i} of {self._n}")
+        self._pos = i + 1
+        return _convert(img, self.color, f"{self.path} frame {i}")
+
+    def close(self) -> None:
+        if self._cap is not None:
+            self._cap.release()
+            self._cap = None
+
+
+_TRUE = ("1", "true", "yes", "on")
+_FALSE = ("0", "false", "no", "off")
+
+
+def _open_spec(rest: str) -> VideoSequence:
+    target, opts = parse_spec_options(rest, ("calib", "color", "fps"))
+    color = opts.get("color", "0").lower()
+    if color not in _TRUE + _FALSE:
+        raise ValueError(f"video:{rest}: color must be one of {'/'.join(_TRUE + _FALSE)}; got {opts['color']!r}")
+    camera = load_camera_json(opts["calib"]) if "calib" in opts else None
+    fps = parse_fps(opts["fps"], f"video:{rest}") if "fps" in opts else None
+    return VideoSequence(target, camera=camera, color=color in _TRUE, fps=fps)
+
+
+register_scheme("video", _open_spec)
