@@ -129,10 +129,19 @@ class Camera(nn.Module):
                    R=_FLIP_Y @ R_cv, t=_FLIP_Y @ t_cv)
 
     def opencv_pose(self) -> tuple[np.ndarray, np.ndarray]:
-        """(rvec (3,), tvec (3,)) of this camera's pose in OpenCV's convention."""
+        """(rvec (3,), tvec (3,)) of this camera's pose in OpenCV's convention.
+
+        OpenCV's world frame is right-handed. A camera whose world frame is right-handed too
+        (det R = −1, as :meth:`from_opencv` builds) takes world points as they are; one whose
+        world frame is sensor-like and so left-handed (det R = +1, e.g. R = identity) takes them
+        with y negated, (x, −y, z). Either way ``cv2.projectPoints`` then agrees with :meth:`project`.
+        """
         import cv2
 
-        R_cv = _FLIP_Y @ self.R.cpu().numpy()
+        R = self.R.cpu().numpy()
+        if np.linalg.det(R) > 0:
+            R = R @ _FLIP_Y  # OpenCV's world points are (x, −y, z)
+        R_cv = _FLIP_Y @ R
         t_cv = _FLIP_Y @ self.t.cpu().numpy()
         rvec, _ = cv2.Rodrigues(R_cv)
         return rvec.ravel(), t_cv

@@ -1,0 +1,114 @@
+"""Time render_templates on a training-set-sized job: K vehicle meshes x 150 views at 64 x 64.
+
+The meshes are built here (a hull, a turret, a gun and road wheels: boxes and cylinders, about
+3,000 triangles each, sizes drawn from a seeded generator), taken from the vehicle catalog with
+``--catalog train``, or loaded with ``--mesh FILE ...`` and scaled to a 7 m length (timing only:
+their axes are not fixed up).
+
+    python benchmarks/bench_render.py --vehicles 36 --size 64 --threads 1
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import math
+import time
+
+import numpy as np
+import torch
+import trimesh
+
+from torch_atr.config import TemplateConfig
+from torch_atr.render import render_templates
+from torch_atr.shape import signed_distance
+
+logger = logging.getLogger("bench_render")
+
+
+def _cylinder_x(radius: float, length: float, sections: int, centre) -> trimesh.Trimesh:
+    """Cylinder along the body X axis."""
+    cyl = trimesh.creation.cylinder(radius=radius, height=length, sections=sections)
+    cyl.apply_transform(trimesh.transformations.rotation_matrix(math.pi / 2, (0.0, 1.0, 0.0)))
+    return cyl.apply_translation(centre)
+
+
+def _cylinder_y(radius: float, length: float, sections: int, centre) -> trimesh.Trimesh:
+    """Cylinder along the body Y axis (a wheel)."""
+    cyl = trimesh.creation.cylinder(radius=radius, height=length, sections=sections)
+    cyl.apply_transform(trimesh.transformations.rotation_matrix(math.pi / 2, (1.0, 0.0, 0.0)))
+    return cyl.apply_translation(centre)
+
+
+def vehicle_mesh(rng: np.random.Generator, sections: int) -> trimesh.Trimesh:
+    """A tank-like mesh in the body frame (+X forward, +Y left, +Z up, origin on the ground)."""
+    length, width, height = rng.uniform(5.0, 7.5), rng.uniform(2.6, 3.4), rng.uniform(1.0, 1.5)
+    wheel_r = rng.uniform(0.35, 0.45)
+    hull = trimesh.creation.box((length, width, height)).apply_translation((0.0, 0.0, wheel_r + height / 2))
+    top = wheel_r + height
+    turret = trimesh.creation.box((length * 0.4, width * 0.6, 0.8)).apply_translation((-0.3, 0.0, top + 0.4))
+    gun = _cylinder_x(0.1, length * 0.7, sections, (length * 0.35, 0.0, top + 0.45))
+    wheels = [_cylinder_y(wheel_r, 0.5, sections, (x, y, wheel_r))
+              for x in np.linspace(-length / 2 + wheel_r, length / 2 - wheel_r, 5) for y in (-width / 2, width / 2)]
+    return trimesh.util.concatenate([hull, turret, gun] + wheels)
+
+
+def loaded_mesh(path: str) -> trimesh.Trimesh:
+    mesh = trimesh.load(path, force="mesh")
+    mesh.apply_scale(7.0 / float(np.max(mesh.extents)))
+    return mesh
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--vehicles", type=int, default=36, help="K meshes to build (without --mesh / --catalog)")
+    parser.add_argument("--sections", type=int, default=64, help="cylinder sections (64: ~2,900 triangles)")
+    parser.add_argument("--azimuths", type=int, default=30, help="views: azimuth steps over 360°")
+    parser.add_argument("--elevations", type=int, default=5, help="views: 10° elevation steps from 0°")
+    parser.add_argument("--size", type=int, default=64, help="template size in pixels")
+    parser.add_argument("--window", type=float, default=12.0, help="template window in metres")
+    parser.add_argument("--mesh", nargs="*", default=[], help="mesh files to render instead")
+    parser.add_argument("--catalog", choices=("train", "test"), help="render torch_atr.vehicles' catalog instead")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--threads", type=int, default=None, help="torch intra-op threads (default: torch's)")
+    args = parser.parse_args()
+    logging.basicConfig(level=logging.INFO, format="%(message)s")
+    if args.threads is not None:
+        torch.set_num_threads(args.threads)
+
+    rng = np.random.default_rng(args.seed)
+    if args.catalog:
+        from torch_atr.vehicles import load_catalog
+
+        meshes = [vehicle.mesh for vehicle in load_catalog(args.catalog)]
+    elif args.mesh:
+        meshes = [loaded_mesh(p) for p in args.mesh]
+    else:
+        meshes = [vehicle_mesh(rng, args.sections) for _ in range(args.vehicles)]
+    theta = torch.arange(args.azimuths, dtype=torch.float64) * (2 * math.pi / args.azimuths)
+    phi = torch.arange(args.elevations, dtype=torch.float64) * math.radians(10.0)
+    theta, phi = (g.reshape(-1) for g in torch.meshgrid(theta, phi, indexing="ij"))
+    cfg = TemplateConfig(size_px=args.size, window_m=args.window)
+    render_templates(meshes[0], theta[:2], phi[:2], cfg)  # warm-up
+
+    start = time.perf_counter()
+    templates = [render_templates(mesh, theta, phi, cfg) for mesh in meshes]
+    seconds = time.perf_counter() - start
+    start = time.perf_counter()
+    for t in templates:
+        signed_distance(t, cfg.tau_px)
+    sdt_seconds = time.perf_counter() - start
+
+    n_tpl = len(meshes) * len(theta)
+    triangles = sum(len(m.faces) for m in meshes)
+    logger.info("torch %s, %d threads", torch.__version__, torch.get_num_threads())
+    logger.info("%d meshes (%.0f triangles on average) x %d views at %d x %d px",
+                len(meshes), triangles / len(meshes), len(theta), args.size, args.size)
+    logger.info("render: %.2f s total, %.3f ms per template, %.1f M triangles/s",
+                seconds, 1e3 * seconds / n_tpl, triangles * len(theta) / seconds / 1e6)
+    logger.info("signed distance: %.2f s total, %.3f ms per template", sdt_seconds, 1e3 * sdt_seconds / n_tpl)
+    logger.info("mean silhouette area %.1f px", float(torch.cat(templates).sum(dim=(1, 2)).float().mean()))
+
+
+if __name__ == "__main__":
+    main()

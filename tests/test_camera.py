@@ -1,0 +1,131 @@
+"""torch_atr.camera.Camera against OpenCV and its own inverses."""
+
+import math
+
+import cv2
+import numpy as np
+import pytest
+import torch
+
+from torch_atr.camera import Camera
+
+K_CV = np.array([[820.0, 0.0, 322.5], [0.0, 790.0, 251.25], [0.0, 0.0, 1.0]])
+DIST_CV = np.array([-0.21, 0.08, 0.0012, -0.0007, -0.015])
+RVEC = np.array([0.05, -0.3, 0.12])
+TVEC = np.array([0.4, -1.1, 2.5])
+
+
+def _camera() -> Camera:
+    return Camera.from_opencv(K_CV, DIST_CV, RVEC, TVEC, width=640, height=512)
+
+
+def _points_in_front(n: int, seed: int) -> np.ndarray:
+    """(n, 3) world points 5-40 m in front of the OpenCV camera (RVEC, TVEC), within ~25° of the axis."""
+    rng = np.random.default_rng(seed)
+    depth = rng.uniform(5, 40, n)
+    xy = rng.uniform(-0.45, 0.45, (n, 2)) * depth[:, None]
+    p_cam = np.column_stack([xy, depth])
+    R_cv, _ = cv2.Rodrigues(RVEC)
+    return (p_cam - TVEC) @ R_cv  # R_cvᵀ (p_cam − t)
+
+
+def test_project_matches_cv2_project_points():
+    cam = _camera()
+    pts = _points_in_front(200, seed=0)
+    rvec, tvec = cam.opencv_pose()
+    ref, _ = cv2.projectPoints(pts, rvec, tvec, cam.K.numpy(), cam.dist.numpy())
+    uv, depth = cam.project(torch.from_numpy(pts))
+    np.testing.assert_allclose(uv.numpy(), ref.reshape(-1, 2), atol=1e-6)
+    R_cv, _ = cv2.Rodrigues(RVEC)
+    np.testing.assert_allclose(depth.numpy(), pts @ R_cv.T[:, 2] + TVEC[2], atol=1e-9)
+
+
+def test_opencv_pose_of_a_sensor_like_world_takes_y_negated_points():
+    """World = sensor-like (y up, left-handed, det R = +1): OpenCV sees the world points as (x, −y, z)."""
+    a = 0.2  # pitched down by a, turned by 0.1 rad, centred 4 m up
+    R = np.array([[1.0, 0.0, 0.0], [0.0, math.cos(a), math.sin(a)], [0.0, -math.sin(a), math.cos(a)]])
+    R = R @ np.array([[math.cos(0.1), 0.0, -math.sin(0.1)], [0.0, 1.0, 0.0], [math.sin(0.1), 0.0, math.cos(0.1)]])
+    for rot in (np.eye(3), R):
+        cam = Camera(700.0, 710.0, 300.0, 260.0, 640, 512, dist=DIST_CV, R=rot, t=-rot @ np.array([0.0, 4.0, 0.0]))
+        pts = np.random.default_rng(3).uniform([-8, -2, 15], [8, 3, 40], (100, 3))
+        rvec, tvec = cam.opencv_pose()
+        ref, _ = cv2.projectPoints(pts * [1.0, -1.0, 1.0], rvec, tvec, cam.K.numpy(), cam.dist.numpy())
+        np.testing.assert_allclose(cam.project(torch.from_numpy(pts))[0].numpy(), ref.reshape(-1, 2), atol=1e-6)
+
+
+def test_project_without_opencv_helpers():
+    """A point on the optical axis lands on (cx, cy); +y in the sensor frame is up (smaller v)."""
+    cam = Camera(500.0, 400.0, 320.0, 240.0, 640, 480)
+    uv, _ = cam.project(torch.tensor([[0.0, 0.0, 10.0], [1.0, 2.0, 10.0]]))
+    np.testing.assert_allclose(uv.numpy(), [[320.0, 240.0], [370.0, 160.0]], atol=1e-4)
+
+
+def test_from_opencv_round_trip():
+    cam = _camera()
+    rvec, tvec = cam.opencv_pose()
+    np.testing.assert_allclose(rvec, RVEC, atol=1e-12)
+    np.testing.assert_allclose(tvec, TVEC, atol=1e-12)
+    np.testing.assert_allclose(cam.K.numpy(), K_CV)
+    np.testing.assert_allclose(cam.dist.numpy(), DIST_CV)
+    again = Camera.from_opencv(cam.K.numpy(), cam.dist.numpy(), rvec, tvec, cam.width, cam.height)
+    for name in ("K", "dist", "R", "t"):
+        torch.testing.assert_close(getattr(again, name), getattr(cam, name), rtol=0, atol=1e-12)
+    # OpenCV's world frame is right-handed and the sensor frame (y up) left-handed.
+    assert torch.linalg.det(cam.R).item() == pytest.approx(-1.0)
+
+
+def test_pixel_rays_invert_project_without_distortion():
+    cam = Camera(600.0, 610.0, 300.5, 200.25, 640, 480)
+    pts = torch.from_numpy(_points_in_front(50, seed=1))  # identity pose: sensor = world
+    uv, depth = cam.project(pts)
+    rays = cam.pixel_rays(uv)
+    torch.testing.assert_close(rays * depth.unsqueeze(-1), pts, rtol=0, atol=1e-9)
+    grid = torch.tensor([[0.0, 0.0], [639.0, 479.0], [17.5, 301.0]], dtype=torch.float64)
+    uv_again, _ = cam.project(cam.pixel_rays(grid) * 7.0)
+    torch.testing.assert_close(uv_again, grid, rtol=0, atol=1e-9)
+
+
+def test_points_behind_the_camera_are_nan():
+    cam = _camera()
+    p_sensor = torch.tensor([[0.0, 0.0, -1.0], [1.0, 1.0, 0.0], [0.2, 0.1, 3.0]], dtype=torch.float64)
+    uv, depth = cam.project(p_sensor, world=False)
+    assert torch.isnan(uv[:2]).all() and torch.isfinite(uv[2]).all()
+    assert depth.tolist() == [-1.0, 0.0, 3.0]
+
+
+def test_project_batch_shapes_and_bad_shape():
+    cam = _camera()
+    pts = torch.from_numpy(_points_in_front(12, seed=2)).reshape(3, 4, 3)
+    uv, depth = cam.project(pts)
+    assert uv.shape == (3, 4, 2) and depth.shape == (3, 4)
+    torch.testing.assert_close(uv[1], cam.project(pts[1])[0])
+    with pytest.raises(ValueError, match=r"\(\.\.\., 3\); got \(4, 2\)"):
+        cam.project(torch.zeros(4, 2))
+
+
+def test_dict_round_trip_and_errors():
+    cam = _camera()
+    again = Camera.from_dict(cam.to_dict())
+    for name in ("K", "dist", "R", "t"):
+        torch.testing.assert_close(getattr(again, name), getattr(cam, name), rtol=0, atol=0)
+    assert (again.width, again.height) == (640, 512)
+    d = cam.to_dict()
+    del d["fy"], d["height"]
+    with pytest.raises(ValueError, match=r"calib\.json: missing key\(s\) fy, height"):
+        Camera.from_dict(d, source="calib.json")
+    with pytest.raises(ValueError, match=r"unknown key\(s\) focal"):
+        Camera.from_dict({**cam.to_dict(), "focal": 1.0})
+    with pytest.raises(ValueError, match="focal lengths"):
+        Camera.from_dict({**cam.to_dict(), "fx": -1.0})
+
+
+def test_rotated_camera_sees_rotated_world():
+    """A camera turned 30° from +z towards +x has the world point at that bearing on its optical axis."""
+    a = math.radians(30.0)
+    # Sensor axes expressed in the world: forward = (sin a, 0, cos a), right = (cos a, 0, -sin a), up = +y.
+    R = torch.tensor([[math.cos(a), 0.0, -math.sin(a)], [0.0, 1.0, 0.0], [math.sin(a), 0.0, math.cos(a)]],
+                     dtype=torch.float64)
+    cam = Camera(500.0, 500.0, 320.0, 240.0, 640, 480, R=R)
+    uv, depth = cam.project(torch.tensor([20 * math.sin(a), 0.0, 20 * math.cos(a)], dtype=torch.float64))
+    torch.testing.assert_close(uv, torch.tensor([320.0, 240.0], dtype=torch.float64))
+    assert depth.item() == pytest.approx(20.0)
