@@ -1,0 +1,489 @@
+"""Tests for torch_atr.vehicles: loading, body frame, articulation, catalog, held-out meshes.
+
+References are independent of the code under test: published dimensions (specs), hand-built
+rotation matrices, scipy's convex hull volumes, shoelace areas, meshes built with trimesh in a
+known orientation, and the byte content of the shipped files.
+"""
+
+from __future__ import annotations
+
+import math
+import xml.etree.ElementTree as ET
+from pathlib import Path
+
+import numpy as np
+import pytest
+import trimesh
+from scipy.spatial import ConvexHull
+
+from torch_atr.vehicles import CLASS_NAMES, Vehicle, load_catalog, load_heldout_meshes, load_vehicle
+from torch_atr.vehicles.build import build_catalog
+from torch_atr.vehicles.catalog import CATALOG_DIR, MESHES_ENV, default_meshes_root, read_manifest
+from torch_atr.vehicles.geometry import frustum_xy, prism_xz, signed_area, triangulate, volume
+from torch_atr.vehicles.loader import body_rotation
+from torch_atr.vehicles.specs import TEST, TRAIN, Road
+
+SPECS = {s.name: s for s in TRAIN + TEST}
+TOL = 0.05  # published dimensions, relative
+
+
+@pytest.fixture(scope="module")
+def catalog() -> dict[str, list[Vehicle]]:
+    return {split: load_catalog(split) for split in ("train", "test")}
+
+
+@pytest.fixture(scope="module")
+def by_name(catalog) -> dict[str, Vehicle]:
+    return {v.name: v for vs in catalog.values() for v in vs}
+
+
+def _rot_z(a: float) -> np.ndarray:
+    c, s = math.cos(a), math.sin(a)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+def _rot_y(a: float) -> np.ndarray:
+    c, s = math.cos(a), math.sin(a)
+    return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
+
+
+def _rot_x(a: float) -> np.ndarray:
+    c, s = math.cos(a), math.sin(a)
+    return np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]])
+
+
+# ------------------------------------------------------------------------------------------
+# Catalog composition
+# ------------------------------------------------------------------------------------------
+def test_split_sizes_and_classes(catalog):
+    train, test = catalog["train"], catalog["test"]
+    assert len(train) == 36
+    assert {c: sum(v.cls == c for v in train) for c in CLASS_NAMES} == {c: 6 for c in CLASS_NAMES}
+    assert len(test) == 8
+    counts = {c: sum(v.cls == c for v in test) for c in CLASS_NAMES}
+    assert counts == {"tank": 3, "apc": 3, "pickup": 1, "suv": 1, "car": 0, "minivan": 0}
+    assert {v.name for v in train}.isdisjoint(v.name for v in test)
+    assert len({v.name for v in train}) == 36
+
+
+def test_catalog_order_is_stable(catalog):
+    for split, vehicles in catalog.items():
+        keys = [(CLASS_NAMES.index(v.cls), v.name) for v in vehicles]
+        assert keys == sorted(keys)
+        assert [v.name for v in load_catalog(split)] == [v.name for v in vehicles]
+
+
+def test_test_split_mirrors_sensiac():
+    titles = " ".join(s.title for s in TEST)
+    for target in ("T-72", "ZSU-23-4", "2S3", "BTR-70", "BRDM-2", "BMP-2", "F-150", "Isuzu"):
+        assert target in titles
+    train_titles = [s.title for s in TRAIN]
+    assert not any(t in title for title in train_titles for t in ("T-72", "ZSU", "2S3", "BTR-70", "BRDM", "BMP", "F-150", "Isuzu"))
+
+
+def test_unknown_split_raises():
+    with pytest.raises(ValueError, match="'val'"):
+        load_catalog("val")
+
+
+# ------------------------------------------------------------------------------------------
+# Published dimensions and the body frame
+# ------------------------------------------------------------------------------------------
+@pytest.mark.parametrize("name", sorted(SPECS))
+def test_extents_match_published(by_name, name):
+    spec, v = SPECS[name], by_name[name]
+    length = spec.gun_length if getattr(spec, "gun_length", None) else spec.length
+    lo, hi = v.mesh.bounds
+    ext = hi - lo
+    np.testing.assert_allclose(ext, [length, spec.width, spec.height], rtol=TOL, err_msg=name)
+    assert lo[2] == pytest.approx(0.0, abs=1e-9)  # on the ground
+    np.testing.assert_allclose((lo + hi)[:2] / 2, 0.0, atol=1e-9)  # footprint centred
+
+
+@pytest.mark.parametrize("name", sorted(n for n, s in SPECS.items() if isinstance(s, Road)))
+def test_wheelbase_and_track_from_urdf(name):
+    """Wheel cylinders in the URDF XML sit at the published wheelbase and track."""
+    spec = SPECS[name]
+    split = "train" if spec in TRAIN else "test"
+    root = ET.parse(CATALOG_DIR / split / name / f"{name}.urdf").getroot()
+    centres = []
+    for vis in root.iter("visual"):
+        cyl = vis.find("geometry/cylinder")
+        if cyl is not None and float(cyl.get("radius")) == pytest.approx(spec.wheel_d / 2):
+            centres.append([float(t) for t in vis.find("origin").get("xyz").split()])
+    c = np.array(centres)
+    assert len(c) == 4
+    assert np.ptp(c[:, 0]) == pytest.approx(spec.wheelbase, abs=1e-3)
+    assert np.ptp(c[:, 1]) == pytest.approx(spec.track, abs=1e-3)
+    assert np.all(c[:, 0] <= spec.length / 2) and np.all(c[:, 0] >= -spec.length / 2)
+
+
+def _max_height(v: Vehicle, lo: float, hi: float) -> float:
+    x = v.mesh.vertices
+    sel = (x[:, 0] >= lo) & (x[:, 0] <= hi)
+    return float(x[sel, 2].max())
+
+
+@pytest.mark.parametrize("name", sorted(n for n, s in SPECS.items() if getattr(s, "turret", None) is None))
+def test_front_is_plus_x_without_turret(by_name, name):
+    """Bonnet / glacis at the front: the nose end is lower than the tail end (5 % of length)."""
+    v = by_name[name]
+    half = v.mesh.extents[0] / 2
+    band = 0.05 * 2 * half
+    assert _max_height(v, half - band, half) < _max_height(v, -half, -half + band) - 0.05
+
+
+def _gun_vertices(v: Vehicle) -> np.ndarray:
+    """Indices of vertices that move with gun_pitch (the gun link)."""
+    moved = np.linalg.norm(v.posed({"gun_pitch": 0.1}).mesh.vertices - v.mesh.vertices, axis=1) > 1e-6
+    return np.flatnonzero(moved)
+
+
+ARTICULATED = sorted(n for n, s in SPECS.items() if getattr(s, "turret", None) is not None)
+OVERHANG = sorted(n for n, s in SPECS.items() if getattr(s, "gun_length", None))
+
+
+@pytest.mark.parametrize("name", ARTICULATED)
+def test_gun_points_forward_and_pitch_raises_it(by_name, name):
+    v = by_name[name]
+    assert v.joint_names == ("turret_yaw", "gun_pitch")
+    gun = _gun_vertices(v)
+    muzzle = gun[np.argmax(v.mesh.vertices[gun, 0])]
+    p = v.mesh.vertices[muzzle]
+    assert p[0] > 0.0  # the gun points to +X
+    up, down = v.posed({"gun_pitch": 0.15}), v.posed({"gun_pitch": -0.05})
+    assert up.mesh.vertices[muzzle, 2] > p[2] + 0.1
+    assert down.mesh.vertices[muzzle, 2] < p[2]
+    if name in OVERHANG:  # the muzzle is the frontmost point
+        assert p[0] == pytest.approx(v.mesh.bounds[1, 0], abs=1e-9)
+
+
+@pytest.mark.parametrize("name", ARTICULATED)
+def test_turret_yaw_is_a_rigid_left_turn(by_name, name):
+    """turret_yaw = pi/2 rotates turret and gun rigidly by +90 deg about a vertical axis; hull stays."""
+    v = by_name[name]
+    turned = v.posed({"turret_yaw": math.pi / 2})
+    a, b = v.mesh.vertices, turned.mesh.vertices
+    moved = np.linalg.norm(b - a, axis=1) > 1e-6
+    assert moved.sum() > 0 and (~moved).sum() > 0
+    pa, pb = a[moved], b[moved]
+    np.testing.assert_allclose(pb - pb[0], (pa - pa[0]) @ _rot_z(math.pi / 2).T, atol=1e-6)
+    gun = _gun_vertices(v)
+    muzzle = gun[np.argmax(a[gun, 0])]
+    assert b[muzzle, 1] > a[muzzle, 1] + 0.3  # swung to the left (+Y)
+    assert b[muzzle, 0] < a[muzzle, 0]
+
+
+@pytest.mark.parametrize("name", OVERHANG)
+def test_turret_yaw_moves_the_muzzle_extreme_from_x_to_y(by_name, name):
+    spec, v = SPECS[name], by_name[name]
+    turned = v.posed({"turret_yaw": math.pi / 2}).mesh
+    lo, hi = turned.bounds
+    assert hi[1] > spec.width / 2 + 0.5  # the gun now sticks out to the left
+    assert hi[1] > -lo[1] + 0.5
+    assert hi[0] - lo[0] == pytest.approx(spec.length, rel=TOL)  # what remains along X is the hull
+
+
+def test_posed_keeps_other_joints_and_validates(by_name):
+    v = by_name["t_72"].posed({"gun_pitch": 0.1})
+    w = v.posed({"turret_yaw": 1.0})
+    assert dict(w.joints) == {"turret_yaw": 1.0, "gun_pitch": 0.1}
+    with pytest.raises(ValueError, match="unknown joint 'hull_roll'"):
+        v.posed({"hull_roll": 0.1})
+    with pytest.raises(ValueError, match="gun_pitch"):
+        v.posed({"gun_pitch": 1.2})  # T-72 elevates to +14 deg only
+    with pytest.raises(ValueError, match=r"toyota_camry\.urdf: unknown joint 'turret_yaw'"):
+        by_name["toyota_camry"].posed({"turret_yaw": 0.1})
+    assert by_name["toyota_camry"].posed({}) is by_name["toyota_camry"]
+
+
+def test_catalog_meshes_are_closed_and_not_degenerate(catalog):
+    for v in catalog["train"] + catalog["test"]:
+        m = v.mesh
+        assert m.is_watertight and m.is_winding_consistent, v.name
+        assert m.area_faces.min() > 1e-6, v.name
+        assert m.volume > 0, v.name
+
+
+def test_shipped_part_files_are_closed_and_small():
+    objs = sorted(CATALOG_DIR.rglob("*.obj"))
+    assert len(objs) >= 44
+    for p in objs:
+        m = trimesh.load(p, force="mesh", process=False)
+        assert m.is_watertight and m.is_winding_consistent and m.volume > 0, p
+    total = sum(p.stat().st_size for p in CATALOG_DIR.rglob("*") if p.is_file())
+    assert total < 2 * 1024 * 1024
+    assert max(p.stat().st_size for p in CATALOG_DIR.rglob("*") if p.is_file()) < 16 * 1024
+
+
+def test_catalog_is_reproducible(tmp_path):
+    build_catalog(tmp_path)
+    shipped = {p.relative_to(CATALOG_DIR): p.read_bytes() for p in CATALOG_DIR.rglob("*") if p.is_file()}
+    built = {p.relative_to(tmp_path): p.read_bytes() for p in tmp_path.rglob("*") if p.is_file()}
+    assert sorted(built) == sorted(shipped)
+    for rel, data in built.items():
+        assert data == shipped[rel], rel
+
+
+# ------------------------------------------------------------------------------------------
+# URDF loading: single link, <limit> without effort/velocity, rpy convention, joints
+# ------------------------------------------------------------------------------------------
+def test_single_link_urdf_uses_every_visual(tmp_path):
+    # pytorch-kinematics raises on this (single link, no joint) and keeps only a link's first visual.
+    (tmp_path / "car.urdf").write_text(
+        '<robot name="car"><link name="body">'
+        '<visual><origin xyz="0 0 0.5"/><geometry><box size="4 2 1"/></geometry></visual>'
+        '<visual><origin xyz="2.5 0 0.5" rpy="0 1.5707963267948966 0"/>'
+        '<geometry><cylinder radius="0.2" length="1"/></geometry></visual>'
+        "</link></robot>"
+    )
+    v = load_vehicle(tmp_path / "car.urdf", cls="car")
+    assert v.joint_names == () and v.cls == "car" and v.name == "car"
+    # Box spans x in [-2, 2], the cylinder (axis along x) [2, 3]: 5 m long, centred.
+    np.testing.assert_allclose(v.mesh.extents, [5.0, 2.0, 1.0], atol=1e-6)
+    np.testing.assert_allclose(v.mesh.bounds[:, 0], [-2.5, 2.5], atol=1e-6)
+
+
+ARM = """<robot name="arm">
+  <link name="base"><visual><geometry><box size="2 2 1"/></geometry></visual></link>
+  <link name="top"><visual><origin xyz="1 0 0"/><geometry><box size="2 0.2 0.2"/></geometry></visual></link>
+  <joint name="yaw" type="revolute">
+    <parent link="base"/><child link="top"/>
+    <origin xyz="0.5 0 1" rpy="0 0 0"/><axis xyz="0 0 1"/>
+    <limit lower="-1.0" upper="2.0"/>
+  </joint>
+</robot>"""
+
+
+def test_limit_without_effort_and_velocity_loads_and_poses(tmp_path):
+    (tmp_path / "arm.urdf").write_text(ARM)
+    rest = load_vehicle(tmp_path / "arm.urdf")
+    assert rest.joint_names == ("yaw",) and rest.cls == "unknown"
+    angle = 0.7
+    posed = load_vehicle(tmp_path / "arm.urdf", {"yaw": angle})
+    # Closed form: the top box's vertices rotate about the joint axis through (0.5, 0, 1).
+    top = trimesh.creation.box(extents=(2, 0.2, 0.2)).vertices + [1.0, 0.0, 0.0]
+    expected = top @ _rot_z(angle).T + [0.5, 0.0, 1.0]
+    offset = rest.mesh.vertices[0] - trimesh.creation.box(extents=(2, 2, 1)).vertices[0]
+    np.testing.assert_allclose(posed.mesh.vertices[8:], expected + offset, atol=1e-9)
+    np.testing.assert_allclose(posed.mesh.vertices[:8], rest.mesh.vertices[:8], atol=1e-12)  # the base stays
+    with pytest.raises(ValueError, match="outside its limits"):
+        rest.posed({"yaw": 2.5})
+
+
+def test_visual_rpy_is_fixed_axis_xyz(tmp_path):
+    r, p, y = 0.3, -0.4, 1.1
+    (tmp_path / "box.urdf").write_text(
+        f'<robot name="b"><link name="l"><visual><origin xyz="0 0 0" rpy="{r} {p} {y}"/>'
+        '<geometry><box size="3 1 0.5"/></geometry></visual></link></robot>'
+    )
+    v = load_vehicle(tmp_path / "box.urdf")
+    raw = trimesh.creation.box(extents=(3, 1, 0.5)).vertices @ (_rot_z(y) @ _rot_y(p) @ _rot_x(r)).T
+    np.testing.assert_allclose(v.mesh.vertices - v.mesh.vertices[0], raw - raw[0], atol=1e-9)
+
+
+def test_urdf_mesh_visual_is_resolved_beside_the_urdf(tmp_path):
+    (tmp_path / "parts").mkdir()
+    trimesh.creation.box(extents=(1, 1, 1)).export(tmp_path / "parts" / "cube.stl")
+    (tmp_path / "m.urdf").write_text(
+        '<robot name="m"><link name="l"><visual><geometry>'
+        '<mesh filename="parts/cube.stl" scale="4 2 1.5"/></geometry></visual></link></robot>'
+    )
+    np.testing.assert_allclose(load_vehicle(tmp_path / "m.urdf").mesh.extents, [4, 2, 1.5], atol=1e-6)
+
+
+# ------------------------------------------------------------------------------------------
+# Mesh files: axes and scale
+# ------------------------------------------------------------------------------------------
+def _marked_box(forward: np.ndarray, left: np.ndarray, up: np.ndarray, scale: float) -> trimesh.Trimesh:
+    """A 4 x 2 x 1.5 m body with a nose block at front-top and a fin on the left, in file axes."""
+    parts = [((4.0, 2.0, 1.5), (0.0, 0.0, 0.75)), ((0.5, 0.4, 0.4), (2.0, 0.0, 1.5)), ((1.0, 0.6, 0.2), (0.0, 1.0, 0.3))]
+    basis = np.stack([forward, left, up], axis=1) / scale  # body -> file coordinates
+    meshes = []
+    for size, centre in parts:
+        m = trimesh.creation.box(extents=size)
+        m.vertices = (m.vertices + centre) @ basis.T
+        meshes.append(m)
+    return trimesh.util.concatenate(meshes)
+
+
+AXIS_VEC = {"x": [1, 0, 0], "y": [0, 1, 0], "z": [0, 0, 1], "-x": [-1, 0, 0], "-y": [0, -1, 0], "-z": [0, 0, -1]}
+
+
+@pytest.mark.parametrize(
+    "up,forward,scale,ext",
+    [("z", "x", 1.0, "obj"), ("y", "-z", 0.01, "obj"), ("y", "x", 0.0254, "stl"), ("-x", "y", 1.0, "glb"), ("z", "-y", 0.001, "ply")],
+)
+def test_mesh_file_axes_and_scale(tmp_path, up, forward, scale, ext):
+    u, f = np.array(AXIS_VEC[up], float), np.array(AXIS_VEC[forward], float)
+    left = np.cross(u, f)
+    _marked_box(f, left, u, scale).export(tmp_path / f"v.{ext}")
+    v = load_vehicle(tmp_path / f"v.{ext}", up_axis=up, forward_axis=forward, scale=scale, cls="apc")
+    lo, hi = v.mesh.bounds
+    np.testing.assert_allclose(hi - lo, [4.25, 2.3, 1.7], atol=1e-4)  # nose and fin included
+    assert lo[2] == pytest.approx(0.0, abs=1e-9)
+    np.testing.assert_allclose((lo + hi)[:2] / 2, 0.0, atol=1e-6)
+    x = v.mesh.vertices
+    assert x[np.argmax(x[:, 0]), 2] > 1.2  # the nose block is at the front, on top
+    assert x[np.argmax(x[:, 1]), 2] < 0.5  # the low fin is on the left (+Y)
+
+
+def test_body_rotation_is_proper():
+    for up in AXIS_VEC:
+        for fw in AXIS_VEC:
+            if abs(np.dot(AXIS_VEC[up], AXIS_VEC[fw])) > 0:
+                with pytest.raises(ValueError, match="perpendicular"):
+                    body_rotation(up, fw)
+                continue
+            r = body_rotation(up, fw)
+            np.testing.assert_allclose(r @ r.T, np.eye(3), atol=1e-12)
+            assert np.linalg.det(r) == pytest.approx(1.0)
+            np.testing.assert_allclose(r @ np.array(AXIS_VEC[fw], float), [1, 0, 0])
+            np.testing.assert_allclose(r @ np.array(AXIS_VEC[up], float), [0, 0, 1])
+    with pytest.raises(ValueError, match="up_axis"):
+        body_rotation("w", "x")
+
+
+# ------------------------------------------------------------------------------------------
+# Bad input names the file
+# ------------------------------------------------------------------------------------------
+def test_missing_file(tmp_path):
+    with pytest.raises(FileNotFoundError, match="nope.urdf"):
+        load_vehicle(tmp_path / "nope.urdf")
+
+
+def test_missing_referenced_mesh(tmp_path):
+    (tmp_path / "v.urdf").write_text(
+        '<robot name="v"><link name="l"><visual><geometry><mesh filename="gone.obj"/></geometry></visual></link></robot>'
+    )
+    with pytest.raises(FileNotFoundError, match=r"v\.urdf.*gone\.obj"):
+        load_vehicle(tmp_path / "v.urdf")
+
+
+def test_broken_xml(tmp_path):
+    (tmp_path / "broken.urdf").write_text('<robot name="v"><link name="l"></robot>')
+    with pytest.raises(ValueError, match="broken.urdf"):
+        load_vehicle(tmp_path / "broken.urdf")
+
+
+def test_unknown_class(tmp_path):
+    trimesh.creation.box().export(tmp_path / "b.obj")
+    with pytest.raises(ValueError, match=r"b\.obj.*'truck'"):
+        load_vehicle(tmp_path / "b.obj", cls="truck")
+
+
+def test_empty_and_unreadable_meshes(tmp_path):
+    (tmp_path / "empty.obj").write_text("# nothing here\n")
+    with pytest.raises(ValueError, match="empty.obj"):
+        load_vehicle(tmp_path / "empty.obj")
+    (tmp_path / "v.urdf").write_text("<robot name='v'><link name='l'/></robot>")
+    with pytest.raises(ValueError, match="v.urdf"):
+        load_vehicle(tmp_path / "v.urdf")
+
+
+def test_bad_options(tmp_path):
+    trimesh.creation.box().export(tmp_path / "b.obj")
+    with pytest.raises(ValueError, match="scale"):
+        load_vehicle(tmp_path / "b.obj", scale=0.0)
+    with pytest.raises(ValueError, match="perpendicular"):
+        load_vehicle(tmp_path / "b.obj", up_axis="x", forward_axis="-x")
+    with pytest.raises(ValueError, match="no joints"):
+        load_vehicle(tmp_path / "b.obj", {"turret_yaw": 0.0})
+    with pytest.raises(ValueError, match=r"b\.obj\) has no joints"):
+        load_vehicle(tmp_path / "b.obj").posed({"turret_yaw": 0.0})
+
+
+# ------------------------------------------------------------------------------------------
+# Geometry primitives
+# ------------------------------------------------------------------------------------------
+def test_triangulate_non_convex_polygon():
+    poly = np.array([(0, 0), (4, 0), (4, 1), (2.5, 1), (2, 2.5), (1.5, 1), (0, 1)], float)  # a cab on a body
+    tri = triangulate(poly)
+    assert tri.shape == (len(poly) - 2, 3)
+    areas = [signed_area(poly[t]) for t in tri]
+    assert min(areas) > 0
+    assert sum(areas) == pytest.approx(signed_area(poly))
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_loft_volumes_match_convex_hull(seed):
+    rng = np.random.default_rng(seed)
+    n = 7
+    ang = np.sort(rng.uniform(0, 2 * np.pi, n))
+    floor = np.stack([2 * np.cos(ang), 1.2 * np.sin(ang)], 1)
+    v, f = frustum_xy(floor, 0.0, floor * 0.6 + [0.3, 0.0], 1.3)  # convex: hull volume is exact
+    assert volume(v, f) == pytest.approx(ConvexHull(v).volume, rel=1e-9)
+    m = trimesh.Trimesh(v, f, process=False)
+    assert m.is_watertight and m.is_winding_consistent
+    profile = np.stack([3 * np.cos(ang), 1 + np.sin(ang)], 1)
+    v, f = prism_xz(profile, 0.8, y0=0.5)
+    assert volume(v, f) == pytest.approx(ConvexHull(v).volume, rel=1e-9)
+    assert v[:, 1].min() == pytest.approx(-0.3) and v[:, 1].max() == pytest.approx(1.3)
+
+
+# ------------------------------------------------------------------------------------------
+# Held-out meshes
+# ------------------------------------------------------------------------------------------
+FOLDER_CLASS = {"tank": "tank", "apc": "apc", "pickup": "pickup", "suv": "suv", "sedan": "car", "van": "minivan",
+                "military_utility": "unknown", "truck": "unknown"}
+PLAUSIBLE_LENGTH = {"tank": (4.0, 12.0), "apc": (4.0, 9.0), "pickup": (4.5, 6.5), "suv": (3.5, 5.5),
+                    "car": (3.0, 5.5), "minivan": (4.0, 7.0), "unknown": (3.0, 12.0)}
+MESHES_ROOT = default_meshes_root()
+needs_meshes = pytest.mark.skipif(not MESHES_ROOT.is_dir(), reason=f"no held-out meshes at {MESHES_ROOT}")
+
+
+@needs_meshes
+def test_manifest_covers_every_model_with_the_folder_class():
+    entries = read_manifest()
+    files = {str(p.relative_to(MESHES_ROOT)) for p in MESHES_ROOT.glob("*/*") if p.suffix in (".obj", ".glb")}
+    assert {e.path for e in entries} == files
+    assert len({Path(e.path).stem for e in entries}) == len(entries)
+    for e in entries:
+        assert e.cls == FOLDER_CLASS[e.path.split("/")[0]], e.path
+        assert e.note
+
+
+def _check_heldout(vehicles):
+    for v in vehicles:
+        lo, hi = v.mesh.bounds
+        assert lo[2] == pytest.approx(0.0, abs=1e-9), v.name
+        np.testing.assert_allclose((lo + hi)[:2] / 2, 0.0, atol=1e-6)
+        low, high = PLAUSIBLE_LENGTH[v.cls]
+        assert low <= hi[0] - lo[0] <= high, (v.name, hi[0] - lo[0])
+        assert hi[0] - lo[0] > hi[1] - lo[1], v.name  # long axis forward
+
+
+FAST_SUBSET = ("tank/iron_tanktics_warfare_tank.glb", "sedan/quaternius_normalcar2.obj", "van/gazebo_ambulance.obj",
+               "apc/chrono_M113_chassis.obj")
+
+
+@needs_meshes
+def test_heldout_subset_loads_in_body_frame():
+    entries = [e for e in read_manifest() if e.path in FAST_SUBSET]
+    assert len(entries) == len(FAST_SUBSET)
+    vehicles = load_heldout_meshes(entries=entries)
+    _check_heldout(vehicles)
+    m113 = vehicles[[e.path for e in entries].index("apc/chrono_M113_chassis.obj")]
+    # M113: the long sloped glacis is at the front, the rear plate is vertical.
+    assert _max_height(m113, 2.2, 2.7) < _max_height(m113, -2.7, -2.2) - 0.3
+
+
+@needs_meshes
+def test_heldout_root_from_environment(tmp_path, monkeypatch):
+    entry = next(e for e in read_manifest() if e.path == "van/gazebo_ambulance.obj")
+    (tmp_path / "van").mkdir()
+    (tmp_path / entry.path).write_bytes((MESHES_ROOT / entry.path).read_bytes())
+    monkeypatch.setenv(MESHES_ENV, str(tmp_path))
+    (v,) = load_heldout_meshes(entries=[entry])
+    assert v.source == tmp_path / entry.path and v.cls == "minivan"
+    monkeypatch.setenv(MESHES_ENV, str(tmp_path / "missing"))
+    with pytest.raises(FileNotFoundError, match="missing"):
+        load_heldout_meshes()
+
+
+@pytest.mark.slow
+@needs_meshes
+def test_all_heldout_meshes_load_in_body_frame():
+    vehicles = load_heldout_meshes()
+    assert len(vehicles) == len(read_manifest())
+    _check_heldout(vehicles)

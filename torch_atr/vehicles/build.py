@@ -1,0 +1,299 @@
+"""Generate the catalog (URDF + part OBJ files) from the spec table in ``specs.py``.
+
+    python -m torch_atr.vehicles.build [--out DIR]
+
+writes ``DIR/{train,test}/<name>/<name>.urdf`` with ``hull.obj`` (and ``turret.obj``) beside
+it; DIR defaults to the package's ``catalog`` folder, whose files are committed. The output
+is a pure function of the specs (fixed topology, 0.1 mm text), so rebuilding reproduces the
+shipped files byte for byte.
+
+Frames: each URDF's root link ``hull`` is already the body frame at the rest pose (+X
+forward, +Y left, +Z up; the bounding box, gun forward, is centred on x = y = 0 and the tracks
+or tyres touch z = 0). Articulated vehicles have a ``turret`` link on the continuous joint
+``turret_yaw`` (axis +Z, so +pi/2 swings the gun to the left, +Y) and a ``gun`` link on the
+revolute joint ``gun_pitch`` (axis -Y, so a positive angle raises the muzzle).
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import math
+import shutil
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable, Sequence
+
+from torch_atr.io import atomic_write_text
+from torch_atr.vehicles.catalog import CATALOG_DIR
+from torch_atr.vehicles.geometry import Part, ellipse, fmt, frustum_xy, obj_text, prism_xz
+from torch_atr.vehicles.specs import SPLITS, Extra, Road, Spec, Tracked, Turret, Wheeled
+
+log = logging.getLogger(__name__)
+
+_AXIS_RPY = {"x": (0.0, math.pi / 2, 0.0), "y": (math.pi / 2, 0.0, 0.0), "z": (0.0, 0.0, 0.0)}
+_GUN_EFFORT, _GUN_VELOCITY = 1.0e4, 0.7  # N m, rad/s: nominal, URDF requires them
+
+
+@dataclass
+class _Link:
+    """One URDF link being assembled: lofted parts (written to ``<name>.obj``) and primitives."""
+
+    name: str
+    lofts: list[tuple[str, Part]] = field(default_factory=list)
+    visuals: list[str] = field(default_factory=list)
+
+    def box(self, size: Sequence[float], xyz: Sequence[float]) -> None:
+        self.visuals.append(_visual(xyz, (0.0, 0.0, 0.0), f'<box size="{_v(size)}"/>'))
+
+    def cylinder(self, radius: float, length: float, xyz: Sequence[float], axis: str) -> None:
+        self.visuals.append(_visual(xyz, _AXIS_RPY[axis], f'<cylinder radius="{fmt(radius)}" length="{fmt(length)}"/>'))
+
+
+def _v(values: Sequence[float]) -> str:
+    return " ".join(fmt(x) for x in values)
+
+
+def _visual(xyz: Sequence[float], rpy: Sequence[float], geometry: str) -> str:
+    return (f'    <visual>\n      <origin xyz="{_v(xyz)}" rpy="{_v(rpy)}"/>\n'
+            f"      <geometry>{geometry}</geometry>\n    </visual>")
+
+
+def _clean(points: Sequence[tuple[float, float]]) -> list[tuple[float, float]]:
+    """Drop repeated (< 1 mm apart) and collinear points of a closed polygon."""
+    pts = [p for i, p in enumerate(points) if math.dist(p, points[i - 1]) > 1e-3]
+    out = []
+    for i, p in enumerate(pts):
+        a, c = pts[i - 1], pts[(i + 1) % len(pts)]
+        if abs((p[0] - a[0]) * (c[1] - a[1]) - (p[1] - a[1]) * (c[0] - a[0])) > 1e-6:
+            out.append(p)
+    return out
+
+
+def _clip(points: Sequence[tuple[float, float]], z: float, above: bool) -> list[tuple[float, float]]:
+    """The part of a polygon (x, z) above (or below) the line z = const (Sutherland-Hodgman)."""
+    inside: Callable[[tuple[float, float]], bool] = (lambda p: p[1] >= z) if above else (lambda p: p[1] <= z)
+    out = []
+    for i, q in enumerate(points):
+        p = points[i - 1]
+        if inside(p) != inside(q):
+            t = (z - p[1]) / (q[1] - p[1])
+            out.append((p[0] + t * (q[0] - p[0]), z))
+        if inside(q):
+            out.append(q)
+    return _clean(out)
+
+
+def _extras(links: dict[str, _Link], extras: Sequence[Extra], hull_x: Callable[[float], float]) -> None:
+    """Add spec extras to their links (hull positions are given as s, converted by ``hull_x``)."""
+    for e in extras:
+        xyz = (hull_x(e.xyz[0]), e.xyz[1], e.xyz[2]) if e.link == "hull" else e.xyz
+        if e.shape == "box":
+            links[e.link].box(e.size, xyz)
+        else:
+            links[e.link].cylinder(e.size[0], e.size[1], xyz, e.axis)
+
+
+def _turret(t: Turret, length: float) -> tuple[_Link, _Link]:
+    """Turret link (frame: axis on the deck) and gun link (frame: trunnion; barrel ``length``)."""
+    turret, gun = _Link("turret"), _Link("gun")
+    hw = t.width / 2
+    if t.round:
+        floor = [tuple(p) for p in ellipse((t.front - t.rear) / 2, 0.0, (t.front + t.rear) / 2, hw, 12)]
+    else:
+        n, c1, c2 = t.nose * hw, max((1 - t.nose) * hw * 0.8, 0.05), 0.25 * hw
+        floor = [(t.front, -n), (t.front, n), (t.front - c1, hw), (-t.rear + c2, hw), (-t.rear, 0.7 * hw),
+                 (-t.rear, -0.7 * hw), (-t.rear + c2, -hw), (t.front - c1, -hw)]
+    # Roof: the front edge set back by `slope`, the sides and rear drawn in by `taper`.
+    roof = [(px * (1 - t.slope / t.front) if px > 0 else px * (1 - t.taper / t.rear), py * (1 - t.taper / hw))
+            for px, py in floor]
+    turret.lofts.append(("turret", frustum_xy(floor, -0.03, roof, t.height)))
+
+    g = t.gun
+    gun.box(g.mantlet, (0.0, 0.0, 0.0))
+    for by, bz in g.barrels:
+        gun.cylinder(g.diameter / 2, length + 0.4, ((length - 0.4) / 2, by, bz), "x")
+        if g.evacuator:
+            gun.cylinder(0.8 * g.diameter, 0.6, (g.evacuator * length, by, bz), "x")
+        if g.brake:
+            gun.cylinder(0.8 * g.diameter, 0.45, (length - 0.225, by, bz), "x")
+    return turret, gun
+
+
+def _military(spec: Tracked | Wheeled, hull: _Link, x: Callable[[float], float]) -> tuple[list[_Link], str]:
+    """Add turret, gun, joints and extras to a military hull; returns (links, joints XML)."""
+    links = {"hull": hull}
+    joints = ""
+    t = spec.turret
+    if t is not None:
+        trunnion_x = x(t.ring) + t.gun.trunnion[0]
+        if t.gun.length is not None:
+            length = t.gun.length
+        else:  # the muzzle reaches the published length with the gun forward
+            length = x(-(spec.gun_length - spec.length)) - trunnion_x
+        links["turret"], links["gun"] = _turret(t, length)
+        lo, hi = (math.radians(a) for a in t.gun.elevation)
+        joints = (
+            f'  <joint name="turret_yaw" type="continuous">\n    <parent link="hull"/>\n'
+            f'    <child link="turret"/>\n'
+            f'    <origin xyz="{_v((x(t.ring), t.offset, spec.deck))}" rpy="0 0 0"/>\n    <axis xyz="0 0 1"/>\n'
+            f"  </joint>\n"
+            f'  <joint name="gun_pitch" type="revolute">\n    <parent link="turret"/>\n    <child link="gun"/>\n'
+            f'    <origin xyz="{_v((t.gun.trunnion[0], 0.0, t.gun.trunnion[1]))}" rpy="0 0 0"/>\n'
+            f'    <axis xyz="0 -1 0"/>\n'
+            f'    <limit lower="{fmt(lo)}" upper="{fmt(hi)}" effort="{_GUN_EFFORT:g}" velocity="{_GUN_VELOCITY:g}"/>\n'
+            f"  </joint>\n"
+        )
+    _extras(links, spec.extras, x)
+    return list(links.values()), joints
+
+
+def _hull_profile(spec: Tracked | Wheeled, rear_low: float, rear_mid: float) -> list[tuple[float, float]]:
+    """Side profile (s, z) of a military hull: nose, lower glacis, belly, rear plate, roof, glacis."""
+    L = spec.length
+    return [(0.0, spec.nose), (spec.lower_glacis, spec.belly), (L - 0.35, spec.belly), (L, rear_low),
+            (L, rear_mid), (L - spec.rear_slope, spec.deck), (spec.glacis, spec.deck)]
+
+
+def _tracked(spec: Tracked) -> tuple[list[_Link], str]:
+    """Hull between and over two track runs, road wheels, optional skirts, turret and gun."""
+    L, W = spec.length, spec.width
+    overhang = spec.gun_length - L if spec.gun_length is not None else 0.0
+
+    def x(s: float) -> float:  # s behind the hull front -> body x (bounding box centred, gun forward)
+        return (L - overhang) / 2 - s
+
+    hull = _Link("hull")
+    z_top = spec.wheel_d + 0.15  # top run of the track
+    z_fender = z_top + 0.03
+    y_track = W / 2 - 0.06 - spec.track_w / 2  # track centre line
+
+    profile = [(x(s), z) for s, z in _hull_profile(spec, spec.belly + 0.3, (spec.belly + spec.deck) / 2)]
+    hull.lofts.append(("lower_hull", prism_xz(profile, y_track - spec.track_w / 2 - 0.03)))
+    upper = _clip(profile, z_fender, above=True)
+    hull.lofts.append(("upper_hull", prism_xz(upper, W / 2)))
+
+    a, b = (L - spec.contact) / 2, (L + spec.contact) / 2  # first and last road-wheel centres
+    run = [(a, 0.0), (b, 0.0), (min(L - 0.08, b + 0.7), 0.6 * z_top), (min(L - 0.25, b + 0.5), z_top),
+           (max(0.25, a - 0.5), z_top), (max(0.1, a - 0.7), 0.6 * z_top)]
+    run_xz = [(x(s), z) for s, z in run]
+    skirt_front, skirt_rear = max(px for px, _ in upper) - 0.1, x(L - 0.15)
+    skirt_z = (0.55 * spec.wheel_d, z_fender + 0.05)
+    for side, label in ((1, "left"), (-1, "right")):
+        hull.lofts.append((f"track_{label}", prism_xz(run_xz, spec.track_w / 2, side * y_track)))
+        for i in range(spec.road_wheels):
+            s = a + i * (b - a) / (spec.road_wheels - 1)
+            hull.cylinder(spec.wheel_d / 2, spec.track_w + 0.1, (x(s), side * y_track, spec.wheel_d / 2 + 0.07), "y")
+        if spec.skirts:
+            hull.box((skirt_front - skirt_rear, 0.06, skirt_z[1] - skirt_z[0]),
+                     ((skirt_front + skirt_rear) / 2, side * (W / 2 - 0.03), sum(skirt_z) / 2))
+    return _military(spec, hull, x)
+
+
+def _wheeled(spec: Wheeled) -> tuple[list[_Link], str]:
+    """Narrow lower hull between the wheels, wide upper hull with sloped sides over them."""
+    L, W = spec.length, spec.width
+
+    def x(s: float) -> float:  # s behind the front -> body x
+        return L / 2 - s
+
+    hull = _Link("hull")
+    z_w = spec.wheel_d + 0.05  # widest level, just above the tyres
+    profile = [(x(s), z) for s, z in _hull_profile(spec, spec.belly + 0.4, z_w)]
+    lower = _clip(profile, z_w + 0.05, above=False)
+    hull.lofts.append(("lower_hull", prism_xz(lower, spec.track / 2 - spec.tyre_w / 2 - 0.05)))
+    upper = _clip(profile, z_w, above=True)
+    # Sloped sides: the half-width falls linearly with height, so each cap stays planar.
+    widths = [W / 2 - spec.side_slope * (z - z_w) / (spec.deck - z_w) for _, z in upper]
+    hull.lofts.append(("upper_hull", prism_xz(upper, widths)))
+    for s in spec.axles:
+        for side in (1, -1):
+            hull.cylinder(spec.wheel_d / 2, spec.tyre_w, (x(s), side * spec.track / 2, spec.wheel_d / 2), "y")
+    return _military(spec, hull, x)
+
+
+def _road(spec: Road) -> tuple[list[_Link], str]:
+    """Lower body (side profile), greenhouse with tumblehome, wheels, and a pickup's open bed."""
+    L, W, H, sh = spec.length, spec.width, spec.height, spec.shape
+
+    def x(s: float) -> float:  # s behind the front -> body x
+        return L / 2 - s
+
+    hull = _Link("hull")
+    body = L - spec.bed - 0.03 if spec.bed else L  # a pickup's cab ends where its bed starts
+    z0, zn, zb, zd = spec.clearance, sh.nose * H, sh.belt * H, sh.deck * H
+    s_ws, s_tail = sh.windshield * body, sh.tail * body
+    top = [(s_ws, zb)]
+    if s_tail < body - 0.15:  # a separate boot (three-box sedan)
+        top += [(s_tail, zb), (body - 0.1, zd), (body, zd - 0.15)]
+    else:
+        top += [(body, zb)]
+    profile = [(0.0, z0 + 0.25), (0.0, zn - 0.1), (0.08, zn), *top, (body, z0 + 0.3), (body - 0.3, z0), (0.3, z0)]
+    hull.lofts.append(("body", prism_xz(_clean([(x(s), z) for s, z in profile]), W / 2)))
+    cabin = [(s_ws, zb - 0.02), (sh.roof[0] * body, H), (sh.roof[1] * body, H), (min(s_tail, body), zb - 0.02)]
+    w_belt, w_roof = W / 2 - 0.04, sh.roof_w * W / 2
+    hull.lofts.append(("greenhouse", prism_xz([(x(s), z) for s, z in cabin], [w_belt, w_roof, w_roof, w_belt])))
+    for s in (spec.front, spec.front + spec.wheelbase):
+        for side in (1, -1):
+            hull.cylinder(spec.wheel_d / 2, spec.tyre_w, (x(s), side * spec.track / 2, spec.wheel_d / 2), "y")
+    if spec.bed:
+        s0, floor, rail = body + 0.03, spec.wheel_d + 0.08, zb
+        mid, length = x((s0 + L) / 2), L - s0
+        hull.box((length - 0.1, W - 0.12, 0.06), (mid, 0.0, floor - 0.03))  # floor
+        hull.box((length, 0.9, floor - z0 - 0.1), (mid, 0.0, (floor + z0 + 0.1) / 2))  # frame under the bed
+        bottom = z0 + 0.3
+        for side in (1, -1):
+            hull.box((length, 0.06, rail - bottom), (mid, side * (W / 2 - 0.03), (rail + bottom) / 2))  # sides
+        hull.box((0.06, W - 0.12, rail - bottom - 0.05), (x(L - 0.03), 0.0, (rail + bottom + 0.05) / 2))  # tailgate
+    _extras({"hull": hull}, spec.extras, x)
+    return [hull], ""
+
+
+def vehicle_files(spec: Spec) -> dict[str, str]:
+    """File name -> text of one vehicle: ``<name>.urdf`` and one OBJ per link with lofted parts."""
+    builder = {Tracked: _tracked, Wheeled: _wheeled, Road: _road}[type(spec)]
+    links, joints = builder(spec)
+    header = f"{spec.title}: generated by `python -m torch_atr.vehicles.build` from specs.py; do not edit."
+    files: dict[str, str] = {}
+    body = []
+    for link in links:
+        visuals = list(link.visuals)
+        if link.lofts:
+            files[f"{link.name}.obj"] = obj_text(link.lofts, header)
+            visuals.insert(0, f'    <visual>\n      <geometry><mesh filename="{link.name}.obj"/></geometry>\n    </visual>')
+        body.append(f'  <link name="{link.name}">\n' + "\n".join(visuals) + "\n  </link>\n")
+    files[f"{spec.name}.urdf"] = (
+        f'<?xml version="1.0"?>\n<!-- {header} -->\n<robot name="{spec.name}">\n' + "".join(body) + joints + "</robot>\n"
+    )
+    return files
+
+
+def build_catalog(out_dir: str | Path = CATALOG_DIR) -> list[Path]:
+    """Write every split's vehicles under ``out_dir/<split>/<name>/``; returns the files written.
+
+    The split folders are emptied first, so vehicles removed from the specs disappear.
+    """
+    out_dir = Path(out_dir)
+    written = []
+    for split, specs in SPLITS.items():
+        shutil.rmtree(out_dir / split, ignore_errors=True)
+        for spec in specs:
+            for fname, text in vehicle_files(spec).items():
+                path = out_dir / split / spec.name / fname
+                atomic_write_text(text, path)
+                written.append(path)
+    return written
+
+
+def main(argv: Sequence[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description="Generate the vehicle catalog from specs.py.")
+    parser.add_argument("--out", type=Path, default=CATALOG_DIR, help="output folder (default: the package catalog)")
+    args = parser.parse_args(argv)
+    logging.basicConfig(level=logging.INFO, format="%(message)s")
+    files = build_catalog(args.out)
+    size = sum(p.stat().st_size for p in files)
+    log.info("wrote %d files (%.1f KB) under %s", len(files), size / 1024, args.out)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,149 @@
+"""Closed polyhedral parts for the catalog builder, with explicit (deterministic) topology.
+
+Every part is a *loft*: two rings of ``n`` corresponding vertices joined by side quads and
+closed by two caps triangulated by ear clipping, oriented outwards. No convex hull or boolean
+operation is involved, so the same numbers always give the same vertices and faces.
+"""
+
+from __future__ import annotations
+
+from typing import Sequence
+
+import numpy as np
+
+Part = tuple[np.ndarray, np.ndarray]  # vertices (M, 3) float64, faces (F, 3) int64
+
+_EPS = 1e-12
+
+
+def _cross2(o: np.ndarray, a: np.ndarray, b: np.ndarray) -> float:
+    return float((a[0] - o[0]) * (b[1] - o[1]) - (a[1] - o[1]) * (b[0] - o[0]))
+
+
+def signed_area(poly: np.ndarray) -> float:
+    """Shoelace area of a polygon ``poly: (n, 2)``; positive when counter-clockwise."""
+    x, y = poly[:, 0], poly[:, 1]
+    return 0.5 * float(np.dot(x, np.roll(y, -1)) - np.dot(np.roll(x, -1), y))
+
+
+def triangulate(poly: np.ndarray) -> np.ndarray:
+    """Ear-clipping triangulation of a simple counter-clockwise polygon.
+
+    Args:
+        poly: (n, 2) vertices, n >= 3, counter-clockwise, no repeated points.
+
+    Returns:
+        (n - 2, 3) int64 vertex indices, each triangle counter-clockwise with positive area.
+    """
+    poly = np.asarray(poly, dtype=np.float64)
+    if poly.ndim != 2 or poly.shape[1] != 2 or len(poly) < 3:
+        raise ValueError(f"Expected poly to have shape (n>=3, 2); got {poly.shape}")
+    if signed_area(poly) <= 0:
+        raise ValueError("Expected a counter-clockwise polygon with positive area")
+    idx = list(range(len(poly)))
+    tris = []
+    while len(idx) > 3:
+        for k in range(len(idx)):
+            i0, i1, i2 = idx[k - 1], idx[k], idx[(k + 1) % len(idx)]
+            a, b, c = poly[i0], poly[i1], poly[i2]
+            if _cross2(a, b, c) <= _EPS:  # reflex or collinear corner: not an ear
+                continue
+            others = (poly[m] for m in idx if m not in (i0, i1, i2))
+            if any(_cross2(a, b, p) >= 0 and _cross2(b, c, p) >= 0 and _cross2(c, a, p) >= 0 for p in others):
+                continue
+            tris.append((i0, i1, i2))
+            idx.pop(k)
+            break
+        else:
+            raise ValueError("polygon is not simple: no ear left to clip")
+    if _cross2(*(poly[i] for i in idx)) <= _EPS:
+        raise ValueError("polygon triangulation left a degenerate triangle (collinear points?)")
+    tris.append(tuple(idx))
+    return np.asarray(tris, dtype=np.int64)
+
+
+def loft(ring0: np.ndarray, ring1: np.ndarray, cap: np.ndarray) -> Part:
+    """Close the band between two rings of corresponding vertices into a solid.
+
+    Args:
+        ring0, ring1: (n, 3) vertices; vertex i of one ring is joined to vertex i of the other.
+        cap: (n, 2) 2-D polygon (either winding) whose triangulation closes both ends.
+
+    Returns:
+        (vertices (2n, 3), faces (4n - 4, 3)) oriented with outward normals (positive volume).
+    """
+    ring0, ring1, cap = (np.asarray(a, dtype=np.float64) for a in (ring0, ring1, cap))
+    n = len(cap)
+    if ring0.shape != (n, 3) or ring1.shape != (n, 3):
+        raise ValueError(f"Expected ring0, ring1 of shape ({n}, 3); got {ring0.shape}, {ring1.shape}")
+    if signed_area(cap) < 0:
+        ring0, ring1, cap = ring0[::-1], ring1[::-1], cap[::-1]
+    tri = triangulate(cap)
+    i = np.arange(n)
+    j = (i + 1) % n
+    sides = np.concatenate([np.stack([i, j, n + j], 1), np.stack([i, n + j, n + i], 1)])
+    faces = np.concatenate([tri[:, ::-1], sides, tri + n])
+    verts = np.concatenate([ring0, ring1])
+    if volume(verts, faces) < 0:
+        faces = faces[:, ::-1]
+    return verts, np.ascontiguousarray(faces)
+
+
+def volume(verts: np.ndarray, faces: np.ndarray) -> float:
+    """Signed volume of a closed triangle mesh (divergence theorem); verts (M, 3), faces (F, 3)."""
+    a, b, c = verts[faces[:, 0]], verts[faces[:, 1]], verts[faces[:, 2]]
+    return float(np.einsum("ij,ij->i", a, np.cross(b, c)).sum() / 6.0)
+
+
+def prism_xz(profile: Sequence[tuple[float, float]], half_width: float | Sequence[float], y0: float = 0.0) -> Part:
+    """Extrude a side profile (x, z) across the width, symmetric about ``y = y0``.
+
+    Args:
+        profile: n points (x, z) of a simple polygon (either winding).
+        half_width: a scalar, or n per-vertex half-widths (a tumblehome: vertices on a roof
+            line narrower than those on a belt line keep every face planar when each edge
+            joins vertices of equal half-width or is parallel to another edge).
+        y0: y of the symmetry plane.
+    """
+    p = np.asarray(profile, dtype=np.float64)
+    w = np.broadcast_to(np.asarray(half_width, dtype=np.float64), (len(p),))
+    left = np.stack([p[:, 0], y0 + w, p[:, 1]], 1)
+    right = np.stack([p[:, 0], y0 - w, p[:, 1]], 1)
+    return loft(right, left, p)
+
+
+def frustum_xy(bottom: Sequence[tuple[float, float]], z0: float, top: Sequence[tuple[float, float]], z1: float) -> Part:
+    """Join a convex floor polygon (x, y) at ``z0`` to a convex roof polygon at ``z1``.
+
+    ``bottom`` and ``top`` have the same number of corresponding vertices.
+    """
+    b = np.asarray(bottom, dtype=np.float64)
+    t = np.asarray(top, dtype=np.float64)
+    if b.shape != t.shape:
+        raise ValueError(f"Expected bottom and top of equal shape (n, 2); got {b.shape}, {t.shape}")
+    ring0 = np.concatenate([b, np.full((len(b), 1), z0)], 1)
+    ring1 = np.concatenate([t, np.full((len(t), 1), z1)], 1)
+    return loft(ring0, ring1, b)
+
+
+def ellipse(cx: float, cy: float, rx: float, ry: float, n: int) -> np.ndarray:
+    """(n, 2) counter-clockwise points of an axis-aligned ellipse, the first at +x."""
+    a = 2 * np.pi * np.arange(n) / n
+    return np.stack([cx + rx * np.cos(a), cy + ry * np.sin(a)], 1)
+
+
+def fmt(v: float) -> str:
+    """Fixed 4-decimal text without a negative zero (byte-stable output)."""
+    return f"{round(float(v), 4) + 0.0:.4f}"
+
+
+def obj_text(parts: Sequence[tuple[str, Part]], header: str) -> str:
+    """Wavefront OBJ text of named parts (``o`` groups), 1-based indices, 0.1 mm resolution."""
+    lines = [f"# {header}"]
+    base = 1
+    for name, (verts, faces) in parts:
+        lines.append(f"o {name}")
+        lines += ["v " + " ".join(fmt(c) for c in v) for v in verts]
+        lines += ["f " + " ".join(str(base + int(i)) for i in f) for f in faces]
+        base += len(verts)
+    return "\n".join(lines) + "\n"

@@ -1,0 +1,319 @@
+"""Load one vehicle (URDF or any mesh file trimesh reads) into the body frame of METHOD.md.
+
+Body frame: +X forward, +Y left, +Z up, metres; origin at the centre of the footprint on the
+ground (x/y centre of the bounding box, z = 0 at the lowest point).
+
+URDF: links carry box / cylinder / sphere / mesh visuals (``<origin xyz rpy>``); joints
+(revolute, continuous, prismatic, fixed) are posed with pytorch-kinematics' forward kinematics.
+Two measured pitfalls of ``pk.build_chain_from_urdf`` are handled here: it raises on a valid
+URDF with a single link and no joint (the lone link's visuals are used directly), and it
+requires ``effort`` and ``velocity`` on every ``<limit>`` (missing ones are filled with 0).
+It also keeps only the *first* visual of each link, so visuals are read from the XML here and
+pytorch-kinematics only supplies the link poses.
+"""
+
+from __future__ import annotations
+
+import math
+import xml.etree.ElementTree as ET
+from dataclasses import dataclass, field
+from pathlib import Path
+from types import MappingProxyType
+from typing import Mapping
+
+import numpy as np
+import pytorch_kinematics as pk
+import torch
+import trimesh
+
+CLASS_NAMES = ("tank", "apc", "pickup", "suv", "car", "minivan")
+UNKNOWN = "unknown"  # class of a held-out vehicle outside CLASS_NAMES
+
+_AXES = {
+    "x": (1.0, 0.0, 0.0), "y": (0.0, 1.0, 0.0), "z": (0.0, 0.0, 1.0),
+    "-x": (-1.0, 0.0, 0.0), "-y": (0.0, -1.0, 0.0), "-z": (0.0, 0.0, -1.0),
+}
+_CYLINDER_SECTIONS = 16
+
+
+def body_rotation(up_axis: str, forward_axis: str) -> np.ndarray:
+    """Rotation (3, 3) taking file coordinates to the body frame.
+
+    ``up_axis`` / ``forward_axis`` name the file axes ("x", "y", "z", "-x", "-y", "-z") that
+    point up and forward; the body's +Y (left) is up × forward, so the map is a proper rotation.
+    """
+    for what, axis in (("up_axis", up_axis), ("forward_axis", forward_axis)):
+        if axis not in _AXES:
+            raise ValueError(f"{what} must be one of {sorted(_AXES)}; got {axis!r}")
+    up = np.array(_AXES[up_axis])
+    fwd = np.array(_AXES[forward_axis])
+    if abs(float(up @ fwd)) > 0.5:
+        raise ValueError(f"up_axis {up_axis!r} and forward_axis {forward_axis!r} must be perpendicular")
+    return np.stack([fwd, np.cross(up, fwd), up])  # rows: body X, Y, Z in file coordinates
+
+
+@dataclass(frozen=True, eq=False)
+class _Rig:
+    """What a URDF vehicle needs to be re-posed: link-frame geometry, chain, body transform."""
+
+    chain: pk.Chain | None  # None for a single link without joints
+    root: str
+    joint_names: tuple[str, ...]
+    limits: Mapping[str, tuple[float, float]]
+    parts: tuple[tuple[str, np.ndarray, np.ndarray], ...]  # (link, vertices (M, 3), faces (F, 3))
+    rotation: np.ndarray  # (3, 3) file -> body, times scale
+    offset: np.ndarray  # (3,) added after rotation: centres the rest pose
+
+    def link_poses(self, values: Mapping[str, float]) -> dict[str, np.ndarray]:
+        """Link name -> (4, 4) pose in the URDF root frame for joint ``values``."""
+        if self.chain is None:
+            return {self.root: np.eye(4)}
+        th = torch.tensor([values[n] for n in self.chain.get_joint_parameter_names()], dtype=torch.float64)
+        return {k: t.get_matrix()[0].numpy() for k, t in self.chain.forward_kinematics(th).items()}
+
+    def file_vertices(self, values: Mapping[str, float]) -> tuple[np.ndarray, np.ndarray]:
+        """All parts posed in the URDF root frame: vertices (M, 3), faces (F, 3)."""
+        poses = self.link_poses(values)
+        verts, faces, base = [], [], 0
+        for link, v, f in self.parts:
+            pose = poses[link]
+            verts.append(v @ pose[:3, :3].T + pose[:3, 3])
+            faces.append(f + base)
+            base += len(v)
+        return np.concatenate(verts), np.concatenate(faces)
+
+    def mesh(self, values: Mapping[str, float]) -> trimesh.Trimesh:
+        v, f = self.file_vertices(values)
+        return trimesh.Trimesh(v @ self.rotation.T + self.offset, f, process=False)
+
+
+@dataclass(frozen=True, eq=False)
+class Vehicle:
+    """A vehicle in the body frame (+X forward, +Y left, +Z up, metres, origin on the ground).
+
+    ``name``, ``cls`` and ``mesh`` are what other modules use. ``joints`` holds the current
+    joint values (radians / metres) of a URDF vehicle; :meth:`posed` re-poses it.
+    """
+
+    name: str
+    cls: str
+    mesh: trimesh.Trimesh
+    source: Path
+    joints: Mapping[str, float] = field(default_factory=lambda: MappingProxyType({}))
+    _rig: _Rig | None = field(default=None, repr=False)
+
+    @property
+    def joint_names(self) -> tuple[str, ...]:
+        """Movable joints (kinematic-chain order); empty for a plain mesh or a rigid URDF."""
+        return self._rig.joint_names if self._rig is not None else ()
+
+    def posed(self, joints: Mapping[str, float]) -> Vehicle:
+        """A new Vehicle with the given joints set (others keep their current values).
+
+        The body-frame offset stays the one of the rest pose (every joint at 0, clipped into
+        its limits), so the hull does not move when the turret turns.
+        """
+        if not joints:
+            return self
+        if self._rig is None:
+            raise ValueError(f"{self.name} ({self.source}) has no joints; got {sorted(joints)}")
+        values = dict(self.joints)
+        values.update(_check_joints(self._rig, joints, self.source))
+        return Vehicle(self.name, self.cls, self._rig.mesh(values), self.source, MappingProxyType(values), self._rig)
+
+
+def _check_joints(rig: _Rig, joints: Mapping[str, float], source: Path) -> dict[str, float]:
+    out = {}
+    for k, v in joints.items():
+        if k not in rig.limits:
+            raise ValueError(f"{source}: unknown joint {k!r}; joints are {list(rig.joint_names)}")
+        v = float(v)
+        lo, hi = rig.limits[k]
+        if not (math.isfinite(v) and lo - 1e-9 <= v <= hi + 1e-9):
+            raise ValueError(f"{source}: joint {k!r} = {v} is outside its limits [{lo}, {hi}]")
+        out[k] = v
+    return out
+
+
+def load_vehicle(
+    path: str | Path,
+    joints: Mapping[str, float] | None = None,
+    *,
+    up_axis: str = "z",
+    forward_axis: str = "x",
+    scale: float = 1.0,
+    cls: str | None = None,
+    name: str | None = None,
+) -> Vehicle:
+    """Load a URDF or a mesh file (OBJ, GLB, STL, ...) as a :class:`Vehicle` in the body frame.
+
+    Args:
+        path: ``.urdf`` file, or any mesh file ``trimesh.load(p, force="mesh")`` reads.
+        joints: joint values for a URDF (unset joints stay at their rest value 0, clipped into
+            their limits); must be empty for a mesh file.
+        up_axis, forward_axis: the file axes pointing up / forward ("x", "y", "z", "-x", ...).
+        scale: file units -> metres.
+        cls: one of CLASS_NAMES or "unknown" (the default when None).
+        name: defaults to the file stem.
+
+    Raises:
+        FileNotFoundError: the file, or a mesh a URDF references, is missing (message names it).
+        ValueError: broken XML, unreadable or empty mesh, unknown class, bad axes or joints.
+    """
+    path = Path(path)
+    cls = UNKNOWN if cls is None else cls
+    if cls not in CLASS_NAMES + (UNKNOWN,):
+        raise ValueError(f"{path}: unknown vehicle class {cls!r}; expected one of {CLASS_NAMES + (UNKNOWN,)}")
+    if not path.is_file():
+        raise FileNotFoundError(f"vehicle file not found: {path}")
+    if not (math.isfinite(scale) and scale > 0):
+        raise ValueError(f"{path}: scale must be a positive number; got {scale}")
+    rotation = body_rotation(up_axis, forward_axis) * scale
+    name = path.stem if name is None else name
+    if path.suffix.lower() == ".urdf":
+        rig = _load_urdf(path, rotation)
+        rest = _rest_pose(rig.limits)
+        return Vehicle(name, cls, rig.mesh(rest), path, MappingProxyType(rest), rig).posed(joints or {})
+    if joints:
+        raise ValueError(f"{path} is a plain mesh and has no joints; got {sorted(joints)}")
+    mesh = _read_mesh(path, process=True)
+    v = mesh.vertices @ rotation.T
+    v = v + _centring_offset(v)
+    return Vehicle(name, cls, trimesh.Trimesh(v, mesh.faces, process=False), path)
+
+
+def _rest_pose(limits: Mapping[str, tuple[float, float]]) -> dict[str, float]:
+    """Every joint at 0, clipped into its limits."""
+    return {n: min(max(0.0, lo), hi) for n, (lo, hi) in limits.items()}
+
+
+def _centring_offset(v: np.ndarray) -> np.ndarray:
+    """(3,) translation putting the bounding box's x/y centre at 0 and its lowest point at z = 0."""
+    lo, hi = v.min(axis=0), v.max(axis=0)
+    return np.array([-(lo[0] + hi[0]) / 2, -(lo[1] + hi[1]) / 2, -lo[2]])
+
+
+def _read_mesh(path: Path, process: bool) -> trimesh.Trimesh:
+    try:
+        mesh = trimesh.load(path, force="mesh", process=process)
+    except Exception as exc:  # trimesh raises many types for unreadable files
+        raise ValueError(f"could not read mesh {path}: {exc}") from exc
+    if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
+        raise ValueError(f"mesh file {path} holds no triangles")
+    if not np.isfinite(mesh.vertices).all():
+        raise ValueError(f"mesh file {path} has non-finite vertices")
+    return mesh
+
+
+def _floats(text: str | None, n: int, default: tuple[float, ...], where: str) -> np.ndarray:
+    if text is None:
+        return np.array(default, dtype=np.float64)
+    try:
+        vals = [float(t) for t in text.split()]
+    except ValueError as exc:
+        raise ValueError(f"{where}: expected {n} numbers; got {text!r}") from exc
+    if len(vals) != n or not all(math.isfinite(x) for x in vals):
+        raise ValueError(f"{where}: expected {n} finite numbers; got {text!r}")
+    return np.array(vals, dtype=np.float64)
+
+
+def _origin(elem: ET.Element, where: str) -> np.ndarray:
+    """(4, 4) transform of an element's ``<origin xyz rpy>`` (URDF rpy: fixed-axis X, Y, Z)."""
+    o = elem.find("origin")
+    xyz = _floats(None if o is None else o.get("xyz"), 3, (0.0, 0.0, 0.0), f"{where} origin xyz")
+    rpy = _floats(None if o is None else o.get("rpy"), 3, (0.0, 0.0, 0.0), f"{where} origin rpy")
+    t = trimesh.transformations.euler_matrix(*rpy, axes="sxyz")
+    t[:3, 3] = xyz
+    return t
+
+
+def _mesh_path(urdf: Path, filename: str) -> Path:
+    if filename.startswith("file://"):
+        filename = filename[len("file://"):]
+    elif filename.startswith("package://"):
+        filename = filename[len("package://"):].partition("/")[2]  # resolved beside the URDF
+    p = Path(filename)
+    return p if p.is_absolute() else urdf.parent / p
+
+
+def _geometry(geom: ET.Element, urdf: Path, where: str) -> trimesh.Trimesh:
+    kids = list(geom)
+    if len(kids) != 1:
+        raise ValueError(f"{where}: <geometry> must hold exactly one shape; got {[k.tag for k in kids]}")
+    g = kids[0]
+    if g.tag == "box":
+        return trimesh.creation.box(extents=_floats(g.get("size"), 3, (), f"{where} box size"))
+    if g.tag == "cylinder":
+        r = _floats(g.get("radius"), 1, (), f"{where} cylinder radius")[0]
+        h = _floats(g.get("length"), 1, (), f"{where} cylinder length")[0]
+        return trimesh.creation.cylinder(radius=r, height=h, sections=_CYLINDER_SECTIONS)
+    if g.tag == "sphere":
+        return trimesh.creation.icosphere(subdivisions=2, radius=_floats(g.get("radius"), 1, (), f"{where} sphere radius")[0])
+    if g.tag == "mesh":
+        if not g.get("filename"):
+            raise ValueError(f"{where}: <mesh> without a filename")
+        p = _mesh_path(urdf, g.get("filename"))
+        if not p.is_file():
+            raise FileNotFoundError(f"{where}: mesh file not found: {p}")
+        mesh = _read_mesh(p, process=False)
+        s = _floats(g.get("scale"), 3, (1.0, 1.0, 1.0), f"{where} mesh scale")
+        return trimesh.Trimesh(mesh.vertices * s, mesh.faces, process=False)
+    raise ValueError(f"{where}: unsupported geometry <{g.tag}>")
+
+
+def _load_urdf(path: Path, rotation: np.ndarray) -> _Rig:
+    try:
+        root = ET.fromstring(path.read_text(encoding="utf-8"))
+    except ET.ParseError as exc:
+        raise ValueError(f"{path}: invalid URDF XML: {exc}") from exc
+    if root.tag != "robot":
+        raise ValueError(f"{path}: expected a <robot> root element; got <{root.tag}>")
+    links = root.findall("link")
+    if not links or any(not l.get("name") for l in links):
+        raise ValueError(f"{path}: a URDF needs named <link> elements")
+    parts = []
+    for link in links:
+        for k, vis in enumerate(link.findall("visual")):
+            where = f"{path}: link {link.get('name')!r} visual {k}"
+            geom = vis.find("geometry")
+            if geom is None:
+                raise ValueError(f"{where}: missing <geometry>")
+            mesh = _geometry(geom, path, where)
+            t = _origin(vis, where)
+            parts.append((link.get("name"), mesh.vertices @ t[:3, :3].T + t[:3, 3], np.asarray(mesh.faces)))
+    if not parts:
+        raise ValueError(f"{path}: no <visual> geometry in any link")
+
+    joints = root.findall("joint")
+    limits: dict[str, tuple[float, float]] = {}
+    for j in joints:
+        where = f"{path}: joint {j.get('name')!r}"
+        lim = j.find("limit")
+        if lim is not None:  # pytorch-kinematics' parser requires both attributes
+            lim.set("effort", lim.get("effort", "0"))
+            lim.set("velocity", lim.get("velocity", "0"))
+        if j.get("type") in ("revolute", "prismatic"):
+            lo = _floats(None if lim is None else lim.get("lower"), 1, (-math.inf,), f"{where} lower")[0]
+            hi = _floats(None if lim is None else lim.get("upper"), 1, (math.inf,), f"{where} upper")[0]
+            limits[j.get("name")] = (float(lo), float(hi))
+        elif j.get("type") == "continuous":
+            limits[j.get("name")] = (-math.inf, math.inf)
+        elif j.get("type") not in ("fixed",):
+            raise ValueError(f"{where}: unsupported joint type {j.get('type')!r}")
+
+    if not joints:
+        if len(links) != 1:
+            raise ValueError(f"{path}: {len(links)} links but no joint connecting them")
+        chain, names = None, ()
+    else:
+        try:
+            chain = pk.build_chain_from_urdf(ET.tostring(root, encoding="unicode")).to(dtype=torch.float64)
+        except Exception as exc:  # the parser raises assorted types on inconsistent URDFs
+            raise ValueError(f"{path}: pytorch-kinematics could not build the chain: {exc}") from exc
+        names = tuple(chain.get_joint_parameter_names())
+        missing = {l.get("name") for l in links} - set(chain.get_frame_names(exclude_fixed=False))
+        if missing:
+            raise ValueError(f"{path}: links {sorted(missing)} are not connected to the root")
+    rig = _Rig(chain, links[0].get("name"), names, MappingProxyType(limits), tuple(parts), rotation, np.zeros(3))
+    v, _ = rig.file_vertices(_rest_pose(limits))
+    return _Rig(chain, rig.root, names, rig.limits, rig.parts, rotation, _centring_offset(v @ rotation.T))

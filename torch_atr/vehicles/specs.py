@@ -1,0 +1,497 @@
+"""Published dimensions of the catalog vehicles and the few shape numbers that build them.
+
+``python -m torch_atr.vehicles.build`` turns each spec into a URDF plus part meshes. Overall
+length / width / height, wheelbase or axle positions, and (tanks) hull length and length with
+the gun forward are the published figures for the stated model and body; the ``source`` field
+says whose. They were compiled from reference knowledge of manufacturers' data sheets and the
+usual tabulations of them (Jane's, Wikipedia infoboxes), without a live look-up, so expect
++-1-2 % against a particular brochure. Everything else (deck heights, turret sizes, glacis
+runs, shape fractions) is estimated from side-view drawings and photographs; it shapes the
+silhouette, not the headline dimensions that tests check.
+
+Conventions for the numbers below (metres, degrees):
+- ``s`` positions are measured backwards from the front of the hull / body;
+- turret coordinates: x ahead of the turret axis, y to the left, z above the deck;
+- gun coordinates: x ahead of the trunnion along the barrel, y left, z up.
+
+The SENSIAC-like TEST split (T-72, ZSU-23-4, 2S3, BTR-70, BRDM-2, BMP-2, Ford F-150, Isuzu
+Rodeo) is held out from TRAIN: no name appears in both.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from torch_atr.vehicles.loader import CLASS_NAMES
+
+
+@dataclass(frozen=True)
+class Extra:
+    """A box or cylinder added to a link (cupola, sight, radar, launcher, fuel drum, shield).
+
+    ``xyz`` is the centre in the link's spec coordinates: hull (s, y, z above ground), turret
+    (x, y, z above deck), gun (x, y, z). Box ``size`` = (sx, sy, sz); cylinder ``size`` =
+    (radius, length) with the axis along ``axis``.
+    """
+
+    link: str  # "hull" | "turret" | "gun"
+    shape: str  # "box" | "cylinder"
+    size: tuple[float, ...]
+    xyz: tuple[float, float, float]
+    axis: str = "z"
+
+    def __post_init__(self) -> None:
+        if self.link not in ("hull", "turret", "gun") or self.shape not in ("box", "cylinder"):
+            raise ValueError(f"Extra: bad link/shape {self.link!r}/{self.shape!r}")
+        if len(self.size) != (3 if self.shape == "box" else 2) or self.axis not in ("x", "y", "z"):
+            raise ValueError(f"Extra: bad size {self.size} or axis {self.axis!r} for a {self.shape}")
+
+
+@dataclass(frozen=True)
+class Gun:
+    """Barrel(s) on the ``gun_pitch`` joint (axis -Y, so positive pitch raises the muzzle)."""
+
+    diameter: float  # barrel outer diameter
+    trunnion: tuple[float, float]  # (x ahead of the turret axis, z above the deck)
+    length: float | None = None  # trunnion -> muzzle; None: reach the spec's gun_length
+    elevation: tuple[float, float] = (-10.0, 20.0)  # (lowest, highest), degrees
+    barrels: tuple[tuple[float, float], ...] = ((0.0, 0.0),)  # (y, z) of parallel barrels
+    mantlet: tuple[float, float, float] = (0.5, 0.8, 0.4)  # box (sx, sy, sz) at the trunnion
+    evacuator: float = 0.0  # bore evacuator at this fraction of the barrel (0: none)
+    brake: bool = False  # muzzle brake
+
+
+@dataclass(frozen=True)
+class Turret:
+    """A faceted (or round) turret on the ``turret_yaw`` joint (axis +Z, counter-clockwise)."""
+
+    ring: float  # turret axis behind the hull front (s)
+    front: float  # axis -> front of the turret floor
+    rear: float  # axis -> rear of the turret floor (bustle)
+    width: float
+    height: float  # roof above the deck
+    gun: Gun
+    nose: float = 0.6  # front-face half-width / half-width (small: wedge), <= 0.9
+    slope: float = 0.3  # the roof's front edge is this far behind the floor's
+    taper: float = 0.1  # roof inset at the sides and rear
+    round: bool = False  # elliptical plan (dome / cone) instead of faceted
+    offset: float = 0.0  # y of the turret axis
+
+
+@dataclass(frozen=True)
+class Tracked:
+    """Tank, tracked APC / IFV / SPG: hull between and over two track runs, optional turret."""
+
+    name: str
+    title: str
+    cls: str
+    source: str
+    length: float  # hull length
+    width: float
+    height: float
+    gun_length: float | None  # overall length with the gun forward; None: gun within the hull
+    deck: float  # hull roof height
+    nose: float  # height of the glacis' front edge
+    glacis: float  # horizontal run of the upper glacis (nose -> deck)
+    road_wheels: int
+    wheel_d: float  # road-wheel diameter
+    track_w: float  # track width
+    contact: float  # track ground-contact length
+    lower_glacis: float = 0.55  # horizontal run nose -> belly
+    belly: float = 0.45  # ground clearance
+    rear_slope: float = 0.15  # horizontal run of the rear plate
+    skirts: bool = True  # side skirts over the upper track run
+    turret: Turret | None = None
+    extras: tuple[Extra, ...] = ()
+
+    def __post_init__(self) -> None:
+        _check_common(self)
+        if self.gun_length is not None and self.gun_length <= self.length:
+            raise ValueError(f"{self.name}: gun_length {self.gun_length} must exceed the hull length")
+        if (self.gun_length is None) == (self.turret is not None and self.turret.gun.length is None):
+            raise ValueError(f"{self.name}: give exactly one of gun_length and turret.gun.length")
+
+
+@dataclass(frozen=True)
+class Wheeled:
+    """Wheeled APC / scout car: narrow lower hull between the wheels, wide upper hull over them."""
+
+    name: str
+    title: str
+    cls: str
+    source: str
+    length: float
+    width: float
+    height: float
+    axles: tuple[float, ...]  # axle positions s
+    wheel_d: float
+    tyre_w: float
+    track: float  # tyre centre to tyre centre across the vehicle
+    deck: float  # hull roof height
+    nose: float  # height where the lower and upper glacis meet
+    glacis: float  # horizontal run nose -> roof
+    lower_glacis: float  # horizontal run nose -> belly
+    belly: float = 0.45
+    rear_slope: float = 0.4  # horizontal run of the rear plate above the wheels
+    side_slope: float = 0.25  # the roof is this much narrower on each side than the widest level
+    turret: Turret | None = None
+    extras: tuple[Extra, ...] = ()
+
+    def __post_init__(self) -> None:
+        _check_common(self)
+        if self.track / 2 + self.tyre_w / 2 > self.width / 2 + 1e-9:
+            raise ValueError(f"{self.name}: wheels (track {self.track}, tyre {self.tyre_w}) stick out of width {self.width}")
+
+
+@dataclass(frozen=True)
+class Shape:
+    """Side-profile fractions of a road vehicle.
+
+    Heights are fractions of the overall height; positions are fractions of the body length
+    behind the front (the whole length, or for a pickup the part in front of the bed).
+    """
+
+    nose: float  # bonnet front edge height
+    belt: float  # belt line: bonnet rear, window sills
+    windshield: float  # windshield base
+    roof: tuple[float, float]  # roof start, roof end
+    tail: float  # rear-glass base (sedan: start of the boot)
+    deck: float  # boot lid / tail top height
+    roof_w: float = 0.84  # roof half-width / body half-width
+
+
+# Body styles (adjusted per vehicle with dataclasses.replace where it differs).
+SEDAN = Shape(nose=0.52, belt=0.68, windshield=0.34, roof=(0.47, 0.68), tail=0.83, deck=0.72, roof_w=0.78)
+HATCH = Shape(nose=0.50, belt=0.64, windshield=0.30, roof=(0.45, 0.88), tail=0.975, deck=0.64, roof_w=0.80)
+SUV = Shape(nose=0.55, belt=0.60, windshield=0.32, roof=(0.45, 0.965), tail=0.99, deck=0.60, roof_w=0.86)
+MINIVAN = Shape(nose=0.48, belt=0.54, windshield=0.21, roof=(0.40, 0.965), tail=0.99, deck=0.54, roof_w=0.86)
+ONE_BOX = Shape(nose=0.50, belt=0.52, windshield=0.11, roof=(0.25, 0.985), tail=0.995, deck=0.52, roof_w=0.9)
+CREW_CAB = Shape(nose=0.58, belt=0.66, windshield=0.40, roof=(0.55, 0.97), tail=1.0, deck=0.66, roof_w=0.86)
+EXT_CAB = Shape(nose=0.58, belt=0.66, windshield=0.46, roof=(0.62, 0.97), tail=1.0, deck=0.66, roof_w=0.86)
+REG_CAB = Shape(nose=0.58, belt=0.66, windshield=0.52, roof=(0.71, 0.97), tail=1.0, deck=0.66, roof_w=0.86)
+
+
+@dataclass(frozen=True)
+class Road:
+    """Pickup, SUV, car or minivan: a lower body, a greenhouse, four wheels (and a bed)."""
+
+    name: str
+    title: str
+    cls: str
+    source: str
+    length: float
+    width: float
+    height: float
+    wheelbase: float
+    front: float  # front overhang: front axle s
+    wheel_d: float
+    track: float
+    shape: Shape
+    bed: float = 0.0  # pickup bed length (0: none)
+    clearance: float = 0.18
+    tyre_w: float = 0.24
+    extras: tuple[Extra, ...] = ()
+
+    def __post_init__(self) -> None:
+        _check_common(self)
+        if self.front + self.wheelbase >= self.length:
+            raise ValueError(f"{self.name}: front overhang + wheelbase must be shorter than the length")
+        if self.track / 2 + self.tyre_w / 2 > self.width / 2 + 1e-9:
+            raise ValueError(f"{self.name}: wheels (track {self.track}, tyre {self.tyre_w}) stick out of width {self.width}")
+        if (self.bed > 0) != (self.cls == "pickup"):
+            raise ValueError(f"{self.name}: exactly the pickups have a bed")
+
+
+Spec = Tracked | Wheeled | Road
+
+
+def _check_common(spec) -> None:
+    if spec.cls not in CLASS_NAMES:
+        raise ValueError(f"{spec.name}: class {spec.cls!r} is not one of {CLASS_NAMES}")
+    if not (spec.length > 0 and spec.width > 0 and spec.height > 0):
+        raise ValueError(f"{spec.name}: length, width and height must be positive")
+    turret = getattr(spec, "turret", None)
+    if turret is not None and not 0 < turret.nose <= 0.9:
+        raise ValueError(f"{spec.name}: turret.nose must be in (0, 0.9]; got {turret.nose}")
+
+
+def _cupola(x: float, y: float, d: float, z_top: float, h: float) -> Extra:
+    """Commander's cupola / sight: a cylinder of diameter d whose top is at z_top (turret coordinates)."""
+    return Extra("turret", "cylinder", (d / 2, h), (x, y, z_top - h / 2))
+
+
+# ----------------------------------------------------------------------------------------------
+# Training split: 6 per class.
+# ----------------------------------------------------------------------------------------------
+TANKS = (
+    Tracked(
+        "m1a2_abrams", "M1A2 Abrams", "tank", "General Dynamics Land Systems / US Army fact file",
+        length=7.93, width=3.66, height=2.44, gun_length=9.77,
+        deck=1.45, nose=0.95, glacis=1.7, road_wheels=7, wheel_d=0.64, track_w=0.635, contact=4.62,
+        turret=Turret(ring=3.9, front=2.0, rear=2.9, width=3.5, height=0.85, nose=0.45, slope=0.9, taper=0.12,
+                      gun=Gun(0.2, trunnion=(1.6, 0.42), mantlet=(0.5, 0.9, 0.4), evacuator=0.55)),
+        extras=(_cupola(-0.3, 0.6, 0.6, 0.99, 0.2),),
+    ),
+    Tracked(
+        "leopard_2a6", "Leopard 2A6", "tank", "Krauss-Maffei Wegmann data sheet",
+        length=7.72, width=3.75, height=3.0, gun_length=10.97,
+        deck=1.5, nose=0.95, glacis=1.3, road_wheels=7, wheel_d=0.7, track_w=0.635, contact=4.95,
+        turret=Turret(ring=3.8, front=2.0, rear=2.3, width=3.6, height=0.98, nose=0.15, slope=1.0, taper=0.1,
+                      gun=Gun(0.2, trunnion=(1.4, 0.5), mantlet=(0.5, 0.8, 0.45), evacuator=0.6)),
+        extras=(Extra("turret", "box", (0.45, 0.45, 0.6), (0.3, 0.95, 1.2)),  # PERI R17 sight head
+                _cupola(-0.4, -0.7, 0.6, 1.1, 0.2)),
+    ),
+    Tracked(
+        "challenger_2", "Challenger 2", "tank", "BAE Systems / British Army equipment data",
+        length=8.33, width=3.52, height=2.49, gun_length=11.55,
+        deck=1.55, nose=1.0, glacis=1.3, road_wheels=6, wheel_d=0.72, track_w=0.635, contact=5.0,
+        turret=Turret(ring=4.0, front=1.9, rear=2.5, width=3.4, height=0.8, nose=0.7, slope=0.35, taper=0.15,
+                      gun=Gun(0.22, trunnion=(1.5, 0.4), mantlet=(0.5, 0.9, 0.45), evacuator=0.5)),
+        extras=(_cupola(-0.3, 0.65, 0.7, 0.94, 0.2), Extra("turret", "box", (0.4, 0.4, 0.25), (0.4, -0.9, 0.815))),
+    ),
+    Tracked(
+        "merkava_iv", "Merkava Mk IV", "tank", "IDF / MANTAK published data",
+        length=7.6, width=3.72, height=2.66, gun_length=9.04,
+        deck=1.65, nose=1.05, glacis=2.3, road_wheels=6, wheel_d=0.79, track_w=0.64, contact=4.5,
+        turret=Turret(ring=4.7, front=2.6, rear=2.5, width=3.0, height=0.85, nose=0.12, slope=1.4, taper=0.2,
+                      gun=Gun(0.2, trunnion=(1.3, 0.45), mantlet=(0.4, 0.6, 0.4), evacuator=0.5)),
+        extras=(_cupola(-0.6, 0.6, 0.55, 1.01, 0.2),),
+    ),
+    Tracked(
+        "leclerc", "Leclerc", "tank", "Nexter (GIAT Industries) data sheet",
+        length=6.88, width=3.71, height=2.53, gun_length=9.87,
+        deck=1.5, nose=0.95, glacis=1.2, road_wheels=6, wheel_d=0.7, track_w=0.635, contact=4.3,
+        turret=Turret(ring=3.3, front=1.7, rear=2.6, width=3.4, height=0.88, nose=0.75, slope=0.3, taper=0.1,
+                      gun=Gun(0.2, trunnion=(1.4, 0.45), mantlet=(0.5, 0.8, 0.45))),
+        extras=(_cupola(-0.3, 0.65, 0.5, 1.03, 0.2), Extra("turret", "box", (0.35, 0.4, 0.3), (0.5, -0.8, 0.88))),
+    ),
+    Tracked(
+        "type_99", "ZTZ-99 (Type 99)", "tank", "NORINCO / PLA published data",
+        length=7.6, width=3.5, height=2.37, gun_length=11.0,
+        deck=1.4, nose=0.9, glacis=1.5, road_wheels=6, wheel_d=0.75, track_w=0.6, contact=4.6,
+        turret=Turret(ring=3.7, front=2.3, rear=2.0, width=3.3, height=0.85, nose=0.2, slope=0.9, taper=0.15,
+                      gun=Gun(0.2, trunnion=(1.4, 0.42), mantlet=(0.5, 0.7, 0.4), evacuator=0.45)),
+        extras=(_cupola(-0.4, -0.6, 0.5, 0.97, 0.2),),
+    ),
+)
+
+APCS = (
+    Tracked(
+        "m113", "M113A2", "apc", "FMC / US Army TM 9-2350-261-10",
+        length=4.863, width=2.686, height=2.5, gun_length=None,
+        deck=1.85, nose=1.25, glacis=1.0, road_wheels=5, wheel_d=0.61, track_w=0.38, contact=2.67,
+        lower_glacis=0.3, belly=0.43, rear_slope=0.02, skirts=False,
+        turret=Turret(ring=2.3, front=0.45, rear=0.45, width=0.9, height=0.32, round=True, slope=0.08, taper=0.08,
+                      gun=Gun(0.06, trunnion=(0.3, 0.42), length=1.3, elevation=(-15.0, 60.0),
+                              mantlet=(0.45, 0.2, 0.22))),
+        extras=(Extra("gun", "box", (0.04, 0.7, 0.4), (0.3, 0.0, 0.03)),),  # gun shield
+    ),
+    Tracked(
+        "m2_bradley", "M2A2 Bradley", "apc", "BAE Systems (United Defense) / US Army fact file",
+        length=6.55, width=3.6, height=2.98, gun_length=None,
+        deck=1.95, nose=1.0, glacis=1.4, road_wheels=6, wheel_d=0.6, track_w=0.53, contact=3.9,
+        turret=Turret(ring=2.9, front=1.0, rear=1.1, width=2.1, height=0.75, nose=0.75, slope=0.35, taper=0.12,
+                      offset=-0.3,
+                      gun=Gun(0.08, trunnion=(0.9, 0.4), length=1.9, elevation=(-10.0, 60.0), mantlet=(0.4, 0.5, 0.35))),
+        extras=(Extra("turret", "box", (1.2, 0.5, 0.55), (-0.2, 1.3, 0.55)),  # TOW launcher, stowed
+                _cupola(0.0, -0.5, 0.5, 1.03, 0.3)),
+    ),
+    Wheeled(
+        "btr_80", "BTR-80", "apc", "Arzamas Machine-Building Plant data / Jane's",
+        length=7.55, width=2.95, height=2.41, axles=(1.6, 2.95, 4.65, 6.0),
+        wheel_d=1.1, tyre_w=0.33, track=2.41, deck=2.0, nose=0.95, glacis=1.4, lower_glacis=0.9,
+        belly=0.475, rear_slope=0.6, side_slope=0.3,
+        turret=Turret(ring=2.55, front=0.7, rear=0.7, width=1.4, height=0.41, round=True, slope=0.25, taper=0.25,
+                      gun=Gun(0.07, trunnion=(0.55, 0.22), length=1.6, elevation=(-4.0, 60.0), mantlet=(0.3, 0.3, 0.25))),
+    ),
+    Wheeled(
+        "stryker", "M1126 Stryker ICV", "apc", "General Dynamics Land Systems / US Army fact file",
+        length=6.95, width=2.72, height=2.64, axles=(1.3, 2.5, 4.45, 5.65),
+        wheel_d=1.12, tyre_w=0.37, track=2.3, deck=2.05, nose=1.2, glacis=1.6, lower_glacis=0.5,
+        belly=0.5, rear_slope=0.1, side_slope=0.15,
+        turret=Turret(ring=3.3, front=0.45, rear=0.45, width=0.8, height=0.45, nose=0.8, slope=0.1, taper=0.05,
+                      gun=Gun(0.06, trunnion=(0.3, 0.3), length=1.3, elevation=(-20.0, 60.0), mantlet=(0.4, 0.3, 0.25))),
+        extras=(Extra("turret", "box", (0.3, 0.3, 0.16), (-0.1, -0.2, 0.51)),),  # sight head
+    ),
+    Wheeled(
+        "boxer", "Boxer (GTK, APC)", "apc", "ARTEC (KMW / Rheinmetall) data sheet",
+        length=7.93, width=2.99, height=2.37, axles=(1.5, 3.0, 4.95, 6.45),
+        wheel_d=1.2, tyre_w=0.4, track=2.5, deck=2.37, nose=1.2, glacis=1.0, lower_glacis=0.6,
+        belly=0.5, rear_slope=0.15, side_slope=0.12,
+    ),
+    Wheeled(
+        "lav_25", "LAV-25", "apc", "General Dynamics Land Systems / USMC fact file",
+        length=6.39, width=2.5, height=2.69, axles=(1.35, 2.39, 3.8, 4.84),
+        wheel_d=0.98, tyre_w=0.3, track=2.18, deck=1.95, nose=0.85, glacis=1.5, lower_glacis=0.5,
+        belly=0.5, rear_slope=0.45, side_slope=0.22,
+        turret=Turret(ring=2.9, front=0.8, rear=0.9, width=1.7, height=0.6, nose=0.6, slope=0.3, taper=0.15,
+                      gun=Gun(0.08, trunnion=(0.7, 0.35), length=1.8, elevation=(-10.0, 60.0), mantlet=(0.35, 0.4, 0.3))),
+        extras=(_cupola(-0.2, 0.4, 0.4, 0.74, 0.2),),
+    ),
+)
+
+PICKUPS = (
+    Road("toyota_hilux", "Toyota Hilux (AN120, 2016, Double Cab)", "pickup", "Toyota specifications",
+         length=5.33, width=1.855, height=1.815, wheelbase=3.085, front=0.92, wheel_d=0.78, track=1.54,
+         shape=CREW_CAB, bed=1.525, clearance=0.28, tyre_w=0.26),
+    Road("ford_ranger", "Ford Ranger (PX, 2015, Double Cab)", "pickup", "Ford specifications",
+         length=5.359, width=1.85, height=1.815, wheelbase=3.22, front=0.93, wheel_d=0.79, track=1.56,
+         shape=CREW_CAB, bed=1.55, clearance=0.28, tyre_w=0.26),
+    Road("chevrolet_silverado", "Chevrolet Silverado 1500 (2014, Crew Cab, short box)", "pickup",
+         "General Motors specifications",
+         length=5.842, width=2.032, height=1.88, wheelbase=3.645, front=0.92, wheel_d=0.79, track=1.74,
+         shape=CREW_CAB, bed=1.74, clearance=0.25, tyre_w=0.27),
+    Road("ram_1500", "Ram 1500 (DS, 2012, Regular Cab, 8 ft box)", "pickup", "Chrysler (Ram) specifications",
+         length=5.817, width=2.017, height=1.88, wheelbase=3.556, front=0.95, wheel_d=0.79, track=1.72,
+         shape=REG_CAB, bed=2.44, clearance=0.25, tyre_w=0.27),
+    Road("toyota_tacoma", "Toyota Tacoma (N300, 2016, Access Cab, long bed)", "pickup", "Toyota specifications",
+         length=5.728, width=1.89, height=1.781, wheelbase=3.571, front=0.9, wheel_d=0.77, track=1.6,
+         shape=EXT_CAB, bed=1.86, clearance=0.24, tyre_w=0.26),
+    Road("nissan_navara", "Nissan Navara (D40, 2005, King Cab)", "pickup", "Nissan specifications",
+         length=5.22, width=1.85, height=1.78, wheelbase=3.2, front=0.86, wheel_d=0.76, track=1.57,
+         shape=EXT_CAB, bed=1.86, clearance=0.23, tyre_w=0.26),
+)
+
+SUVS = (
+    Road("toyota_land_cruiser_200", "Toyota Land Cruiser 200 (2008)", "suv", "Toyota specifications",
+         length=4.95, width=1.98, height=1.88, wheelbase=2.85, front=0.93, wheel_d=0.79, track=1.64,
+         shape=SUV, clearance=0.23, tyre_w=0.27),
+    Road("jeep_grand_cherokee", "Jeep Grand Cherokee (WK2, 2011)", "suv", "Chrysler (Jeep) specifications",
+         length=4.822, width=1.943, height=1.781, wheelbase=2.915, front=0.88, wheel_d=0.75, track=1.62,
+         shape=SUV, clearance=0.21, tyre_w=0.26),
+    Road("chevrolet_tahoe", "Chevrolet Tahoe (GMT900, 2007)", "suv", "General Motors specifications",
+         length=5.131, width=2.007, height=1.953, wheelbase=2.946, front=0.98, wheel_d=0.79, track=1.73,
+         shape=SUV, clearance=0.23, tyre_w=0.27),
+    Road("range_rover", "Range Rover (L322, 2002)", "suv", "Land Rover specifications",
+         length=4.95, width=1.956, height=1.863, wheelbase=2.88, front=0.93, wheel_d=0.76, track=1.63,
+         shape=SUV, clearance=0.22, tyre_w=0.26),
+    Road("mitsubishi_pajero", "Mitsubishi Pajero (V80, 2007, LWB)", "suv", "Mitsubishi specifications",
+         length=4.9, width=1.875, height=1.9, wheelbase=2.78, front=0.9, wheel_d=0.76, track=1.57,
+         shape=SUV, clearance=0.23, tyre_w=0.26),
+    Road("land_rover_defender_110", "Land Rover Defender 110 (1990, Station Wagon)", "suv",
+         "Land Rover specifications",
+         length=4.639, width=1.79, height=2.035, wheelbase=2.794, front=0.7, wheel_d=0.78, track=1.49,
+         shape=Shape(nose=0.5, belt=0.55, windshield=0.27, roof=(0.31, 0.99), tail=0.995, deck=0.55, roof_w=0.93),
+         clearance=0.25, tyre_w=0.24),
+)
+
+CARS = (
+    Road("toyota_camry", "Toyota Camry (XV70, 2018)", "car", "Toyota specifications",
+         length=4.88, width=1.84, height=1.445, wheelbase=2.825, front=0.98, wheel_d=0.67, track=1.58,
+         shape=SEDAN, clearance=0.14),
+    Road("honda_civic", "Honda Civic sedan (10th gen., 2016)", "car", "Honda specifications",
+         length=4.63, width=1.799, height=1.416, wheelbase=2.698, front=0.93, wheel_d=0.65, track=1.55,
+         shape=Shape(nose=0.5, belt=0.67, windshield=0.33, roof=(0.47, 0.64), tail=0.86, deck=0.71, roof_w=0.78),
+         clearance=0.13),
+    Road("bmw_3_series", "BMW 3 Series sedan (F30, 2012)", "car", "BMW specifications",
+         length=4.624, width=1.811, height=1.429, wheelbase=2.81, front=0.78, wheel_d=0.66, track=1.54,
+         shape=Shape(nose=0.53, belt=0.68, windshield=0.37, roof=(0.5, 0.7), tail=0.84, deck=0.72, roof_w=0.78),
+         clearance=0.14),
+    Road("mercedes_e_class", "Mercedes-Benz E-Class sedan (W213, 2016)", "car", "Daimler specifications",
+         length=4.923, width=1.852, height=1.468, wheelbase=2.939, front=0.84, wheel_d=0.68, track=1.6,
+         shape=Shape(nose=0.53, belt=0.68, windshield=0.36, roof=(0.49, 0.69), tail=0.84, deck=0.72, roof_w=0.78),
+         clearance=0.14),
+    Road("vw_golf", "Volkswagen Golf (Mk7, 2013, 5-door)", "car", "Volkswagen specifications",
+         length=4.255, width=1.799, height=1.452, wheelbase=2.637, front=0.88, wheel_d=0.63, track=1.54,
+         shape=HATCH, clearance=0.14),
+    Road("ford_focus", "Ford Focus hatchback (Mk3, 2011)", "car", "Ford specifications",
+         length=4.358, width=1.823, height=1.484, wheelbase=2.648, front=0.92, wheel_d=0.64, track=1.56,
+         shape=Shape(nose=0.5, belt=0.64, windshield=0.31, roof=(0.47, 0.86), tail=0.965, deck=0.64, roof_w=0.8),
+         clearance=0.14),
+)
+
+MINIVANS = (
+    Road("honda_odyssey", "Honda Odyssey (RL6, 2018)", "minivan", "Honda specifications",
+         length=5.159, width=1.994, height=1.735, wheelbase=3.0, front=1.0, wheel_d=0.72, track=1.72,
+         shape=MINIVAN, clearance=0.15, tyre_w=0.25),
+    Road("toyota_sienna", "Toyota Sienna (XL30, 2011)", "minivan", "Toyota specifications",
+         length=5.085, width=1.985, height=1.75, wheelbase=3.03, front=0.96, wheel_d=0.72, track=1.72,
+         shape=MINIVAN, clearance=0.16, tyre_w=0.25),
+    Road("chrysler_pacifica", "Chrysler Pacifica (RU, 2017)", "minivan", "FCA specifications",
+         length=5.172, width=2.022, height=1.777, wheelbase=3.089, front=1.0, wheel_d=0.72, track=1.74,
+         shape=MINIVAN, clearance=0.14, tyre_w=0.25),
+    Road("kia_sedona", "Kia Sedona (YP, 2015)", "minivan", "Kia specifications",
+         length=5.115, width=1.985, height=1.755, wheelbase=3.06, front=0.98, wheel_d=0.72, track=1.72,
+         shape=MINIVAN, clearance=0.17, tyre_w=0.25),
+    Road("vw_multivan", "Volkswagen Multivan (T6, 2015)", "minivan", "Volkswagen Commercial Vehicles specifications",
+         length=4.904, width=1.904, height=1.97, wheelbase=3.0, front=0.88, wheel_d=0.7, track=1.63,
+         shape=ONE_BOX, clearance=0.18, tyre_w=0.24),
+    Road("mercedes_v_class", "Mercedes-Benz V-Class (W447, 2014, long)", "minivan", "Daimler specifications",
+         length=5.14, width=1.928, height=1.88, wheelbase=3.2, front=0.88, wheel_d=0.7, track=1.66,
+         shape=Shape(nose=0.5, belt=0.53, windshield=0.15, roof=(0.3, 0.985), tail=0.995, deck=0.53, roof_w=0.9),
+         clearance=0.17, tyre_w=0.24),
+)
+
+TRAIN: tuple[Spec, ...] = TANKS + APCS + PICKUPS + SUVS + CARS + MINIVANS
+
+# ----------------------------------------------------------------------------------------------
+# Test split: the eight SENSIAC targets' types, never used for training.
+# ----------------------------------------------------------------------------------------------
+TEST: tuple[Spec, ...] = (
+    Tracked(
+        "t_72", "T-72A", "tank", "Uralvagonzavod data / Jane's",
+        length=6.95, width=3.59, height=2.23, gun_length=9.53,
+        deck=1.4, nose=0.95, glacis=1.5, road_wheels=6, wheel_d=0.75, track_w=0.58, contact=4.28, skirts=False,
+        turret=Turret(ring=3.2, front=1.3, rear=1.2, width=2.2, height=0.68, round=True, slope=0.35, taper=0.35,
+                      gun=Gun(0.18, trunnion=(1.1, 0.35), elevation=(-6.0, 14.0), mantlet=(0.4, 0.5, 0.35),
+                              evacuator=0.45)),
+        extras=(_cupola(-0.1, 0.45, 0.55, 0.83, 0.2),
+                Extra("hull", "cylinder", (0.3, 1.4), (6.62, 0.75, 1.5), axis="y"),  # rear fuel drums
+                Extra("hull", "cylinder", (0.3, 1.4), (6.62, -0.75, 1.5), axis="y")),
+    ),
+    Tracked(
+        "zsu_23_4", "ZSU-23-4 Shilka", "tank", "Jane's Land-Based Air Defence (radar stowed)",
+        length=6.535, width=3.125, height=2.576, gun_length=None,
+        deck=1.35, nose=0.9, glacis=0.9, road_wheels=6, wheel_d=0.67, track_w=0.38, contact=3.8,
+        lower_glacis=0.5, skirts=False,
+        turret=Turret(ring=2.9, front=1.25, rear=1.35, width=2.9, height=0.85, nose=0.85, slope=0.25, taper=0.1,
+                      gun=Gun(0.09, trunnion=(1.0, 0.45), length=1.8, elevation=(-4.0, 85.0),
+                              barrels=((0.42, 0.1), (0.42, -0.1), (-0.42, 0.1), (-0.42, -0.1)),
+                              mantlet=(0.3, 1.3, 0.45))),
+        extras=(Extra("turret", "box", (0.35, 1.2, 0.45), (-1.0, 0.0, 1.0)),),  # Gun Dish radar, stowed
+    ),
+    Tracked(
+        "2s3_akatsiya", "2S3 Akatsiya", "tank", "Jane's Armour and Artillery",
+        length=7.765, width=3.25, height=3.05, gun_length=8.4,
+        deck=1.6, nose=1.0, glacis=1.2, road_wheels=6, wheel_d=0.7, track_w=0.5, contact=4.5,
+        lower_glacis=0.5, skirts=False,
+        turret=Turret(ring=5.3, front=1.7, rear=1.6, width=3.0, height=1.15, nose=0.8, slope=0.4, taper=0.15,
+                      gun=Gun(0.2, trunnion=(1.5, 0.55), elevation=(-4.0, 60.0), mantlet=(0.5, 0.7, 0.5),
+                              evacuator=0.5, brake=True)),
+        extras=(_cupola(-0.2, 0.8, 0.6, 1.45, 0.3),),
+    ),
+    Wheeled(
+        "btr_70", "BTR-70", "apc", "Jane's Armour and Artillery",
+        length=7.535, width=2.8, height=2.235, axles=(1.55, 2.9, 4.6, 5.95),
+        wheel_d=1.07, tyre_w=0.33, track=2.38, deck=1.85, nose=0.9, glacis=1.5, lower_glacis=0.8,
+        belly=0.475, rear_slope=0.7, side_slope=0.3,
+        turret=Turret(ring=2.4, front=0.65, rear=0.65, width=1.3, height=0.385, round=True, slope=0.25, taper=0.25,
+                      gun=Gun(0.07, trunnion=(0.5, 0.2), length=1.5, elevation=(-5.0, 30.0), mantlet=(0.3, 0.3, 0.25))),
+    ),
+    Wheeled(
+        "brdm_2", "BRDM-2", "apc", "Jane's Armour and Artillery",
+        length=5.75, width=2.37, height=2.31, axles=(1.25, 4.35),
+        wheel_d=1.07, tyre_w=0.33, track=1.84, deck=1.9, nose=1.0, glacis=1.2, lower_glacis=0.7,
+        belly=0.43, rear_slope=0.6, side_slope=0.25,
+        turret=Turret(ring=2.6, front=0.6, rear=0.6, width=1.2, height=0.41, round=True, slope=0.25, taper=0.25,
+                      gun=Gun(0.07, trunnion=(0.45, 0.2), length=1.5, elevation=(-5.0, 30.0), mantlet=(0.3, 0.3, 0.25))),
+    ),
+    Tracked(
+        "bmp_2", "BMP-2", "apc", "Kurganmashzavod data / Jane's",
+        length=6.735, width=3.15, height=2.45, gun_length=None,
+        deck=1.65, nose=0.75, glacis=1.9, road_wheels=6, wheel_d=0.68, track_w=0.3, contact=3.75,
+        lower_glacis=0.5, belly=0.42, skirts=False,
+        turret=Turret(ring=3.0, front=0.9, rear=1.0, width=1.9, height=0.55, round=True, slope=0.3, taper=0.3,
+                      gun=Gun(0.09, trunnion=(0.8, 0.3), length=2.1, elevation=(-5.0, 74.0), mantlet=(0.35, 0.4, 0.3))),
+        extras=(_cupola(0.1, 0.5, 0.45, 0.8, 0.3),
+                Extra("turret", "cylinder", (0.1, 1.1), (-0.1, -0.1, 0.66), axis="x")),  # ATGM tube
+    ),
+    Road("ford_f150", "Ford F-150 (12th gen., 2009, SuperCab, 6.5 ft box)", "pickup", "Ford specifications",
+         length=5.89, width=2.009, height=1.913, wheelbase=3.683, front=0.95, wheel_d=0.79, track=1.7,
+         shape=EXT_CAB, bed=1.98, clearance=0.24, tyre_w=0.27),
+    Road("isuzu_rodeo", "Isuzu Rodeo (2nd gen., 1998)", "suv", "Isuzu specifications",
+         length=4.488, width=1.788, height=1.745, wheelbase=2.703, front=0.78, wheel_d=0.74, track=1.49,
+         shape=SUV, clearance=0.22, tyre_w=0.24),
+)
+
+SPLITS: dict[str, tuple[Spec, ...]] = {"train": TRAIN, "test": TEST}
