@@ -153,3 +153,34 @@ def load_config(cls: type[T], path: str | Path | None = None, overrides: list[st
 def config_to_dict(cfg: Any) -> dict:
     """A plain dict of a config dataclass (for checkpoints and logs)."""
     return dataclasses.asdict(cfg)
+
+
+@dataclass(frozen=True)
+class ModelConfig:
+    """Fitting the generative model (chapter 4; METHOD.md "Generative model").
+
+    The RBF centres are the training views (Nc = V). ``ridge`` is λ of the regularised least
+    squares of every Bᵏ (eq. 4.13) on templates in [−1, 1]; ``width_steps`` > 0 tunes the kernel
+    widths on held-out views with Adam at ``width_lr`` before the final fit.
+    """
+
+    pixel_rank: int | None = 128  # r of the truncated pixel basis; null keeps all d pixels
+    ridge: float = 1e-4  # λ
+    init_width: float | None = None  # kernel width (chord); null: mean nearest-centre chord
+    class_penalty: float | None = None  # a of eq. 4.8; null: (K + 1)·max D₀, keeps classes contiguous
+    width_steps: int = 0  # Adam steps tuning the widths on validation views
+    width_lr: float = 0.02  # Adam learning rate on log(width)
+
+    def __post_init__(self) -> None:
+        if self.pixel_rank is not None and self.pixel_rank < 1:
+            raise ConfigError(f"model.pixel_rank must be >= 1 or null; got {self.pixel_rank}")
+        if not (self.ridge >= 0 and math.isfinite(self.ridge)):
+            raise ConfigError(f"model.ridge must be a number >= 0; got {self.ridge}")
+        if self.init_width is not None and not (self.init_width > 0 and math.isfinite(self.init_width)):
+            raise ConfigError(f"model.init_width must be positive or null; got {self.init_width}")
+        if self.class_penalty is not None and not (self.class_penalty >= 0 and math.isfinite(self.class_penalty)):
+            raise ConfigError(f"model.class_penalty must be >= 0 or null; got {self.class_penalty}")
+        if self.width_steps < 0:
+            raise ConfigError(f"model.width_steps must be >= 0; got {self.width_steps}")
+        if not (self.width_lr > 0 and math.isfinite(self.width_lr)):
+            raise ConfigError(f"model.width_lr must be positive; got {self.width_lr}")

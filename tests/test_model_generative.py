@@ -1,0 +1,274 @@
+"""The generative model (eq. 4.18) on synthetic signed-distance templates, and its checkpoints."""
+
+import math
+
+import numpy as np
+import pytest
+import torch
+from scipy.ndimage import distance_transform_edt
+
+from torch_atr.config import ConfigError, ModelConfig, TemplateConfig, load_config
+from torch_atr.model import GenerativeShapeModel, fine_tune_widths, load_checkpoint
+
+TEMPLATE = TemplateConfig(size_px=24, window_m=12.0, tau_px=4.0)
+# Ellipsoid semi-axes (length, width, height) in metres and whether a turret sits on top.
+VEHICLES = [(2.0, 0.8, 0.6, False), (2.3, 0.9, 0.7, False), (2.6, 1.0, 0.7, True),
+            (2.9, 1.1, 0.6, True), (1.8, 0.8, 0.8, False), (3.1, 1.2, 0.5, True)]
+CLASSES = [0, 0, 1, 1, 0, 1]
+NAMES = [f"v{k}" for k in range(len(VEHICLES))]
+
+
+def _ellipsoids(a: float, b: float, c: float, turret: bool):
+    """(centre, semi-axes) of the body and the turret in the body frame (X fwd, Y left, Z up)."""
+    parts = [(np.zeros(3), np.array([a, b, c]))]
+    if turret:
+        parts.append((np.array([0.2 * a, 0.0, 0.9 * c]), np.array([0.4 * a, 0.6 * b, 0.5 * c])))
+    return parts
+
+
+def synthetic_templates(theta: np.ndarray, phi: np.ndarray) -> torch.Tensor:
+    """Orthographic silhouettes of the VEHICLES, clipped signed distance / τ: (K, V, H, W) float32."""
+    H, tau = TEMPLATE.size_px, TEMPLATE.tau_px
+    coords = (np.arange(H) + 0.5) * TEMPLATE.metres_per_px - TEMPLATE.window_m / 2
+    x, y = np.meshgrid(coords, -coords)  # image x right, y up (row 0 at the top)
+    pixels = np.stack([x, y], axis=-1)
+    out = np.zeros((len(VEHICLES), len(theta), H, H))
+    for k, vehicle in enumerate(VEHICLES):
+        for m, (th, ph) in enumerate(zip(theta, phi)):
+            u = np.array([np.cos(ph) * np.cos(th), np.cos(ph) * np.sin(th), np.sin(ph)])
+            right = np.array([-np.sin(th), np.cos(th), 0.0])
+            basis = np.stack([right, np.cross(u, right)], axis=1)  # (3, 2) image axes in the body frame
+            mask = np.zeros((H, H), dtype=bool)
+            for centre, axes in _ellipsoids(*vehicle):
+                # The projection of an ellipsoid with shape matrix S is the ellipse with Pᵀ S P.
+                shape = basis.T @ np.diag(axes ** 2) @ basis
+                offset = pixels - basis.T @ centre
+                mask |= np.einsum("...i,ij,...j->...", offset, np.linalg.inv(shape), offset) <= 1.0
+            signed = np.where(mask, distance_transform_edt(mask), -distance_transform_edt(~mask))
+            out[k, m] = np.clip(signed, -tau, tau) / tau
+    return torch.tensor(out, dtype=torch.float32)
+
+
+def _views(azimuth_offset_deg: float, elevations_deg) -> tuple[torch.Tensor, torch.Tensor]:
+    theta = np.deg2rad(np.arange(0.0, 360.0, 30.0) + azimuth_offset_deg)
+    T, P = np.meshgrid(theta, np.deg2rad(elevations_deg), indexing="ij")
+    return torch.tensor(T.ravel(), dtype=torch.float32), torch.tensor(P.ravel(), dtype=torch.float32)
+
+
+@pytest.fixture(scope="module")
+def data():
+    theta, phi = _views(0.0, [0.0, 20.0, 40.0])
+    val_theta, val_phi = _views(15.0, [10.0, 30.0])
+    return {"theta": theta, "phi": phi, "templates": synthetic_templates(theta.numpy(), phi.numpy()),
+            "val_theta": val_theta, "val_phi": val_phi,
+            "val": synthetic_templates(val_theta.numpy(), val_phi.numpy())}
+
+
+def _fit(data, cfg: ModelConfig, **kwargs) -> GenerativeShapeModel:
+    return GenerativeShapeModel.fit(data["templates"], data["theta"], data["phi"], NAMES, CLASSES, ["car", "tank"],
+                                    TEMPLATE, cfg, **kwargs)
+
+
+@pytest.fixture(scope="module")
+def model(data):
+    return _fit(data, ModelConfig(pixel_rank=None, ridge=1e-9))
+
+
+def _all_views(model, data):
+    K, V = data["templates"].shape[:2]
+    return model.alphas.repeat_interleave(V), data["theta"].repeat(K), data["phi"].repeat(K)
+
+
+def _iou(a: torch.Tensor, b: torch.Tensor) -> float:
+    return ((a & b).sum() / (a | b).sum()).item()
+
+
+def test_training_views_are_reproduced_at_alpha_k(model, data):
+    with torch.no_grad():
+        recon = model(*_all_views(model, data)).reshape(data["templates"].shape)
+    assert recon.dtype == torch.float32
+    assert (recon - data["templates"]).abs().max() < 1e-3
+    assert _iou(recon > 0, data["templates"] > 0) > 0.999
+
+
+def test_reconstruction_at_alpha_k_is_nearest_to_vehicle_k(model, data):
+    K, V = data["templates"].shape[:2]
+    with torch.no_grad():
+        for k in range(K):
+            recon = model(model.alphas[k].expand(V), data["theta"], data["phi"])
+            errors = ((data["templates"] - recon) ** 2).mean(dim=(1, 2, 3))
+            assert errors.argmin().item() == k
+
+
+def test_truncated_rank_and_half_step_views(data):
+    model = _fit(data, ModelConfig(pixel_rank=40, ridge=1e-4))
+    assert model.core.pixel_rank == 40 and 0 < model.core.relative_error.item() < 0.1
+    with torch.no_grad():
+        train = model(*_all_views(model, data)).reshape(data["templates"].shape)
+        K, V = data["val"].shape[:2]
+        val = model(model.alphas.repeat_interleave(V), data["val_theta"].repeat(K), data["val_phi"].repeat(K))
+    assert _iou(train > 0, data["templates"] > 0) > 0.99
+    # Coarse synthetic views (30° x 20° steps, vehicles ~10 px long): halfway views stay close.
+    assert _iou(val.reshape(data["val"].shape) > 0, data["val"] > 0) > 0.8
+
+
+def test_identity_metadata_and_classes(model):
+    assert model.vehicle_names == NAMES and model.vehicle_classes == CLASSES and model.class_names == ["car", "tank"]
+    assert model.classify(model.alphas).tolist() == CLASSES
+    torch.testing.assert_close(model.nearest_vehicles(model.alphas, k=1)[:, 0], torch.arange(6))
+    # The default class penalty keeps each class on one arc.
+    assert sorted(c for c, _, _ in model.identity.class_arcs()) == [0, 1]
+
+
+def test_batched_forward_equals_loop(model):
+    g = torch.Generator().manual_seed(0)
+    alpha, theta, phi = torch.rand(3, 8, generator=g) * torch.tensor([[7.0], [7.0], [1.4]])
+    with torch.no_grad():
+        batched = model(alpha, theta, phi)
+        for n in range(8):
+            torch.testing.assert_close(batched[n], model(alpha[n:n + 1], theta[n:n + 1], phi[n:n + 1])[0])
+        assert torch.equal(model.silhouette(alpha, theta, phi), batched > 0)
+
+
+def test_reconstruct_vehicle_uses_identity_vector(model, data):
+    with torch.no_grad():
+        for k in (0, 3):
+            torch.testing.assert_close(model.reconstruct_vehicle(k, data["theta"], data["phi"]),
+                                       data["templates"][k], atol=1e-3, rtol=0)
+    with pytest.raises(ValueError, match="vehicle index"):
+        model.reconstruct_vehicle(6, data["theta"], data["phi"])
+
+
+def test_forward_rejects_mismatched_queries(model):
+    with pytest.raises(ValueError, match="one length"):
+        model(torch.zeros(3), torch.zeros(3), torch.zeros(2))
+
+
+def test_gradients_reach_alpha_view_and_widths(model):
+    model64 = GenerativeShapeModel.from_model_args(model.model_args).double()
+    model64.load_state_dict(model.state_dict())
+    alpha = torch.tensor([0.4, 2.0, 5.5], dtype=torch.float64, requires_grad=True)
+    theta = torch.tensor([0.1, 3.0, 4.0], dtype=torch.float64, requires_grad=True)
+    phi = torch.tensor([0.1, 0.3, 0.6], dtype=torch.float64, requires_grad=True)
+    model64(alpha, theta, phi).square().sum().backward()
+    for grad in (alpha.grad, theta.grad, phi.grad, model64.rbf.log_width.grad):
+        assert grad is not None and torch.isfinite(grad).all() and grad.abs().max() > 0
+    check = lambda a, t, p: model64(a, t, p)[:, 10:14, 10:14]
+    inputs = tuple(x.detach()[:2].requires_grad_(True) for x in (alpha, theta, phi))
+    assert torch.autograd.gradcheck(check, inputs)
+
+
+def test_float64_conversion_and_state_dict_rebuild(model):
+    g = torch.Generator().manual_seed(1)
+    alpha, theta, phi = torch.rand(3, 5, generator=g)
+    model64 = GenerativeShapeModel.from_model_args(model.model_args)
+    model64.load_state_dict(model.state_dict())
+    model64 = model64.to(torch.float64)
+    assert all(t.dtype == torch.float64 for t in model64.state_dict().values() if t.is_floating_point())
+    with torch.no_grad():
+        torch.testing.assert_close(model64(alpha.double(), theta.double(), phi.double()).float(),
+                                   model(alpha, theta, phi), atol=1e-4, rtol=0)
+    expected = {"rbf.centres_theta", "rbf.centres_phi", "rbf.log_width", "core.core", "core.identity_vectors",
+                "core.relative_error", "identity.knots", "identity.coefficients", "identity.alphas",
+                "identity.order", "identity.labels"}
+    assert set(model.state_dict()) == expected
+
+
+def test_checkpoint_round_trip_is_exact(model, tmp_path):
+    path = tmp_path / "model.pt"
+    model.save(path, extra={"note": "synthetic", "views": torch.arange(3), "nested": [1, 2.5, None]})
+    raw = torch.load(path, weights_only=True)
+    assert raw["format"] == "torch_atr.generative" and raw["format_version"] == 1
+    assert raw["model_args"]["template"] == {"size_px": 24, "window_m": 12.0, "tau_px": 4.0}
+    loaded, extra = load_checkpoint(path)
+    assert extra["note"] == "synthetic" and torch.equal(extra["views"], torch.arange(3))
+    assert loaded.vehicle_names == NAMES and loaded.vehicle_classes == CLASSES and loaded.template == TEMPLATE
+    g = torch.Generator().manual_seed(2)
+    alpha, theta, phi = torch.rand(3, 6, generator=g)
+    with torch.no_grad():
+        assert torch.equal(loaded(alpha, theta, phi), model(alpha, theta, phi))
+    model64 = GenerativeShapeModel.from_model_args(model.model_args).double()
+    model64.load_state_dict(model.state_dict())
+    model64.save(tmp_path / "model64.pt")
+    assert GenerativeShapeModel.from_checkpoint(tmp_path / "model64.pt").core.core.dtype == torch.float64
+
+
+def test_save_rejects_non_plain_extra(model, tmp_path):
+    with pytest.raises(ValueError, match=r"extra\['obj'\] holds a object"):
+        model.save(tmp_path / "x.pt", extra={"obj": object()})
+    assert not (tmp_path / "x.pt").exists()
+
+
+def test_checkpoint_errors_name_file_and_problem(model, tmp_path):
+    with pytest.raises(FileNotFoundError, match="missing.pt"):
+        GenerativeShapeModel.from_checkpoint(tmp_path / "missing.pt")
+    good = tmp_path / "good.pt"
+    model.save(good)
+    truncated = tmp_path / "truncated.pt"
+    truncated.write_bytes(good.read_bytes()[: good.stat().st_size // 2])
+    garbage = tmp_path / "garbage.pt"
+    garbage.write_bytes(np.random.default_rng(0).bytes(4096))
+    for path in (truncated, garbage):
+        with pytest.raises(ValueError, match=rf"{path.name}.*not a readable checkpoint"):
+            GenerativeShapeModel.from_checkpoint(path)
+    ckpt = torch.load(good, weights_only=True)
+    cases = {
+        "other.pt": ({"weights": torch.zeros(2)}, "not a torch_atr.generative checkpoint"),
+        "keys.pt": ({"format": "torch_atr.generative"}, "lacks format_version, model_args, state_dict"),
+        "newer.pt": ({**ckpt, "format_version": 2}, "format_version 2 is not supported"),
+        "args.pt": ({**ckpt, "model_args": {**ckpt["model_args"], "num_centres": "36"}}, r"model_args\['num_centres'\]"),
+        "missing_key.pt": ({**ckpt, "state_dict": {k: v for k, v in ckpt["state_dict"].items()
+                                                   if k != "core.core"}}, "state_dict does not match.*core.core"),
+        "shape.pt": ({**ckpt, "model_args": {**ckpt["model_args"], "num_centres": 30}}, "state_dict does not match"),
+        "labels.pt": ({**ckpt, "model_args": {**ckpt["model_args"], "vehicle_classes": [1, 0, 0, 1, 1, 0]}},
+                      "differ from model_args"),
+    }
+    for name, (payload, message) in cases.items():
+        torch.save(payload, tmp_path / name)
+        with pytest.raises(ValueError, match=rf"(?s){name}: .*{message}"):
+            GenerativeShapeModel.from_checkpoint(tmp_path / name)
+
+
+def test_fine_tune_widths_lowers_validation_error(data):
+    K, V = data["templates"].shape[:2]
+    model = _fit(data, ModelConfig(pixel_rank=None, ridge=1e-4)).double()
+    train = data["templates"].double().reshape(K, V, -1)
+    val = data["val"].double().reshape(K, data["val"].shape[1], -1)
+    views = [x.double() for x in (data["theta"], data["phi"], data["val_theta"], data["val_phi"])]
+    before = model.rbf.widths.detach().clone()
+    history = fine_tune_widths(model, train, views[0], views[1], val, views[2], views[3], steps=15, lr=0.05)
+    assert len(history) == 15 and history[-1] < history[0]
+    assert not torch.equal(model.rbf.widths, before)
+    with torch.no_grad():  # the core was rebuilt from the tuned widths: training views still fit
+        recon = model(model.alphas.repeat_interleave(V), views[0].repeat(K), views[1].repeat(K))
+    assert _iou(recon.reshape(data["templates"].shape) > 0, data["templates"] > 0) > 0.99
+
+
+def test_fit_tunes_widths_when_asked(data):
+    cfg = ModelConfig(pixel_rank=None, ridge=1e-4, width_steps=5, width_lr=0.05)
+    with pytest.raises(ValueError, match="needs val_templates"):
+        _fit(data, cfg)
+    tuned = _fit(data, cfg, val_templates=data["val"], val_theta=data["val_theta"], val_phi=data["val_phi"])
+    assert tuned.rbf.widths.std() > 0  # one width per centre, tuned apart from the shared initial value
+
+
+def test_fit_rejects_bad_inputs(data):
+    with pytest.raises(ValueError, match="templates"):
+        GenerativeShapeModel.fit(data["templates"][..., :20], data["theta"], data["phi"], NAMES, CLASSES,
+                                 ["car", "tank"], TEMPLATE)
+    with pytest.raises(ValueError, match="6 vehicle names"):
+        GenerativeShapeModel.fit(data["templates"], data["theta"], data["phi"], NAMES[:5], CLASSES,
+                                 ["car", "tank"], TEMPLATE)
+    with pytest.raises(ValueError, match="out of range"):
+        GenerativeShapeModel.fit(data["templates"], data["theta"], data["phi"], NAMES, CLASSES, ["car"], TEMPLATE)
+
+
+def test_model_config_from_yaml_and_overrides(tmp_path):
+    path = tmp_path / "model.yaml"
+    path.write_text("pixel_rank: null\nridge: 0.001\n", encoding="utf-8")
+    cfg = load_config(ModelConfig, path, ["width_steps=20"])
+    assert cfg == ModelConfig(pixel_rank=None, ridge=1e-3, width_steps=20)
+    with pytest.raises(ConfigError, match="pixel_rank"):
+        load_config(ModelConfig, overrides=["pixel_rank=0"])
+    with pytest.raises(ConfigError, match="unknown config key"):
+        load_config(ModelConfig, overrides=["rank=3"])

@@ -1,0 +1,148 @@
+"""RBF view mapping (eq. 4.12-4.13) against numpy least squares, brute-force kernels and gradcheck."""
+
+import math
+
+import numpy as np
+import pytest
+import torch
+from scipy.spatial import cKDTree
+
+from torch_atr.model.rbf import RBFViewMapping, rbf_features, ridge_hat, view_vectors
+
+
+def _grid(n_theta: int, phis_deg, dtype=torch.float64):
+    theta = torch.arange(n_theta, dtype=dtype) * (2 * math.pi / n_theta)
+    phi = torch.tensor(phis_deg, dtype=dtype).deg2rad()
+    T, P = torch.meshgrid(theta, phi, indexing="ij")
+    return T.reshape(-1), P.reshape(-1)
+
+
+def test_view_vectors_axes_and_unit_norm():
+    theta = torch.tensor([0.0, math.pi / 2, math.pi, 0.3], dtype=torch.float64)
+    phi = torch.tensor([0.0, 0.0, 0.0, math.pi / 2], dtype=torch.float64)
+    u = view_vectors(theta, phi)
+    expected = torch.tensor([[1.0, 0, 0], [0, 1.0, 0], [-1.0, 0, 0], [0, 0, 1.0]], dtype=torch.float64)
+    torch.testing.assert_close(u, expected, atol=1e-12, rtol=0)
+    g = torch.Generator().manual_seed(0)
+    u = view_vectors(torch.rand(50, generator=g) * 7, torch.rand(50, generator=g) * 1.5)
+    torch.testing.assert_close(u.norm(dim=1), torch.ones(50))
+
+
+def test_view_vectors_rejects_mismatched_shapes():
+    with pytest.raises(ValueError, match="phi"):
+        view_vectors(torch.zeros(3), torch.zeros(4))
+    with pytest.raises(ValueError, match="theta"):
+        view_vectors(torch.zeros(3, 1), torch.zeros(3))
+
+
+def test_rbf_features_match_brute_force():
+    g = torch.Generator().manual_seed(1)
+    u = view_vectors(torch.rand(7, generator=g, dtype=torch.float64) * 6, torch.rand(7, generator=g, dtype=torch.float64))
+    centres = view_vectors(torch.rand(5, generator=g, dtype=torch.float64) * 6, torch.rand(5, generator=g, dtype=torch.float64))
+    widths = torch.rand(5, generator=g, dtype=torch.float64) + 0.2
+    psi = rbf_features(u, centres, widths).numpy()
+    un, cn, wn = u.numpy(), centres.numpy(), widths.numpy()
+    for n in range(7):
+        for l in range(5):
+            r = math.sqrt(sum((un[n, i] - cn[l, i]) ** 2 for i in range(3)))
+            assert psi[n, l] == pytest.approx(math.exp(-r * r / (2 * wn[l] ** 2)), rel=1e-12, abs=1e-14)
+        np.testing.assert_allclose(psi[n, 5:], [1.0, *un[n]], rtol=0, atol=0)
+
+
+def test_rbf_features_rejects_bad_widths():
+    with pytest.raises(ValueError, match=r"widths to have shape \(4\)"):
+        rbf_features(torch.zeros(2, 3), torch.zeros(4, 3), torch.ones(3))
+
+
+def test_default_width_is_mean_nearest_chord():
+    theta, phi = _grid(12, [0, 20, 40])
+    rbf = RBFViewMapping(theta, phi)
+    pts = view_vectors(theta, phi).numpy()
+    dist, _ = cKDTree(pts).query(pts, k=2)
+    torch.testing.assert_close(rbf.widths, torch.full((36,), dist[:, 1].mean(), dtype=torch.float64))
+    assert rbf.log_width.requires_grad and rbf.psi_dim == 40
+    assert set(rbf.state_dict()) == {"centres_theta", "centres_phi", "log_width"}
+
+
+def test_init_width_validation():
+    with pytest.raises(ValueError, match="init_width"):
+        RBFViewMapping(torch.zeros(3), torch.zeros(3), init_width=-1.0)
+    with pytest.raises(ValueError, match="pass init_width"):
+        RBFViewMapping(torch.zeros(3), torch.zeros(3))
+    with pytest.raises(ValueError, match="at least 2 centres"):
+        RBFViewMapping(torch.zeros(1), torch.zeros(1))
+
+
+def _lstsq_reference(psi: np.ndarray, Y: np.ndarray, ridge: float) -> np.ndarray:
+    """Per-vehicle ridge regression as ordinary least squares on [Ψ; √λ I] b = [y; 0]."""
+    V, P = psi.shape
+    A = np.vstack([psi, math.sqrt(ridge) * np.eye(P)])
+    out = []
+    for Yk in Y:  # (V, d)
+        rhs = np.vstack([Yk, np.zeros((P, Yk.shape[1]))])
+        out.append(np.linalg.lstsq(A, rhs, rcond=None)[0].T)  # (d, P)
+    return np.stack(out)
+
+
+@pytest.mark.parametrize("n_centres_theta", [12, 4])  # Nc = V (V < P) and Nc < V - 4 (V > P)
+def test_fit_matches_numpy_lstsq(n_centres_theta):
+    theta, phi = _grid(12, [0, 20, 40])
+    ct, cp = _grid(n_centres_theta, [10, 30])
+    rbf = RBFViewMapping(ct, cp)
+    g = torch.Generator().manual_seed(2)
+    Y = torch.rand(3, theta.shape[0], 10, generator=g, dtype=torch.float64) * 2 - 1
+    ridge = 1e-2
+    B = rbf.fit(theta, phi, Y, ridge)
+    assert B.shape == (3, 10, rbf.psi_dim)
+    ref = _lstsq_reference(rbf(theta, phi).detach().numpy(), Y.numpy(), ridge)
+    np.testing.assert_allclose(B.detach().numpy(), ref, rtol=1e-7, atol=1e-9)
+
+
+def test_fit_interpolates_training_views_at_zero_ridge():
+    theta, phi = _grid(12, [0, 20, 40])
+    rbf = RBFViewMapping(theta, phi)
+    g = torch.Generator().manual_seed(3)
+    Y = torch.rand(2, 36, 8, generator=g, dtype=torch.float64)
+    B = rbf.fit(theta, phi, Y, 0.0)
+    recon = torch.einsum("kdp,vp->kvd", B, rbf(theta, phi))
+    torch.testing.assert_close(recon, Y, atol=1e-8, rtol=0)
+
+
+def test_psi_is_continuous_across_zero_azimuth():
+    theta, phi = _grid(12, [0, 20, 40])
+    rbf = RBFViewMapping(theta, phi)
+    eps = 1e-7
+    phis = torch.tensor([0.0, 0.2, 0.6], dtype=torch.float64)
+    before = rbf(torch.full((3,), 2 * math.pi - eps, dtype=torch.float64), phis)
+    after = rbf(torch.full((3,), eps, dtype=torch.float64), phis)
+    torch.testing.assert_close(before, after, atol=1e-6, rtol=0)
+    shifted = rbf(torch.full((3,), 0.4 + 2 * math.pi, dtype=torch.float64), phis)
+    torch.testing.assert_close(shifted, rbf(torch.full((3,), 0.4, dtype=torch.float64), phis))
+
+
+def test_gradcheck_features_and_closed_form_fit():
+    g = torch.Generator().manual_seed(4)
+    theta, phi = _grid(6, [0, 30])
+    centres_u = view_vectors(*_grid(4, [15]))
+    u = view_vectors(theta, phi).requires_grad_(True)
+    log_w = torch.full((4,), math.log(0.7), dtype=torch.float64, requires_grad=True)
+    Y = torch.rand(2, 12, 3, generator=g, dtype=torch.float64)
+    assert torch.autograd.gradcheck(lambda uu, lw: rbf_features(uu, centres_u, lw.exp()), (u, log_w))
+    fit = lambda lw: torch.einsum("kvd,vp->kdp", Y, ridge_hat(rbf_features(u.detach(), centres_u, lw.exp()), 1e-3))
+    assert torch.autograd.gradcheck(fit, (log_w,))
+
+
+def test_fit_gradient_reaches_widths():
+    theta, phi = _grid(12, [0, 20])
+    rbf = RBFViewMapping(theta, phi)
+    g = torch.Generator().manual_seed(5)
+    Y = torch.rand(2, 24, 5, generator=g, dtype=torch.float64)
+    held_out = rbf(theta + 0.26, phi + 0.1)
+    (torch.einsum("kdp,vp->kvd", rbf.fit(theta, phi, Y, 1e-4), held_out) ** 2).sum().backward()
+    assert rbf.log_width.grad is not None and torch.isfinite(rbf.log_width.grad).all()
+    assert rbf.log_width.grad.abs().max() > 0
+
+
+def test_ridge_hat_rejects_negative_ridge():
+    with pytest.raises(ValueError, match="ridge"):
+        ridge_hat(torch.ones(3, 5), -1.0)

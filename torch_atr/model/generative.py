@@ -1,0 +1,346 @@
+"""The generative shape model y(α, Θ) = 𝒜 ×₃ i(α) ×₂ Ψ(Θ) (eq. 4.18), its fit and its checkpoints."""
+
+from __future__ import annotations
+
+import logging
+import os
+import pickle
+import zipfile
+from collections.abc import Sequence
+from pathlib import Path
+
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+import torch_atr
+from torch_atr._checks import as_float_tensor, check_shape
+from torch_atr.config import ConfigError, ModelConfig, TemplateConfig, config_to_dict
+from torch_atr.io import atomic_torch_save
+from torch_atr.model.identity import IdentityManifold, dissimilarity, shortest_closed_path
+from torch_atr.model.rbf import RBFViewMapping, ridge_hat
+from torch_atr.model.tensor import TensorCore, principal_basis
+
+log = logging.getLogger(__name__)
+
+FORMAT = "torch_atr.generative"
+FORMAT_VERSION = 1
+_MODEL_ARG_TYPES = {"num_centres": int, "num_vehicles": int, "pixel_rank": (int, type(None)), "vehicle_names": list,
+                    "vehicle_classes": list, "class_names": list, "template": dict}
+
+
+class GenerativeShapeModel(nn.Module):
+    """Signed-distance templates from the identity α and the view Θ = (θ, φ) (eq. 4.16-4.18).
+
+    Args:
+        rbf: the view mapping Ψ(Θ) with Nc centres.
+        core: the decomposed mapping tensor (𝒜, U₁, iᵏ) of K vehicles, d = H·W pixels.
+        identity: the identity manifold i(α) through the K identity vectors; its labels are the
+            vehicles' class indices.
+        vehicle_names: K names; class_names: C names, indexed by the labels.
+        template: the template geometry (H = W = ``template.size_px``).
+
+    Use :meth:`fit` to learn a model and :meth:`from_checkpoint` to load one. The whole state
+    lives in ``state_dict()``; :attr:`model_args` holds what rebuilds the modules.
+    """
+
+    def __init__(self, rbf: RBFViewMapping, core: TensorCore, identity: IdentityManifold,
+                 vehicle_names: Sequence[str], class_names: Sequence[str], template: TemplateConfig):
+        super().__init__()
+        K = core.num_vehicles
+        if core.psi_dim != rbf.psi_dim:
+            raise ValueError(f"core expects Ψ of length {core.psi_dim}; the RBF mapping gives {rbf.psi_dim}")
+        if core.pixels != template.size_px ** 2:
+            raise ValueError(f"core has {core.pixels} pixels; template.size_px = {template.size_px} "
+                             f"needs {template.size_px ** 2}")
+        if identity.num_vehicles != K or len(vehicle_names) != K:
+            raise ValueError(f"Expected {K} vehicles in the identity manifold and names; got "
+                             f"{identity.num_vehicles} and {len(vehicle_names)}")
+        labels = identity.labels.tolist()
+        if any(not 0 <= c < len(class_names) for c in labels):
+            raise ValueError(f"vehicle classes {labels} out of range for {len(class_names)} class names")
+        self.rbf = rbf
+        self.core = core
+        self.identity = identity
+        self.vehicle_names = [str(name) for name in vehicle_names]
+        self.class_names = [str(name) for name in class_names]
+        self.template = template
+
+    @property
+    def vehicle_classes(self) -> list[int]:
+        """Class index per vehicle (K,), into :attr:`class_names`."""
+        return self.identity.labels.tolist()
+
+    @property
+    def alphas(self) -> torch.Tensor:
+        """(K,) αₖ of each training vehicle on the identity manifold."""
+        return self.identity.alphas
+
+    @property
+    def model_args(self) -> dict:
+        """Plain-Python arguments that rebuild this model's modules (:meth:`from_model_args`)."""
+        return {"num_centres": self.rbf.num_centres, "num_vehicles": self.core.num_vehicles,
+                "pixel_rank": self.core.pixel_rank, "vehicle_names": list(self.vehicle_names),
+                "vehicle_classes": self.vehicle_classes, "class_names": list(self.class_names),
+                "template": config_to_dict(self.template)}
+
+    @classmethod
+    def from_model_args(cls, model_args: dict) -> GenerativeShapeModel:
+        """A model of the right sizes with placeholder values, for ``load_state_dict``.
+
+        Raises ValueError naming the key when ``model_args`` is incomplete or mistyped.
+        """
+        if not isinstance(model_args, dict):
+            raise ValueError(f"Expected model_args to be a dict; got {type(model_args).__name__}")
+        for key, types in _MODEL_ARG_TYPES.items():
+            if key not in model_args:
+                raise ValueError(f"model_args lacks {key!r}")
+            if not isinstance(model_args[key], types) or isinstance(model_args[key], bool):
+                raise ValueError(f"model_args[{key!r}] has type {type(model_args[key]).__name__}")
+        try:
+            template = TemplateConfig(**model_args["template"])
+        except (TypeError, ConfigError) as exc:
+            raise ValueError(f"model_args['template'] is not a TemplateConfig: {exc}") from exc
+        K, Nc = model_args["num_vehicles"], model_args["num_centres"]
+        classes = model_args["vehicle_classes"]
+        if len(classes) != K or not all(isinstance(c, int) for c in classes):
+            raise ValueError(f"model_args['vehicle_classes'] must be {K} integers; got {classes}")
+        rbf = RBFViewMapping(torch.zeros(Nc), torch.zeros(Nc), init_width=1.0)
+        core = TensorCore(template.size_px ** 2, Nc + 4, K, model_args["pixel_rank"])
+        identity = IdentityManifold(K)
+        identity.labels.copy_(torch.tensor(classes, dtype=torch.long))
+        return cls(rbf, core, identity, model_args["vehicle_names"], model_args["class_names"], template)
+
+    @classmethod
+    def fit(cls, templates: torch.Tensor, theta: torch.Tensor, phi: torch.Tensor, vehicle_names: Sequence[str],
+            vehicle_classes, class_names: Sequence[str], template_cfg: TemplateConfig,
+            cfg: ModelConfig | None = None, *, centres: tuple[torch.Tensor, torch.Tensor] | None = None,
+            val_templates: torch.Tensor | None = None, val_theta: torch.Tensor | None = None,
+            val_phi: torch.Tensor | None = None) -> GenerativeShapeModel:
+        """Learn the model from signed-distance templates (chapter 4).
+
+        templates: (K, V, H, W) clipped signed distance, positive inside; theta, phi: (V,) the
+        training views, radians; vehicle_names: K names; vehicle_classes: (K,) class indices into
+        class_names; template_cfg: H = W = size_px; cfg: defaults if None.
+        centres: (Nc,) azimuths and elevations of the RBF centres; default the training views.
+        val_templates: (K, Vv, H, W) and val_theta, val_phi: (Vv,) held-out views for tuning the
+        kernel widths (``cfg.width_steps`` > 0).
+
+        Steps: Ψ centres; widths (tuned if asked); every Bᵏ in closed form (eq. 4.13); HOSVD
+        core with a rank-r pixel basis (eq. 4.14); D and the class-constrained shortest closed
+        path (eq. 4.8-4.11); the closed spline i(α). The fit runs in float64; the model is
+        returned in the templates' dtype and device.
+        """
+        cfg = ModelConfig() if cfg is None else cfg
+        check_shape("templates", templates, ("K", "V", template_cfg.size_px, template_cfg.size_px))
+        K, V = templates.shape[:2]
+        if K < 2:
+            raise ValueError(f"Expected at least 2 vehicles for an identity manifold; got {K}")
+        if not templates.is_floating_point():
+            raise ValueError(f"Expected signed-distance templates (floating); got dtype {templates.dtype}")
+        labels = torch.as_tensor(vehicle_classes, dtype=torch.long, device=templates.device)
+        check_shape("vehicle_classes", labels, (K,))
+        if not 0 <= labels.min() <= labels.max() < len(class_names):
+            raise ValueError(f"vehicle classes {labels.tolist()} out of range for {len(class_names)} class names")
+        if len(vehicle_names) != K:
+            raise ValueError(f"Expected {K} vehicle names; got {len(vehicle_names)}")
+        wide = templates.to(torch.float64)
+
+        def as_wide(name: str, x) -> torch.Tensor:
+            return as_float_tensor(name, x, like=wide).to(wide)
+
+        theta, phi = as_wide("theta", theta), as_wide("phi", phi)
+        check_shape("theta", theta, (V,))
+        check_shape("phi", phi, (V,))
+        Y = wide.reshape(K, V, -1)  # (K, V, d)
+        centres_theta, centres_phi = (theta, phi) if centres is None else centres
+        rbf = RBFViewMapping(as_wide("centres_theta", centres_theta), as_wide("centres_phi", centres_phi),
+                             cfg.init_width)
+        if cfg.width_steps > 0:
+            if val_templates is None or val_theta is None or val_phi is None:
+                raise ValueError("cfg.width_steps > 0 needs val_templates, val_theta and val_phi")
+            check_shape("val_templates", val_templates, (K, None, template_cfg.size_px, template_cfg.size_px))
+            val = val_templates.to(wide).reshape(K, val_templates.shape[1], -1)  # (K, Vv, d)
+            fine_tune_widths(rbf, Y, theta, phi, val, as_wide("val_theta", val_theta), as_wide("val_phi", val_phi),
+                             cfg.width_steps, cfg.width_lr, ridge=cfg.ridge)
+        order = shortest_closed_path(dissimilarity(Y, labels, cfg.class_penalty), labels)
+        core, identity = _fit_core_and_identity(rbf, Y, theta, phi, cfg.ridge, cfg.pixel_rank, labels, order)
+        log.info("fitted K=%d V=%d Nc=%d r=%s: truncation error %.3g, order %s", K, V, rbf.num_centres,
+                 core.pixel_rank, core.relative_error.item(), order.tolist())
+        model = cls(rbf, core, identity, vehicle_names, class_names, template_cfg)
+        return model.to(templates.dtype)
+
+    def _check_queries(self, **queries: torch.Tensor) -> None:
+        sizes = set()
+        for name, value in queries.items():
+            check_shape(name, value, ("N",))
+            sizes.add(value.shape[0])
+        if len(sizes) > 1:
+            raise ValueError("Expected " + ", ".join(queries) + " of one length N; got "
+                             + ", ".join(str(tuple(v.shape)) for v in queries.values()))
+
+    def forward(self, alpha: torch.Tensor, theta: torch.Tensor, phi: torch.Tensor) -> torch.Tensor:
+        """Signed-distance reconstruction y(α, Θ) (eq. 4.18).
+
+        alpha: (N,) identity angles; theta, phi: (N,) view, radians. Returns (N, H, W), positive inside.
+        """
+        self._check_queries(alpha=alpha, theta=theta, phi=phi)
+        y = self.core.reconstruct(self.identity(alpha), self.rbf(theta, phi))  # (N, d)
+        return y.view(-1, self.template.size_px, self.template.size_px)
+
+    def silhouette(self, alpha: torch.Tensor, theta: torch.Tensor, phi: torch.Tensor) -> torch.Tensor:
+        """The reconstructed silhouette y(α, Θ) > 0 for alpha, theta, phi: (N,). Returns (N, H, W) bool."""
+        return self(alpha, theta, phi) > 0
+
+    def reconstruct_vehicle(self, k: int, theta: torch.Tensor, phi: torch.Tensor) -> torch.Tensor:
+        """Vehicle k's templates from its identity vector iᵏ exactly (eq. 4.14-4.15).
+
+        k: vehicle index; theta, phi: (N,) radians. Returns (N, H, W).
+        """
+        if not 0 <= k < self.core.num_vehicles:
+            raise ValueError(f"Expected a vehicle index in [0, {self.core.num_vehicles}); got {k}")
+        self._check_queries(theta=theta, phi=phi)
+        identity = self.core.identity_vectors[k].expand(theta.shape[0], -1)  # (N, K)
+        y = self.core.reconstruct(identity, self.rbf(theta, phi))
+        return y.view(-1, self.template.size_px, self.template.size_px)
+
+    def classify(self, alpha: torch.Tensor) -> torch.Tensor:
+        """Class index whose identity arc holds alpha: (N,). Returns (N,) int64."""
+        return self.identity.classify(alpha)
+
+    def nearest_vehicles(self, alpha: torch.Tensor, k: int = 2) -> torch.Tensor:
+        """The k training vehicles nearest to alpha: (N,) on the identity circle. Returns (N, k) int64."""
+        return self.identity.nearest_vehicles(alpha, k)
+
+    def save(self, path: str | os.PathLike, extra: dict | None = None) -> None:
+        """Write a self-describing checkpoint atomically; it loads with ``torch.load(weights_only=True)``.
+
+        extra: plain data to store alongside (tensors, numbers, strings, None, lists/dicts of them).
+        """
+        _check_plain("extra", extra)
+        atomic_torch_save({"format": FORMAT, "format_version": FORMAT_VERSION,
+                           "torch_atr_version": torch_atr.__version__, "model_args": self.model_args,
+                           "state_dict": self.state_dict(), "extra": extra}, path)
+
+    @classmethod
+    def from_checkpoint(cls, path: str | os.PathLike, map_location=None) -> GenerativeShapeModel:
+        """Load a model written by :meth:`save` (see :func:`load_checkpoint` for the errors)."""
+        return load_checkpoint(path, map_location)[0]
+
+
+def _check_plain(name: str, value) -> None:
+    """Raise ValueError unless ``value`` holds only tensors and plain Python data."""
+    if value is None or isinstance(value, (bool, int, float, str, torch.Tensor)):
+        return
+    if isinstance(value, (list, tuple)):
+        for i, item in enumerate(value):
+            _check_plain(f"{name}[{i}]", item)
+        return
+    if isinstance(value, dict):
+        for key, item in value.items():
+            if not isinstance(key, str):
+                raise ValueError(f"{name} has a non-string key {key!r}")
+            _check_plain(f"{name}[{key!r}]", item)
+        return
+    raise ValueError(f"{name} holds a {type(value).__name__}; checkpoints store only tensors and plain data")
+
+
+def load_checkpoint(path: str | os.PathLike, map_location=None) -> tuple[GenerativeShapeModel, dict | None]:
+    """Load a model and its ``extra`` data from a checkpoint written by :meth:`GenerativeShapeModel.save`.
+
+    Raises FileNotFoundError for a missing file and ValueError naming the file for a corrupt or
+    truncated file, another format, a newer format_version, bad model_args or a state_dict that
+    does not match them.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"checkpoint not found: {path}")
+    try:
+        ckpt = torch.load(path, map_location=map_location, weights_only=True)
+    except (RuntimeError, EOFError, pickle.UnpicklingError, zipfile.BadZipFile, ValueError) as exc:
+        raise ValueError(f"{path}: not a readable checkpoint (corrupt or truncated?): {exc}") from exc
+    if not isinstance(ckpt, dict) or ckpt.get("format") != FORMAT:
+        found = ckpt.get("format") if isinstance(ckpt, dict) else type(ckpt).__name__
+        raise ValueError(f"{path}: not a {FORMAT} checkpoint (format: {found!r})")
+    missing = sorted({"format_version", "model_args", "state_dict"} - set(ckpt))
+    if missing:
+        raise ValueError(f"{path}: checkpoint lacks {', '.join(missing)}")
+    version = ckpt["format_version"]
+    if not isinstance(version, int) or version > FORMAT_VERSION:
+        raise ValueError(f"{path}: format_version {version!r} is not supported (this torch_atr reads up to "
+                         f"{FORMAT_VERSION}; upgrade torch_atr)")
+    try:
+        model = GenerativeShapeModel.from_model_args(ckpt["model_args"])
+    except ValueError as exc:
+        raise ValueError(f"{path}: {exc}") from exc
+    state = ckpt["state_dict"]
+    try:
+        if not isinstance(state, dict):
+            raise RuntimeError(f"state_dict is a {type(state).__name__}")
+        model.load_state_dict(state, assign=True)
+    except RuntimeError as exc:
+        raise ValueError(f"{path}: state_dict does not match model_args: {exc}") from exc
+    if model.vehicle_classes != ckpt["model_args"]["vehicle_classes"]:
+        raise ValueError(f"{path}: state_dict labels {model.vehicle_classes} differ from model_args "
+                         f"vehicle_classes {ckpt['model_args']['vehicle_classes']}")
+    return model, ckpt.get("extra")
+
+
+def _fit_core_and_identity(rbf: RBFViewMapping, Y: torch.Tensor, theta: torch.Tensor, phi: torch.Tensor,
+                           ridge: float, pixel_rank: int | None, labels: torch.Tensor,
+                           order: torch.Tensor) -> tuple[TensorCore, IdentityManifold]:
+    """Bᵏ in closed form (eq. 4.13), the HOSVD core (eq. 4.14) and the spline through the iᵏ.
+
+    The truncated pixel basis is the principal basis of the training templates Y (K, V, d): it
+    keeps the pixel directions the templates need, whereas the mode-1 singular vectors of 𝒞 rank
+    them by the RBF weights, which over-weight detail that changes fast with the view (a tank's
+    gun): measured on the catalog at r = 128, template IoU 0.99 against 0.90.
+    """
+    with torch.no_grad():
+        B = rbf.fit(theta, phi, Y, ridge)  # (K, d, P)
+        basis = None
+        if pixel_rank is not None:
+            basis, template_error = principal_basis(Y.reshape(-1, Y.shape[-1]), pixel_rank)
+            log.info("pixel basis r=%d: relative template error %.4f", basis.shape[1], template_error.item())
+        core = TensorCore.from_mappings(B, pixel_rank, pixel_basis=basis)
+        identity = IdentityManifold.fit(core.identity_vectors, labels, order)
+    return core, identity
+
+
+def fine_tune_widths(model_or_rbf: GenerativeShapeModel | RBFViewMapping, train: torch.Tensor, theta: torch.Tensor,
+                     phi: torch.Tensor, val: torch.Tensor, val_theta: torch.Tensor, val_phi: torch.Tensor,
+                     steps: int, lr: float, ridge: float = ModelConfig.ridge) -> list[float]:
+    """Tune the kernel widths by Adam on the reconstruction error of held-out views.
+
+    train: (K, V, d) templates at the training views theta, phi: (V,); val: (K, Vv, d) templates
+    at the held-out views val_theta, val_phi: (Vv,); steps: Adam steps at learning rate lr on
+    log(width); ridge: λ. Returns the validation MSE before each step (length ``steps``).
+
+    Every step re-solves all Bᵏ in closed form, Bᵏ = Yᵏᵀ W with W = Ψ (ΨᵀΨ + λI)⁻¹ (eq. 4.13),
+    so the gradient flows through the solve; the held-out prediction Bᵏ Ψ_valᵀ is evaluated as
+    Yᵏᵀ (W Ψ_valᵀ), which never forms B. Given a model, its core and identity spline are rebuilt
+    from the tuned widths (the vehicle order is kept: it depends on the templates only).
+    """
+    rbf = model_or_rbf.rbf if isinstance(model_or_rbf, GenerativeShapeModel) else model_or_rbf
+    if not isinstance(rbf, RBFViewMapping):
+        raise ValueError(f"Expected a GenerativeShapeModel or RBFViewMapping; got {type(model_or_rbf).__name__}")
+    check_shape("train", train, ("K", theta.shape[0], "d"))
+    check_shape("val", val, (train.shape[0], val_theta.shape[0], train.shape[2]))
+    like = rbf.log_width
+    train, theta, phi, val, val_theta, val_phi = (x.to(like) for x in (train, theta, phi, val, val_theta, val_phi))
+    optimiser = torch.optim.Adam([rbf.log_width], lr=lr)
+    history = []
+    for step in range(steps):
+        optimiser.zero_grad()
+        W = ridge_hat(rbf(theta, phi), ridge)  # (V, P)
+        pred = torch.einsum("uv,kvd->kud", rbf(val_theta, val_phi) @ W.T, train)  # Bᵏ Ψ_valᵀ: (K, Vv, d)
+        loss = F.mse_loss(pred, val)
+        loss.backward()
+        optimiser.step()
+        history.append(loss.item())
+        log.debug("width step %d: validation MSE %.6g", step, history[-1])
+    if isinstance(model_or_rbf, GenerativeShapeModel):
+        model = model_or_rbf
+        model.core, model.identity = _fit_core_and_identity(rbf, train, theta, phi, ridge, model.core.pixel_rank,
+                                                            model.identity.labels, model.identity.order)
+    return history

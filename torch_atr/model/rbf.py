@@ -1,0 +1,139 @@
+"""The view mapping of the generative model: Gaussian RBF features on the view hemisphere.
+
+Eq. 4.12-4.13: yᵏ(Θ) = Bᵏ Ψ(Θ) with Ψ(Θ) = [κ(‖u(Θ) − u(Υ₁)‖), …, κ(‖u(Θ) − u(Υ_Nc)‖), 1, u(Θ)].
+Distances and the polynomial term use the unit view vector u(θ, φ) instead of the raw angles
+(METHOD.md, "Distances on the view manifold"), so Ψ is continuous across θ = 0 / 2π.
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import nn
+
+from torch_atr._checks import as_float_tensor, check_shape
+
+
+def view_vectors(theta: torch.Tensor, phi: torch.Tensor) -> torch.Tensor:
+    """Unit view vectors u(θ, φ) = (cos φ cos θ, cos φ sin θ, sin φ) in the vehicle body frame.
+
+    theta: (N,) azimuth from the vehicle's front, radians; phi: (N,) elevation, radians.
+    Returns (N, 3).
+    """
+    check_shape("theta", theta, ("N",))
+    check_shape("phi", phi, (theta.shape[0],))
+    cos_phi = torch.cos(phi)
+    return torch.stack((cos_phi * torch.cos(theta), cos_phi * torch.sin(theta), torch.sin(phi)), dim=-1)
+
+
+def rbf_features(u: torch.Tensor, centres_u: torch.Tensor, widths: torch.Tensor) -> torch.Tensor:
+    """Ψ(Θ) of eq. 4.13 with a Gaussian kernel κ(r) = exp(−r² / (2 sₗ²)) per centre.
+
+    u: (N, 3) view vectors; centres_u: (Nc, 3) centre view vectors u(Υₗ); widths: (Nc,) sₗ > 0.
+    Returns (N, Nc + 4): [κ(‖u − u(Υ₁)‖), …, κ(‖u − u(Υ_Nc)‖), 1, u].
+    """
+    check_shape("u", u, ("N", 3))
+    check_shape("centres_u", centres_u, ("Nc", 3))
+    check_shape("widths", widths, (centres_u.shape[0],))
+    # ‖u − c‖² = ‖u‖² + ‖c‖² − 2 u·c as one matmul; clamp the rounding below zero.
+    r2 = ((u * u).sum(-1, keepdim=True) + (centres_u * centres_u).sum(-1) - 2.0 * u @ centres_u.T).clamp_min(0.0)
+    kernel = torch.exp(-r2 / (2.0 * widths * widths))  # (N, Nc)
+    return torch.cat((kernel, torch.ones_like(u[:, :1]), u), dim=-1)
+
+
+def mean_nearest_chord(centres_u: torch.Tensor) -> torch.Tensor:
+    """Mean over centres of the chord distance to the nearest other centre.
+
+    centres_u: (Nc, 3) with Nc >= 2. Returns a scalar tensor.
+    """
+    check_shape("centres_u", centres_u, ("Nc", 3))
+    if centres_u.shape[0] < 2:
+        raise ValueError(f"Expected at least 2 centres for a nearest-neighbour distance; got {centres_u.shape[0]}")
+    dist = torch.cdist(centres_u, centres_u)
+    dist.fill_diagonal_(float("inf"))
+    return dist.min(dim=1).values.mean()
+
+
+def ridge_hat(psi: torch.Tensor, ridge: float) -> torch.Tensor:
+    """W = Ψ (ΨᵀΨ + λI)⁻¹ = (ΨΨᵀ + λI)⁻¹ Ψ, so that the ridge solution of eq. 4.13 is Bᵏ = Yᵏᵀ W.
+
+    psi: (V, P) features of the training views; ridge: λ >= 0. Returns (V, P).
+    Solves the smaller of the two Gram systems (the push-through identity makes them equal):
+    with the centres at the training views P = V + 4 > V, and (ΨΨᵀ + λI) stays invertible as
+    λ → 0, giving the exact (minimum-norm) interpolant.
+    """
+    check_shape("psi", psi, ("V", "P"))
+    if not ridge >= 0:
+        raise ValueError(f"Expected ridge >= 0; got {ridge}")
+    V, P = psi.shape
+    if V <= P:
+        gram = psi @ psi.T + ridge * torch.eye(V, dtype=psi.dtype, device=psi.device)  # (V, V)
+        return torch.linalg.solve(gram, psi)
+    gram = psi.T @ psi + ridge * torch.eye(P, dtype=psi.dtype, device=psi.device)  # (P, P)
+    return torch.linalg.solve(gram, psi.T).T
+
+
+class RBFViewMapping(nn.Module):
+    """Ψ(Θ) with Nc Gaussian centres Υₗ on the view hemisphere and learnable widths (eq. 4.12-4.13).
+
+    Args:
+        centres_theta, centres_phi: (Nc,) centre azimuths and elevations, radians (buffers).
+        init_width: initial kernel width sₗ (chord length, same for all centres); default the mean
+            nearest-neighbour chord distance between the centres.
+
+    The widths are ``exp(log_width)`` (a parameter of shape (Nc,)), positive by construction.
+    """
+
+    def __init__(self, centres_theta: torch.Tensor, centres_phi: torch.Tensor, init_width: float | None = None):
+        super().__init__()
+        centres_theta = as_float_tensor("centres_theta", centres_theta)
+        centres_phi = as_float_tensor("centres_phi", centres_phi, like=centres_theta)
+        check_shape("centres_theta", centres_theta, ("Nc",))
+        check_shape("centres_phi", centres_phi, (centres_theta.shape[0],))
+        self.register_buffer("centres_theta", centres_theta.clone())
+        self.register_buffer("centres_phi", centres_phi.clone())
+        if init_width is None:
+            width = mean_nearest_chord(self.centres_u)
+            if not width > 0:
+                raise ValueError("RBF centres coincide: cannot derive a default width; pass init_width")
+        else:
+            if not init_width > 0:
+                raise ValueError(f"Expected init_width > 0; got {init_width}")
+            width = torch.tensor(float(init_width), dtype=centres_theta.dtype, device=centres_theta.device)
+        self.log_width = nn.Parameter(torch.log(width).expand(centres_theta.shape[0]).clone())
+
+    @property
+    def num_centres(self) -> int:
+        return self.centres_theta.shape[0]
+
+    @property
+    def psi_dim(self) -> int:
+        """P = Nc + 4, the length of Ψ(Θ)."""
+        return self.num_centres + 4
+
+    @property
+    def widths(self) -> torch.Tensor:
+        """(Nc,) kernel widths sₗ = exp(log_width)."""
+        return self.log_width.exp()
+
+    @property
+    def centres_u(self) -> torch.Tensor:
+        """(Nc, 3) view vectors u(Υₗ) of the centres."""
+        return view_vectors(self.centres_theta, self.centres_phi)
+
+    def forward(self, theta: torch.Tensor, phi: torch.Tensor) -> torch.Tensor:
+        """Ψ(Θ) for theta, phi: (N,) radians. Returns (N, Nc + 4)."""
+        return rbf_features(view_vectors(theta, phi), self.centres_u, self.widths)
+
+    def fit(self, theta: torch.Tensor, phi: torch.Tensor, Y: torch.Tensor, ridge: float) -> torch.Tensor:
+        """Every Bᵏ of eq. 4.13 at once by regularised least squares.
+
+        Minimises Σₖ ‖Yᵏᵀ − Bᵏ Ψᵀ‖² + λ‖Bᵏ‖² in closed form, B = Yᵀ Ψ (ΨᵀΨ + λI)⁻¹, with one
+        factorisation shared by all K vehicles; differentiable with respect to the widths.
+
+        theta, phi: (V,) training views, radians; Y: (K, V, d) flattened templates; ridge: λ >= 0.
+        Returns B: (K, d, Nc + 4).
+        """
+        check_shape("theta", theta, ("V",))
+        check_shape("Y", Y, (None, theta.shape[0], None))
+        W = ridge_hat(self(theta, phi), ridge)  # (V, P)
+        return torch.einsum("kvd,vp->kdp", Y, W)
