@@ -59,6 +59,7 @@ from pytorch_kinematics.transforms import euler_angles_to_matrix
 from torch_atr._checks import as_float_tensor, check_shape
 from torch_atr.camera import Camera
 from torch_atr.config import TemplateConfig
+from torch_atr.model.rbf import view_vectors
 
 # Body axes -> world axes at heading 0: X (forward) -> +z, Y (left) -> -x, Z (up) -> +y.
 _BODY_TO_WORLD_H0 = ((0.0, -1.0, 0.0), (0.0, 0.0, 1.0), (1.0, 0.0, 0.0))
@@ -85,8 +86,7 @@ def view_directions(theta, phi) -> torch.Tensor:
     Returns:
         (V, 3), dtype and device of ``theta``.
     """
-    theta, phi = _view_angles(theta, phi)
-    return torch.stack([phi.cos() * theta.cos(), phi.cos() * theta.sin(), phi.sin()], dim=-1)
+    return view_vectors(*_view_angles(theta, phi))
 
 
 def view_basis(theta, phi) -> tuple[torch.Tensor, torch.Tensor]:
