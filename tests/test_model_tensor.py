@@ -175,3 +175,18 @@ def test_principal_basis_spans_numpy_svd_subspace():
     assert error.item() == pytest.approx(np.sqrt((S[5:] ** 2).sum() / (S ** 2).sum()), rel=1e-6)
     with pytest.raises(ValueError, match="rank"):
         principal_basis(torch.from_numpy(Y), 0)
+
+
+def test_principal_basis_randomised_error_is_near_optimal():
+    rng = np.random.default_rng(4)
+    # A slowly decaying spectrum, like the templates', with r + oversample < min(M, d).
+    Y = (rng.standard_normal((400, 300)) * (1.0 / (1 + np.arange(300)) ** 0.7)) @ np.linalg.qr(
+        rng.standard_normal((300, 300)))[0]
+    S = np.linalg.svd(Y, compute_uv=False)
+    optimal = np.sqrt((S[20:] ** 2).sum() / (S ** 2).sum())
+    U, error = principal_basis(torch.from_numpy(Y), 20)
+    direct = np.linalg.norm(Y - Y @ U.numpy() @ U.numpy().T) / np.linalg.norm(Y)
+    assert error.item() == pytest.approx(direct, rel=1e-8)
+    assert optimal <= direct <= 1.01 * optimal
+    U2, _ = principal_basis(torch.from_numpy(Y), 20)
+    assert torch.equal(U, U2)  # seeded: deterministic

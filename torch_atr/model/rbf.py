@@ -136,4 +136,4 @@ class RBFViewMapping(nn.Module):
         check_shape("theta", theta, ("V",))
         check_shape("Y", Y, (None, theta.shape[0], None))
         W = ridge_hat(self(theta, phi), ridge)  # (V, P)
-        return torch.einsum("kvd,vp->kdp", Y, W)
+        return Y.transpose(1, 2) @ W  # (K, d, P), contiguous
