@@ -244,6 +244,22 @@ def test_fine_tune_widths_lowers_validation_error(data):
     assert _iou(recon.reshape(data["templates"].shape) > 0, data["templates"] > 0) > 0.99
 
 
+def test_fine_tune_widths_loss_is_the_mse_of_explicit_mappings(data):
+    """The Gram-matrix loss equals the MSE of explicitly solved Bᵏ applied at the held-out views."""
+    K, V = data["templates"].shape[:2]
+    model = _fit(data, ModelConfig(pixel_rank=None, ridge=1e-3)).double()
+    train = data["templates"].double().reshape(K, V, -1)
+    val = data["val"].double().reshape(K, data["val"].shape[1], -1)
+    theta, phi, val_theta, val_phi = (x.double() for x in (data["theta"], data["phi"], data["val_theta"],
+                                                           data["val_phi"]))
+    with torch.no_grad():
+        B = model.rbf.fit(theta, phi, train, 1e-3)  # (K, d, P)
+        pred = torch.einsum("kdp,up->kud", B, model.rbf(val_theta, val_phi))
+        direct = ((pred - val) ** 2).mean().item()
+    history = fine_tune_widths(model.rbf, train, theta, phi, val, val_theta, val_phi, steps=1, lr=1e-9, ridge=1e-3)
+    assert history[0] == pytest.approx(direct, rel=1e-8)
+
+
 def test_fit_tunes_widths_when_asked(data):
     cfg = ModelConfig(pixel_rank=None, ridge=1e-4, width_steps=5, width_lr=0.05)
     with pytest.raises(ValueError, match="needs val_templates"):
@@ -272,3 +288,15 @@ def test_model_config_from_yaml_and_overrides(tmp_path):
         load_config(ModelConfig, overrides=["pixel_rank=0"])
     with pytest.raises(ConfigError, match="unknown config key"):
         load_config(ModelConfig, overrides=["rank=3"])
+
+
+def test_reconstruct_grid_equals_per_query_forward(model, data):
+    g = torch.Generator().manual_seed(5)
+    alpha = torch.rand(4, generator=g) * 2 * math.pi
+    theta, phi = torch.rand(3, generator=g) * 6.2, torch.rand(3, generator=g) * 0.7
+    grid = model.reconstruct_grid(alpha, theta, phi)
+    assert grid.shape == (4, 3, *data["templates"].shape[2:])
+    for a in range(4):
+        for v in range(3):
+            single = model(alpha[a:a + 1], theta[v:v + 1], phi[v:v + 1])[0]
+            torch.testing.assert_close(grid[a, v], single, rtol=1e-5, atol=1e-5)

@@ -142,6 +142,13 @@ def test_batched_reconstruct_equals_naive_eq_4_18_loop(pixel_rank):
         weights = ids @ identity[n].numpy()
         y = sum(weights[k] * C[:, :, k] @ psi[n].numpy() for k in range(5))
         np.testing.assert_allclose(out[n], proj @ y, rtol=1e-9, atol=1e-10)
+    grid = core.reconstruct_grid(identity[:4], psi[:3]).numpy()  # every identity at every view
+    assert grid.shape == (4, 3, 12)
+    for a in range(4):
+        for v in range(3):
+            weights = ids @ identity[a].numpy()
+            y = sum(weights[k] * C[:, :, k] @ psi[v].numpy() for k in range(5))
+            np.testing.assert_allclose(grid[a, v], proj @ y, rtol=1e-9, atol=1e-10)
 
 
 def test_reconstruct_rejects_bad_shapes_and_keeps_dtype():
@@ -190,3 +197,17 @@ def test_principal_basis_randomised_error_is_near_optimal():
     assert optimal <= direct <= 1.01 * optimal
     U2, _ = principal_basis(torch.from_numpy(Y), 20)
     assert torch.equal(U, U2)  # seeded: deterministic
+
+
+def test_project_gives_basis_coordinates_and_the_distance_identity():
+    core = TensorCore.from_mappings(_random_mappings(seed=4), 5)
+    g = torch.Generator().manual_seed(2)
+    y, y2 = torch.randn(3, 12, generator=g, dtype=torch.float64), torch.randn(3, 5, generator=g, dtype=torch.float64)
+    c = core.project(y)
+    U = core.pixel_basis.numpy()
+    np.testing.assert_allclose(c.numpy(), y.numpy() @ U, rtol=1e-12)
+    direct = ((y2.numpy() @ U.T - y.numpy()) ** 2).sum(1)  # ‖U c' − y‖²
+    via = ((y2 - c) ** 2).sum(1) + (y ** 2).sum(1) - (c ** 2).sum(1)
+    np.testing.assert_allclose(via.numpy(), direct, rtol=1e-10)
+    with pytest.raises(ValueError, match="12"):
+        core.project(torch.zeros(3, 11, dtype=torch.float64))

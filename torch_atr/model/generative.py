@@ -10,7 +10,6 @@ from collections.abc import Sequence
 from pathlib import Path
 
 import torch
-import torch.nn.functional as F
 from torch import nn
 
 import torch_atr
@@ -65,6 +64,7 @@ class GenerativeShapeModel(nn.Module):
         self.vehicle_names = [str(name) for name in vehicle_names]
         self.class_names = [str(name) for name in class_names]
         self.template = template
+        self.width_history: list[float] = []  # validation MSE per width-tuning step of fit(); not saved
 
     @property
     def vehicle_classes(self) -> list[int]:
@@ -156,18 +156,21 @@ class GenerativeShapeModel(nn.Module):
         centres_theta, centres_phi = (theta, phi) if centres is None else centres
         rbf = RBFViewMapping(as_wide("centres_theta", centres_theta), as_wide("centres_phi", centres_phi),
                              cfg.init_width)
+        width_history: list[float] = []
         if cfg.width_steps > 0:
             if val_templates is None or val_theta is None or val_phi is None:
                 raise ValueError("cfg.width_steps > 0 needs val_templates, val_theta and val_phi")
             check_shape("val_templates", val_templates, (K, None, template_cfg.size_px, template_cfg.size_px))
             val = val_templates.to(wide).reshape(K, val_templates.shape[1], -1)  # (K, Vv, d)
-            fine_tune_widths(rbf, Y, theta, phi, val, as_wide("val_theta", val_theta), as_wide("val_phi", val_phi),
-                             cfg.width_steps, cfg.width_lr, ridge=cfg.ridge)
+            width_history = fine_tune_widths(rbf, Y, theta, phi, val, as_wide("val_theta", val_theta),
+                                             as_wide("val_phi", val_phi), cfg.width_steps, cfg.width_lr,
+                                             ridge=cfg.ridge)
         order = shortest_closed_path(dissimilarity(Y, labels, cfg.class_penalty), labels)
         core, identity = _fit_core_and_identity(rbf, Y, theta, phi, cfg.ridge, cfg.pixel_rank, labels, order)
         log.info("fitted K=%d V=%d Nc=%d r=%s: truncation error %.3g, order %s", K, V, rbf.num_centres,
                  core.pixel_rank, core.relative_error.item(), order.tolist())
         model = cls(rbf, core, identity, vehicle_names, class_names, template_cfg)
+        model.width_history = width_history
         return model.to(templates.dtype)
 
     def _check_queries(self, **queries: torch.Tensor) -> None:
@@ -187,6 +190,27 @@ class GenerativeShapeModel(nn.Module):
         self._check_queries(alpha=alpha, theta=theta, phi=phi)
         y = self.core.reconstruct(self.identity(alpha), self.rbf(theta, phi))  # (N, d)
         return y.view(-1, self.template.size_px, self.template.size_px)
+
+    def reconstruct_grid(self, alpha: torch.Tensor, theta: torch.Tensor, phi: torch.Tensor,
+                         in_basis: bool = False) -> torch.Tensor:
+        """y(α, Θ) for every α at every view (eq. 4.18), far cheaper than one query per pair.
+
+        alpha: (A,) identity angles; theta, phi: (V,) view, radians. Returns (A, V, H, W), or
+        with ``in_basis`` the (A, V, r) pixel-basis coordinates (compare them with :meth:`project`).
+        """
+        check_shape("alpha", alpha, ("A",))
+        self._check_queries(theta=theta, phi=phi)
+        y = self.core.reconstruct_grid(self.identity(alpha), self.rbf(theta, phi), in_basis)  # (A, V, d or r)
+        if in_basis:
+            return y
+        return y.view(alpha.shape[0], theta.shape[0], self.template.size_px, self.template.size_px)
+
+    def project(self, templates: torch.Tensor) -> torch.Tensor:
+        """Pixel-basis coordinates of signed-distance templates: (..., H, W) -> (..., r)."""
+        if templates.shape[-2:] != (self.template.size_px, self.template.size_px):
+            raise ValueError(f"Expected templates of shape (..., {self.template.size_px}, {self.template.size_px}); "
+                             f"got {tuple(templates.shape)}")
+        return self.core.project(templates.flatten(-2))
 
     def silhouette(self, alpha: torch.Tensor, theta: torch.Tensor, phi: torch.Tensor) -> torch.Tensor:
         """The reconstructed silhouette y(α, Θ) > 0 for alpha, theta, phi: (N,). Returns (N, H, W) bool."""
@@ -317,9 +341,12 @@ def fine_tune_widths(model_or_rbf: GenerativeShapeModel | RBFViewMapping, train:
     log(width); ridge: λ. Returns the validation MSE before each step (length ``steps``).
 
     Every step re-solves all Bᵏ in closed form, Bᵏ = Yᵏᵀ W with W = Ψ (ΨᵀΨ + λI)⁻¹ (eq. 4.13),
-    so the gradient flows through the solve; the held-out prediction Bᵏ Ψ_valᵀ is evaluated as
-    Yᵏᵀ (W Ψ_valᵀ), which never forms B. Given a model, its core and identity spline are rebuilt
-    from the tuned widths (the vehicle order is kept: it depends on the templates only).
+    so the gradient flows through the solve. The held-out prediction is Hₖ = M Yᵏ with the small
+    matrix M = Ψ_val Wᵀ (Vv × V), so the loss Σₖ ‖M Yᵏ − Valᵏ‖² = tr(M G Mᵀ) − 2 tr(M E) + ‖Val‖²
+    needs only the Gram matrices G = Σₖ Yᵏ Yᵏᵀ (V × V) and E = Σₖ Yᵏ Valᵏᵀ (V × Vv), computed once:
+    a step costs microseconds instead of a K·Vv·V·d contraction. Given a model, its core and
+    identity spline are rebuilt from the tuned widths (the vehicle order is kept: it depends on
+    the templates only).
     """
     rbf = model_or_rbf.rbf if isinstance(model_or_rbf, GenerativeShapeModel) else model_or_rbf
     if not isinstance(rbf, RBFViewMapping):
@@ -328,13 +355,18 @@ def fine_tune_widths(model_or_rbf: GenerativeShapeModel | RBFViewMapping, train:
     check_shape("val", val, (train.shape[0], val_theta.shape[0], train.shape[2]))
     like = rbf.log_width
     train, theta, phi, val, val_theta, val_phi = (x.to(like) for x in (train, theta, phi, val, val_theta, val_phi))
+    with torch.no_grad():
+        G = torch.einsum("kvd,kwd->vw", train, train)  # Σₖ Yᵏ Yᵏᵀ: (V, V)
+        E = torch.einsum("kvd,kud->vu", train, val)  # Σₖ Yᵏ Valᵏᵀ: (V, Vv)
+        val_energy = val.square().sum()
+    count = val.numel()
     optimiser = torch.optim.Adam([rbf.log_width], lr=lr)
     history = []
     for step in range(steps):
         optimiser.zero_grad()
         W = ridge_hat(rbf(theta, phi), ridge)  # (V, P)
-        pred = torch.einsum("uv,kvd->kud", rbf(val_theta, val_phi) @ W.T, train)  # Bᵏ Ψ_valᵀ: (K, Vv, d)
-        loss = F.mse_loss(pred, val)
+        M = rbf(val_theta, val_phi) @ W.T  # (Vv, V): the held-out prediction is M Yᵏ
+        loss = ((M @ G * M).sum() - 2 * (M * E.T).sum() + val_energy) / count  # MSE of M Yᵏ against Valᵏ
         loss.backward()
         optimiser.step()
         history.append(loss.item())

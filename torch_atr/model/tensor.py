@@ -211,3 +211,28 @@ class TensorCore(nn.Module):
         per_view = (psi @ self.core.permute(1, 0, 2).reshape(P, r * K)).view(N, r, K)  # 𝒜 ×₂ Ψ per query
         y = torch.bmm(per_view, identity.unsqueeze(-1)).squeeze(-1)  # ×₃ i(α): (N, r)
         return y if self.pixel_basis is None else y @ self.pixel_basis.T  # ×₁ U₁: (N, d)
+
+    def reconstruct_grid(self, identity: torch.Tensor, psi: torch.Tensor, in_basis: bool = False) -> torch.Tensor:
+        """Every identity at every view: y[a, v] = 𝒜 ×₃ iₐ ×₂ Ψᵥ, then the pixel basis.
+
+        identity: (A, K); psi: (V, P). Returns (A, V, d), or with ``in_basis`` the (A, V, r)
+        coordinates in the pixel basis (y = U₁ c). Ψ is contracted once per view, so A·V
+        reconstructions cost one (V × P) @ (P × r·K) matmul plus an A·V·r·K contraction.
+        """
+        r, P, K = self.core.shape
+        check_shape("identity", identity, ("A", K))
+        check_shape("psi", psi, ("V", P))
+        per_view = (psi @ self.core.permute(1, 0, 2).reshape(P, r * K)).view(-1, r, K)  # (V, r, K)
+        y = torch.einsum("vrk,ak->avr", per_view, identity)  # (A, V, r)
+        return y if in_basis or self.pixel_basis is None else y @ self.pixel_basis.T
+
+    def project(self, y: torch.Tensor) -> torch.Tensor:
+        """Coordinates in the pixel basis, c = U₁ᵀ y, for y: (..., d). Returns (..., r).
+
+        With U₁ orthonormal, ‖U₁c' − y‖² = ‖c' − c‖² + (‖y‖² − ‖c‖²), so comparisons against a
+        reconstruction can run in r instead of d dimensions.
+        """
+        if y.shape[-1:] != (self.pixels,):
+            raise ValueError(f"Expected y to have shape (..., {self.pixels}); got {tuple(y.shape)}")
+        return y if self.pixel_basis is None else y @ self.pixel_basis
+
