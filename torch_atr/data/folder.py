@@ -34,6 +34,7 @@ from torch_atr.data.sequence import (
     FrameTruth,
     Sequence,
     load_camera_json,
+    read_json_object,
     register_scheme,
 )
 
@@ -110,14 +111,7 @@ class FolderSequence(Sequence):
 
 
 def _read_meta(path: Path) -> dict:
-    if not path.is_file():
-        raise FileNotFoundError(f"Not a sequence folder: {path} is missing")
-    try:
-        meta = json.loads(path.read_text(encoding="utf-8"))
-    except json.JSONDecodeError as exc:
-        raise ValueError(f"{path}: not valid JSON ({exc})") from exc
-    if not isinstance(meta, dict):
-        raise ValueError(f"{path}: expected a JSON object; got {type(meta).__name__}")
+    meta = read_json_object(path, f"Not a sequence folder: {path} is missing")
     missing = [k for k in ("format", "format_version", "name", "fps", "frames", "dtype", "shape") if k not in meta]
     if missing:
         raise ValueError(f"{path}: missing key(s) {', '.join(missing)}")

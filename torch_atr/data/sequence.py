@@ -259,15 +259,22 @@ def parse_fps(value: str, source: str) -> float:
     return fps
 
 
-def load_camera_json(path: str | Path) -> Camera:
-    """A :class:`Camera` from a ``Camera.to_dict()`` JSON file; errors name the file (and key)."""
-    path = Path(path)
+def read_json_object(path: Path, missing: str) -> dict:
+    """The JSON object in ``path``; a missing file raises FileNotFoundError(``missing``), bad JSON a
+    ValueError naming the file."""
     if not path.is_file():
-        raise FileNotFoundError(f"Camera calibration file not found: {path}")
+        raise FileNotFoundError(missing)
     try:
         d = json.loads(path.read_text(encoding="utf-8"))
     except json.JSONDecodeError as exc:
         raise ValueError(f"{path}: not valid JSON ({exc})") from exc
     if not isinstance(d, dict):
         raise ValueError(f"{path}: expected a JSON object; got {type(d).__name__}")
+    return d
+
+
+def load_camera_json(path: str | Path) -> Camera:
+    """A :class:`Camera` from a ``Camera.to_dict()`` JSON file; errors name the file (and key)."""
+    path = Path(path)
+    d = read_json_object(path, f"Camera calibration file not found: {path}")
     return Camera.from_dict(d, source=str(path))
