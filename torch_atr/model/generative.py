@@ -11,6 +11,7 @@ from pathlib import Path
 
 import torch
 from torch import nn
+from tqdm import tqdm
 
 import torch_atr
 from torch_atr._checks import as_float_tensor, check_shape
@@ -362,7 +363,7 @@ def fine_tune_widths(model_or_rbf: GenerativeShapeModel | RBFViewMapping, train:
     count = val.numel()
     optimiser = torch.optim.Adam([rbf.log_width], lr=lr)
     history = []
-    for step in range(steps):
+    for step in tqdm(range(steps), desc="kernel widths", unit="step", leave=False):
         optimiser.zero_grad()
         W = ridge_hat(rbf(theta, phi), ridge)  # (V, P)
         M = rbf(val_theta, val_phi) @ W.T  # (Vv, V): the held-out prediction is M Yᵏ
