@@ -390,3 +390,15 @@ def test_bad_inputs_raise():
         render_mask(_toy_car(), floor, VehiclePose(0.0, 0.0, 10.0, 0.0))
     with pytest.raises(ValueError, match=r"\(\) or \(N,\); got \(2, 2\)"):
         body_to_world(VehiclePose(torch.zeros(2, 2), 0.0, 0.0, 0.0))
+
+
+@pytest.mark.parametrize("name", ["t_72", "ford_f150"])
+def test_catalog_vehicles_match_ray_casting(name):
+    from torch_atr.vehicles import load_catalog
+
+    vehicle = next(v for v in load_catalog("test") if v.name == name)
+    cfg = TemplateConfig(size_px=48, window_m=12.0)
+    theta, phi = zip(*VIEWS[:5])
+    got = render_templates(vehicle, list(theta), list(phi), cfg)
+    for k, (t, p) in enumerate(VIEWS[:5]):
+        assert _iou(got[k].numpy(), _raycast_template(vehicle.mesh, t, p, 48, 12.0)) >= 0.98, f"{name} view {k}"
