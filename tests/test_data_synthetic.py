@@ -1,0 +1,322 @@
+"""The IR scene simulator against geometry worked out by hand, ray casting, scipy and its own static scene."""
+
+import dataclasses
+import math
+
+import cv2
+import numpy as np
+import pytest
+import torch
+import trimesh
+from scipy import ndimage
+
+from torch_atr.camera import Camera
+from torch_atr.config import ConfigError
+from torch_atr.data import FolderSequence, open_sequence, save_sequence
+from torch_atr.data.synthetic import (BODY, ENGINE_DECK, EXHAUST, RUNNING_GEAR, SceneConfig, SyntheticSequence,
+                                      demo_sequence, surface_parts, visible_faces)
+from torch_atr.render import VehiclePose, body_to_world, render_mask
+from torch_atr.segmentation import ForegroundSegmenter
+from torch_atr.vehicles.specs import SPLITS
+
+TWO_PI = 2 * math.pi
+SMALL = {"width": 160, "height": 128, "focal_px": 2500.0}  # the whole 100 m circle in view at 1000 m
+
+
+def _wrap(a: float) -> float:
+    """Angle difference wrapped to (−π, π]."""
+    return math.remainder(a, TWO_PI)
+
+
+def _view_by_hand(t) -> tuple[float, float]:
+    """(θ, φ) from METHOD.md's definitions: the camera (world origin) seen from the body frame.
+
+    Forward is (sin h, 0, cos h); the body's left is forward turned a quarter towards −x,
+    (−cos h, 0, sin h); up is +y.
+    """
+    d = -np.array([t.x, t.y, t.z])
+    forward = np.array([math.sin(t.heading), 0.0, math.cos(t.heading)])
+    left = np.array([-math.cos(t.heading), 0.0, math.sin(t.heading)])
+    theta = math.atan2(d @ left, d @ forward) % TWO_PI
+    return theta, math.atan2(d[1], math.hypot(d @ forward, d @ left))
+
+
+@pytest.fixture(scope="module")
+def t72():
+    return SyntheticSequence("t_72", SceneConfig(frames=300))
+
+
+def test_truth_centre_and_box_are_those_of_the_true_mask(t72):
+    for i in (0, 100, 299):
+        mask, t = t72.true_mask(i), t72.truth(i)
+        rows, cols = np.nonzero(mask)
+        assert mask.sum() > 500
+        assert math.hypot(t.u - cols.mean(), t.v - rows.mean()) <= 1.0
+        assert (t.u0, t.v0, t.u1, t.v1) == (cols.min(), rows.min(), cols.max(), rows.max())
+        # The centre lies near the projection of the body origin lifted by half the vehicle's height.
+        lifted = torch.tensor([t.x, t.y + t72.vehicle.mesh.extents[2] / 2, t.z])
+        uv, _ = t72.camera.project(lifted)
+        assert abs(float(uv[1]) - t.v) < 3.0
+
+
+def test_true_mask_is_render_mask_with_the_scene_camera(t72):
+    for i in (0, 150):
+        np.testing.assert_array_equal(t72.true_mask(i), render_mask(t72.vehicle, t72.camera, t72.pose(i)))
+    parts = t72.part_map(150)
+    np.testing.assert_array_equal(parts >= 0, t72.true_mask(150))
+    assert set(np.unique(parts[parts >= 0])) <= {BODY, RUNNING_GEAR, ENGINE_DECK, EXHAUST}
+
+
+def test_positions_speed_and_heading_follow_the_circle():
+    cfg = SceneConfig(frames=120, range_m=2000.0, speed_mps=7.0, start_deg=30.0, clockwise=False, **SMALL)
+    seq = SyntheticSequence("isuzu_rodeo", cfg)
+    truths = [seq.truth(i) for i in range(len(seq))]
+    pos = np.array([[t.x, t.y, t.z] for t in truths])
+    np.testing.assert_allclose(np.hypot(pos[:, 0], pos[:, 2] - cfg.range_m), cfg.circle_diameter_m / 2, atol=1e-9)
+    np.testing.assert_allclose(pos[:, 1], -cfg.camera_height_m)
+    step = pos[2:] - pos[:-2]  # central differences over 2 frames
+    np.testing.assert_allclose(np.linalg.norm(step, axis=1) * cfg.fps / 2, cfg.speed_mps, rtol=1e-3)
+    for t, d in zip(truths[1:-1], step):
+        assert abs(_wrap(t.heading - math.atan2(d[0], d[2]))) < 1e-3
+        assert t.speed == cfg.speed_mps
+    assert truths[0].x == pytest.approx(50 * math.sin(math.radians(30.0)))
+    assert truths[7].time_s == pytest.approx(7 / 30)
+
+
+def test_view_angles_match_the_geometry():
+    cfg = SceneConfig(frames=1900, speed_mps=10.0, **SMALL)  # more than a lap
+    seq = SyntheticSequence("bmp_2", cfg)
+    for i in range(0, len(seq), 97):
+        t = seq.truth(i)
+        theta, phi = _view_by_hand(t)
+        assert abs(_wrap(t.theta - theta)) < 1e-9 and t.phi == pytest.approx(phi, abs=1e-9)
+        assert t.aspect == t.theta and 0 <= t.theta < TWO_PI
+    # Driving straight at the camera (right-most point, clockwise): the front is seen.
+    towards = SyntheticSequence("bmp_2", dataclasses.replace(cfg, frames=1, start_deg=90.0)).truth(0)
+    assert abs(_wrap(towards.theta)) < 0.06 and abs(_wrap(towards.heading - math.pi)) < 1e-9
+    # Crossing to the right at the near point (counter-clockwise): the right side, θ = 3π/2.
+    right = SyntheticSequence("bmp_2", dataclasses.replace(cfg, frames=1, start_deg=180.0, clockwise=False)).truth(0)
+    assert abs(_wrap(right.theta - 1.5 * math.pi)) < 1e-9 and abs(_wrap(right.heading - math.pi / 2)) < 1e-9
+    assert right.phi == pytest.approx(math.atan2(cfg.camera_height_m, cfg.range_m - 50.0), abs=1e-9)
+
+
+def test_apparent_length_is_focal_times_length_over_range():
+    for name in ("t_72", "isuzu_rodeo"):
+        for range_m in (1000.0, 2500.0):
+            seq = SyntheticSequence(name, SceneConfig(frames=1, range_m=range_m, start_deg=180.0))
+            t = seq.truth(0)
+            expected = seq.cfg.focal_px * seq.vehicle.mesh.extents[0] / t.z
+            assert t.u1 - t.u0 + 1 == pytest.approx(expected, rel=0.1)
+            assert t.range_m == pytest.approx(t.z, rel=1e-3)
+
+
+def test_target_out_of_view_has_truth_but_no_box():
+    seq = SyntheticSequence("btr_70", SceneConfig(frames=1, start_deg=90.0))  # x = 50 m: beyond the 64 m field
+    t = seq.truth(0)
+    assert not seq.true_mask(0).any() and math.isnan(t.u0) and math.isnan(t.v1)
+    assert t.u > seq.cfg.width and math.isfinite(t.theta) and t.x == pytest.approx(50.0)
+
+
+def test_determinism_and_random_access():
+    cfg = SceneConfig(frames=6, seed=5, **SMALL)
+    a, b = SyntheticSequence("brdm_2", cfg), SyntheticSequence("brdm_2", cfg)
+    np.testing.assert_array_equal(a.frame(3), b.frame(3))
+    sequential = list(a)
+    np.testing.assert_array_equal(sequential[4], SyntheticSequence("brdm_2", cfg).frame(4))
+    np.testing.assert_array_equal(next(a.warmup_frames(1)), next(b.warmup_frames(1)))
+    other = SyntheticSequence("brdm_2", dataclasses.replace(cfg, seed=6))
+    assert not np.array_equal(other.frame(3), a.frame(3))
+    assert other.truth(3) == a.truth(3)  # the seed changes noise and clutter, not the geometry
+    assert not np.array_equal(sequential[3], sequential[4])
+
+
+def test_background_is_static_and_noise_is_white():
+    seq = SyntheticSequence("zsu_23_4", SceneConfig(frames=2))
+    warm = [w.astype(np.float64) for w in seq.warmup_frames(2)]
+    far = ~cv2.dilate(seq.true_mask(1).astype(np.uint8), np.ones((25, 25), np.uint8)).astype(bool)
+    for diff in (seq.frame(1) - warm[0], warm[1] - warm[0]):
+        diff = diff[far]
+        assert abs(diff.mean()) < 1.0
+        assert diff.std() == pytest.approx(math.sqrt(2) * seq.cfg.noise_k * 100.0, rel=0.05)  # 100 counts per K
+
+
+def _contrast(seq: SyntheticSequence, i: int) -> float:
+    """Mean counts on the target minus the mean of a ring of background around it."""
+    frame, mask = seq.frame(i).astype(np.float64), seq.true_mask(i)
+    ring = cv2.dilate(mask.astype(np.uint8), np.ones((15, 15), np.uint8)).astype(bool) & ~cv2.dilate(
+        mask.astype(np.uint8), np.ones((5, 5), np.uint8)).astype(bool)
+    return frame[mask].mean() - frame[ring].mean()
+
+
+def test_night_target_is_warmer_and_day_has_less_contrast():
+    night = SyntheticSequence("t_72", SceneConfig(frames=1))
+    day = SyntheticSequence("t_72", SceneConfig(frames=1, night=False))
+    assert _contrast(night, 0) > 300  # > 3 K
+    assert 0 < _contrast(day, 0) < 0.5 * _contrast(night, 0)
+    assert day.cfg.temperatures()["ground_k"] > night.cfg.temperatures()["ground_k"]
+
+
+def _fitted_psf_sigma(range_m: float) -> float:
+    """PSF σ that best maps the noise-free sharp frame onto the blurred one with scipy's Gaussian."""
+    cfg = SceneConfig(frames=1, range_m=range_m, noise_k=0.0)
+    blurred = SyntheticSequence("t_72", cfg)
+    sharp = SyntheticSequence("t_72", dataclasses.replace(cfg, psf_sigma_px=0.0, psf_sigma_per_km=0.0))
+    t = blurred.truth(0)
+    box = (slice(int(t.v0) - 15, int(t.v1) + 16), slice(int(t.u0) - 15, int(t.u1) + 16))
+    a, b = sharp.frame(0).astype(np.float64), blurred.frame(0).astype(np.float64)
+    sigmas = np.arange(0.3, 3.0, 0.01)
+    errors = [np.square(ndimage.gaussian_filter(a, s)[box] - b[box]).mean() for s in sigmas]
+    return float(sigmas[int(np.argmin(errors))])
+
+
+def test_blur_grows_with_range():
+    near, far = _fitted_psf_sigma(1000.0), _fitted_psf_sigma(3500.0)
+    cfg = SceneConfig()
+    assert near == pytest.approx(cfg.psf_sigma_px + cfg.psf_sigma_per_km * 1.0, abs=0.05)  # documented law
+    assert far == pytest.approx(cfg.psf_sigma_px + cfg.psf_sigma_per_km * 3.5, abs=0.05)
+    assert far > near + 0.5
+
+
+def test_occluder_hides_part_of_the_target():
+    cfg = SceneConfig(frames=1, start_deg=180.0, occluder_width_m=12.0, occluder_x_m=2.0)
+    seq = SyntheticSequence("t_72", cfg)
+    true, visible = seq.true_mask(0), seq.visible_mask(0)
+    assert not (visible & ~true).any()
+    assert 0.1 * true.sum() < (true & ~visible).sum() < 0.9 * true.sum()
+    occluder = seq.occluder_mask()
+    np.testing.assert_array_equal(true & ~visible, true & occluder)
+    # The occluder is static scene: it is in the warm-up frames, and the hidden target adds nothing.
+    warm = next(seq.warmup_frames(1)).astype(np.float64)
+    hidden = occluder & true & ~cv2.dilate(visible.astype(np.uint8), np.ones((9, 9), np.uint8)).astype(bool)
+    assert hidden.sum() > 20
+    assert abs((seq.frame(0) - warm)[hidden].mean()) < 5.0
+    clear = SyntheticSequence("t_72", dataclasses.replace(cfg, occluder_width_m=0.0))
+    np.testing.assert_array_equal(clear.visible_mask(0), clear.true_mask(0))
+
+
+def test_turret_sweep_turns_the_turret_only_where_there_is_one():
+    cfg = SceneConfig(frames=60, turret_sweep_deg=90.0, turret_period_s=4.0)
+    still_cfg = dataclasses.replace(cfg, turret_sweep_deg=0.0)
+    swept, still = SyntheticSequence("t_72", cfg), SyntheticSequence("t_72", still_cfg)
+    np.testing.assert_array_equal(swept.true_mask(0), still.true_mask(0))  # sin(0) = 0
+    assert (swept.true_mask(30) != still.true_mask(30)).sum() > 50  # a quarter period: 90°
+    assert swept.truth(30).heading == still.truth(30).heading
+    car = SyntheticSequence("ford_f150", dataclasses.replace(cfg, **SMALL))
+    car_still = SyntheticSequence("ford_f150", dataclasses.replace(still_cfg, **SMALL))
+    np.testing.assert_array_equal(car.frame(30), car_still.frame(30))
+
+
+def test_segmentation_of_the_simulator_at_1000m():
+    seq = SyntheticSequence("btr_70", SceneConfig(frames=300))
+    segmenter = ForegroundSegmenter()
+    segmenter.warm_up(seq.warmup_frames(50))
+    ious = []
+    for i in range(0, 300, 12):  # 25 frames
+        mask, visible = segmenter(seq.frame(i)), seq.visible_mask(i)
+        ious.append((mask & visible).sum() / (mask | visible).sum())
+    assert np.mean(ious) >= 0.8 and min(ious) > 0.6
+
+
+def test_every_test_split_vehicle_can_be_simulated():
+    for spec in SPLITS["test"]:
+        seq = SyntheticSequence(spec.name, SceneConfig(frames=1))
+        frame, t = seq.frame(0), seq.truth(0)
+        assert frame.shape == (512, 640) and frame.dtype == np.uint16 and frame.max() < 2 ** 14
+        assert t.vehicle == spec.name and t.vehicle_class == spec.cls and seq.visible_mask(0).sum() > 100
+
+
+def test_open_sequence_spec(tmp_path):
+    seq = open_sequence("synthetic:vehicle=T-72,range=2000,frames=5,seed=3,night=false,tilt_deg=0.5")
+    assert isinstance(seq, SyntheticSequence) and len(seq) == 5 and seq.vehicle.name == "t_72"
+    assert (seq.cfg.range_m, seq.cfg.seed, seq.cfg.night, seq.cfg.tilt_deg) == (2000.0, 3, False, 0.5)
+    box = trimesh.creation.box(extents=(4.0, 2.0, 1.5))
+    box.export(tmp_path / "crate.obj")
+    crate = open_sequence(f"synthetic:vehicle={tmp_path / 'crate.obj'},frames=2")
+    assert crate.vehicle.cls == "unknown" and crate.truth(1).vehicle == "crate"
+    bad = {
+        "synthetic:vehicle=t_72,colour=red": "colour",
+        "synthetic:vehicle=t_72,frames=abc": "frames",
+        "synthetic:vehicle=t_72,frames=0": "frames=0",
+        "synthetic:vehicle=t_72,range=10": "range_m=10.0",
+        "synthetic:vehicle=t_72,seed=1,seed=2": "'seed' given twice",
+        "synthetic:frames=3": "missing vehicle",
+        "synthetic:vehicle=t_72,frames": "expected key=value",
+        "synthetic:vehicle=leopard_1": "leopard_1",
+    }
+    for spec, words in bad.items():
+        with pytest.raises(ValueError, match=words):
+            open_sequence(spec)
+
+
+def test_config_errors_name_the_field():
+    with pytest.raises(ConfigError, match=r"noise_k=-1"):
+        SceneConfig(noise_k=-1)
+    with pytest.raises(ConfigError, match=r"occluder_range_m=990"):
+        SceneConfig(occluder_range_m=990.0)
+    with pytest.raises(ValueError, match="SceneConfig"):
+        SyntheticSequence("t_72", {"frames": 3})
+
+
+def test_save_sequence_round_trip(tmp_path):
+    seq = SyntheticSequence("ford_f150", SceneConfig(frames=3, **SMALL))
+    back = FolderSequence(save_sequence(seq, tmp_path / "seq", progress=False))
+    assert len(back) == 3 and back.fps == seq.fps and back.camera.to_dict() == seq.camera.to_dict()
+    for i in range(3):
+        np.testing.assert_array_equal(back.frame(i), seq.frame(i))
+        assert back.truth(i) == seq.truth(i)
+
+
+def test_demo_sequence():
+    demo = demo_sequence()
+    assert len(demo) == 90 and demo.vehicle.name == "btr_70" and demo.cfg.range_m == 1000.0
+    assert all(demo.true_mask(i).any() for i in (0, 89))
+
+
+def test_visible_faces_against_ray_casting():
+    """The nearest face and the seen point at every pixel centre, against trimesh's ray casting."""
+    mesh = SyntheticSequence("t_72", SceneConfig(frames=1)).vehicle.mesh
+    c, s = math.cos(0.35), math.sin(0.35)
+    camera = Camera(300.0, 300.0, 79.5, 59.5, 160, 120, R=[[1, 0, 0], [0, c, s], [0, -s, c]])  # 20° down
+    R, t = body_to_world(VehiclePose(1.0, -9.0, 25.0, 2.3))  # seen from 20° above: turret over the hull
+    world = torch.as_tensor(mesh.vertices) @ R.T + t  # (M, 3)
+    uv, depth = camera.project(world)
+    face, weights = visible_faces(uv, depth, torch.as_tensor(mesh.faces), 120, 160)
+    v, u = np.mgrid[0:120, 0:160]
+    rays = camera.pixel_rays(torch.as_tensor(np.stack([u, v], -1).reshape(-1, 2), dtype=torch.float64))
+    rays = (rays @ camera.R).numpy()  # sensor -> world: Rᵀ d
+    scene = trimesh.Trimesh(world.numpy(), mesh.faces, process=False)
+    hit_face, hit_ray, hit_at = scene.ray.intersects_id(np.zeros_like(rays), rays, multiple_hits=False,
+                                                       return_locations=True)
+    ref = np.full(120 * 160, -1)
+    ref[hit_ray] = hit_face
+    got = face.reshape(-1).numpy()
+    assert (got >= 0).sum() > 1500
+    assert ((got >= 0) != (ref >= 0)).mean() < 0.002  # pixel centres on silhouette edges may differ
+    both = hit_ray[got[hit_ray] >= 0]
+    corners = world.numpy()[mesh.faces[got[both]]]  # (n, 3, 3)
+    seen = np.einsum("nk,nkd->nd", weights.reshape(-1, 3).numpy()[both], corners)
+    dist = np.linalg.norm(seen - hit_at[got[hit_ray] >= 0], axis=1)
+    assert np.mean(dist < 1e-6) > 0.99
+    # Where the faces differ, they are coplanar (overlapping or neighbouring parts of one surface).
+    other = got[both] != ref[both]
+    normals = scene.face_normals
+    assert np.all(np.abs(np.sum(normals[got[both][other]] * normals[ref[both][other]], axis=1)) > 1 - 1e-9)
+    off_image, _ = visible_faces(uv + 1000.0, depth, torch.as_tensor(mesh.faces), 120, 160)
+    assert (off_image == -1).all()
+    with pytest.raises(ValueError, match="depth"):
+        visible_faces(uv, depth[:-1], torch.as_tensor(mesh.faces), 120, 160)
+
+
+def test_surface_parts_by_hand():
+    box = trimesh.creation.box(extents=(6.0, 3.0, 2.0)).apply_translation((0.0, 0.0, 1.0))  # x in [-3, 3]
+    top, side, back, front = (int(np.argmax(box.face_normals @ n)) for n in
+                              np.array([[0, 0, 1.0], [0, 1.0, 0], [-1.0, 0, 0], [1.0, 0, 0]]))
+    points = np.array([[-2.5, 0, 2], [2.5, 0, 2], [0, 1.5, 0.3], [0, 1.5, 1.2], [-3, 0, 1.2], [-3, 0, 0.3],
+                       [3, 0, 0.3]])
+    faces = np.array([top, top, side, side, back, back, front])
+    tank = [ENGINE_DECK, BODY, RUNNING_GEAR, BODY, EXHAUST, RUNNING_GEAR, RUNNING_GEAR]
+    pickup = [BODY, ENGINE_DECK, RUNNING_GEAR, BODY, BODY, EXHAUST, RUNNING_GEAR]
+    np.testing.assert_array_equal(surface_parts(box, points, faces, "tank"), tank)
+    np.testing.assert_array_equal(surface_parts(box, points, faces, "pickup"), pickup)
+    with pytest.raises(ValueError, match=r"\(N, 3\)"):
+        surface_parts(box, points[:, :2], faces, "tank")
