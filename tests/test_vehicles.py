@@ -487,3 +487,12 @@ def test_all_heldout_meshes_load_in_body_frame():
     vehicles = load_heldout_meshes()
     assert len(vehicles) == len(read_manifest())
     _check_heldout(vehicles)
+
+
+def test_load_catalog_vehicle_by_name_either_split():
+    from torch_atr.vehicles import load_catalog_vehicle
+
+    assert load_catalog_vehicle("BTR-70").name == "btr_70"
+    assert load_catalog_vehicle("m1a2_abrams").cls == "tank"
+    with pytest.raises(ValueError, match="Unknown catalog vehicle 'tiger'.*t_72"):
+        load_catalog_vehicle("tiger")

@@ -101,8 +101,7 @@ from torch_atr.config import ConfigError, load_config
 from torch_atr.data.sequence import FrameTruth, Sequence, register_scheme
 from torch_atr.render import VehiclePose, body_to_world, render_mask, view_of_pose
 from torch_atr.vehicles import Vehicle, load_vehicle
-from torch_atr.vehicles.catalog import CATALOG_DIR
-from torch_atr.vehicles.specs import SPLITS
+from torch_atr.vehicles import load_catalog_vehicle
 
 logger = logging.getLogger(__name__)
 
@@ -357,10 +356,6 @@ def visible_faces(uv: torch.Tensor, depth: torch.Tensor, faces: torch.Tensor, he
     return face.reshape(H, W), weights.reshape(H, W, 3)
 
 
-def _normalise_name(name: str) -> str:
-    return name.strip().lower().replace("-", "_").replace(" ", "_")
-
-
 def resolve_vehicle(vehicle: Vehicle | str | os.PathLike) -> Vehicle:
     """A Vehicle from a Vehicle, a catalog name of either split (``"t_72"``, ``"BTR-70"``) or a file.
 
@@ -375,15 +370,10 @@ def resolve_vehicle(vehicle: Vehicle | str | os.PathLike) -> Vehicle:
     path = Path(vehicle)
     if path.is_file():
         return load_vehicle(path)
-    key = _normalise_name(str(vehicle))
-    for split, specs in SPLITS.items():
-        for spec in specs:
-            if spec.name == key:
-                urdf = CATALOG_DIR / split / spec.name / f"{spec.name}.urdf"
-                return load_vehicle(urdf, cls=spec.cls, name=spec.name)
-    names = sorted(s.name for specs in SPLITS.values() for s in specs)
-    raise ValueError(f"Unknown vehicle {str(vehicle)!r}: not a file and not a catalog name; "
-                     f"catalog names: {', '.join(names)}")
+    try:
+        return load_catalog_vehicle(str(vehicle))
+    except ValueError as exc:
+        raise ValueError(f"Unknown vehicle {str(vehicle)!r}: not a file and not a catalog name ({exc})") from exc
 
 
 def _generator(seed: int, stream: int, index: int) -> torch.Generator:

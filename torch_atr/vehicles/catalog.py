@@ -28,7 +28,25 @@ def load_catalog(split: str = "train") -> list[Vehicle]:
     if split not in SPLITS:
         raise ValueError(f"unknown split {split!r}; expected one of {sorted(SPLITS)}")
     specs = sorted(SPLITS[split], key=lambda s: (CLASS_NAMES.index(s.cls), s.name))
-    return [load_vehicle(CATALOG_DIR / split / s.name / f"{s.name}.urdf", cls=s.cls, name=s.name) for s in specs]
+    return [_load_spec(split, s) for s in specs]
+
+
+def _load_spec(split: str, spec) -> Vehicle:
+    return load_vehicle(CATALOG_DIR / split / spec.name / f"{spec.name}.urdf", cls=spec.cls, name=spec.name)
+
+
+def load_catalog_vehicle(name: str) -> Vehicle:
+    """One catalog vehicle of either split by name, case, spaces and dashes ignored ("BTR-70" = "btr_70").
+
+    An unknown name raises ValueError listing the catalog's names.
+    """
+    key = name.strip().lower().replace("-", "_").replace(" ", "_")
+    for split, specs in SPLITS.items():
+        for spec in specs:
+            if spec.name == key:
+                return _load_spec(split, spec)
+    names = sorted(s.name for specs in SPLITS.values() for s in specs)
+    raise ValueError(f"Unknown catalog vehicle {name!r}; catalog names: {', '.join(names)}")
 
 
 @dataclass(frozen=True)
