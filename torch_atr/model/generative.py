@@ -162,7 +162,7 @@ class GenerativeShapeModel(nn.Module):
             if val_templates is None or val_theta is None or val_phi is None:
                 raise ValueError("cfg.width_steps > 0 needs val_templates, val_theta and val_phi")
             check_shape("val_templates", val_templates, (K, None, template_cfg.size_px, template_cfg.size_px))
-            val = val_templates.to(wide).reshape(K, val_templates.shape[1], -1)  # (K, Vv, d)
+            val = val_templates.reshape(K, val_templates.shape[1], -1)  # (K, Vv, d), widened per vehicle later
             width_history = fine_tune_widths(rbf, Y, theta, phi, val, as_wide("val_theta", val_theta),
                                              as_wide("val_phi", val_phi), cfg.width_steps, cfg.width_lr,
                                              ridge=cfg.ridge)
@@ -355,11 +355,16 @@ def fine_tune_widths(model_or_rbf: GenerativeShapeModel | RBFViewMapping, train:
     check_shape("train", train, ("K", theta.shape[0], "d"))
     check_shape("val", val, (train.shape[0], val_theta.shape[0], train.shape[2]))
     like = rbf.log_width
-    train, theta, phi, val, val_theta, val_phi = (x.to(like) for x in (train, theta, phi, val, val_theta, val_phi))
-    with torch.no_grad():
-        G = torch.einsum("kvd,kwd->vw", train, train)  # Σₖ Yᵏ Yᵏᵀ: (V, V)
-        E = torch.einsum("kvd,kud->vu", train, val)  # Σₖ Yᵏ Valᵏᵀ: (V, Vv)
-        val_energy = val.square().sum()
+    theta, phi, val_theta, val_phi = (x.to(like) for x in (theta, phi, val_theta, val_phi))
+    with torch.no_grad():  # one vehicle at a time, so no widened copy of the templates is made
+        G = torch.zeros(theta.shape[0], theta.shape[0], dtype=like.dtype, device=like.device)  # Σₖ Yᵏ Yᵏᵀ
+        E = torch.zeros(theta.shape[0], val_theta.shape[0], dtype=like.dtype, device=like.device)  # Σₖ Yᵏ Valᵏᵀ
+        val_energy = torch.zeros((), dtype=like.dtype, device=like.device)
+        for Yk, Vk in zip(train, val):
+            Yk, Vk = Yk.to(like), Vk.to(like)
+            G += Yk @ Yk.T
+            E += Yk @ Vk.T
+            val_energy += Vk.square().sum()
     count = val.numel()
     optimiser = torch.optim.Adam([rbf.log_width], lr=lr)
     history = []
@@ -374,6 +379,6 @@ def fine_tune_widths(model_or_rbf: GenerativeShapeModel | RBFViewMapping, train:
         log.debug("width step %d: validation MSE %.6g", step, history[-1])
     if isinstance(model_or_rbf, GenerativeShapeModel):
         model = model_or_rbf
-        model.core, model.identity = _fit_core_and_identity(rbf, train, theta, phi, ridge, model.core.pixel_rank,
+        model.core, model.identity = _fit_core_and_identity(rbf, train.to(like), theta, phi, ridge, model.core.pixel_rank,
                                                             model.identity.labels, model.identity.order)
     return history
