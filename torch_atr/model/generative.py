@@ -379,6 +379,7 @@ def fine_tune_widths(model_or_rbf: GenerativeShapeModel | RBFViewMapping, train:
         log.debug("width step %d: validation MSE %.6g", step, history[-1])
     if isinstance(model_or_rbf, GenerativeShapeModel):
         model = model_or_rbf
-        model.core, model.identity = _fit_core_and_identity(rbf, train.to(like), theta, phi, ridge, model.core.pixel_rank,
-                                                            model.identity.labels, model.identity.order)
+        model.core, model.identity = _fit_core_and_identity(rbf, train.to(like), theta, phi, ridge,
+                                                            model.core.pixel_rank, model.identity.labels,
+                                                            model.identity.order)
     return history
