@@ -1,0 +1,44 @@
+import math
+from pathlib import Path
+
+import torch
+
+from torch_atr import viz
+from torch_atr.model import GenerativeShapeModel
+
+CKPT = Path(__file__).resolve().parents[1] / "checkpoints" / "default.pt"
+
+
+def test_tile_places_images_row_major_with_padding():
+    images = torch.arange(5 * 2 * 3, dtype=torch.float32).reshape(5, 2, 3) / 30
+    out = viz.tile(images, ncol=2, pad=1, pad_value=-1.0)
+    assert out.shape == (3 * 3 + 1, 2 * 4 + 1)
+    for idx in range(5):
+        r, c = divmod(idx, 2)
+        assert torch.equal(out[1 + 3 * r:3 + 3 * r, 1 + 4 * c:4 + 4 * c], images[idx])
+    assert (out[7:9, 5:8] == -1).all()  # the empty sixth cell
+
+
+def test_sweeps_start_and_end_at_their_anchors():
+    model = GenerativeShapeModel.from_checkpoint(CKPT)
+    a = model.alphas[4].item()
+    sweep = viz.view_sweep(model, a, 0.5, 0.1, 0.2, 0.15, between=2)
+    assert sweep.shape[0] == 2 * 2 + 3
+    ends = model.silhouette(torch.full((2,), a), torch.tensor([0.5, 0.7]), torch.tensor([0.1, 0.25]))
+    assert torch.equal(sweep[0], ends[0]) and torch.equal(sweep[-1], ends[1])
+    anchors = [model.alphas[k].item() for k in (5, 0, 2)]  # wraps past 2π
+    sweep = viz.identity_sweep(model, anchors, math.radians(60), math.radians(10), between=3)
+    assert sweep.shape[0] == 2 * 4 + 1
+    for i, k in ((0, 5), (4, 0), (8, 2)):
+        expected = model.silhouette(model.alphas[k:k + 1], torch.tensor([math.radians(60)]),
+                                    torch.tensor([math.radians(10)]))[0]
+        assert torch.equal(sweep[i], expected)
+
+
+def test_overlay_colours_and_identity_figure():
+    truth = torch.tensor([[[True, True, False, False]]])
+    recon = torch.tensor([[[True, False, True, False]]])
+    rgb = viz.overlay_pairs(truth, recon)[0, :, 0]  # (3, 4)
+    assert rgb.T.tolist() == [[1, 1, 1], [1, 0, 0], [0, 1, 1], [0, 0, 0]]  # both, missed, extra, neither
+    fig = viz.identity_circle_figure([0.0, 2.0], ["a", "b"], [0, 1], ["x", "y"], [(0, 5.0, 7.28), (1, 1.0, 5.0)])
+    assert len(fig.axes) == 1
