@@ -72,7 +72,7 @@ class TrainConfig:
     """``train.py``'s config: ``configs/default.yaml`` holds the shipped model's values."""
 
     name: str = "default"  # run name: TensorBoard logs go to <log_dir>/<name>
-    checkpoint: str = "checkpoints/default.pt"
+    checkpoint: str = "runs/default/model.pt"
     log_dir: str = "runs"
     tensorboard: bool = True
     seed: int = 0
