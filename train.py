@@ -56,7 +56,8 @@ def rbf_only_iou(rbf, signed, theta, phi, masks_out, theta_out, phi_out, ridge) 
 
 def main(argv: list[str] | None = None) -> dict:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--config", default="configs/default.yaml", help="YAML config (default: %(default)s)")
+    parser.add_argument("--config", default=str(Path(__file__).resolve().parent / "configs" / "default.yaml"),
+                        help="YAML config (default: the repository's configs/default.yaml)")
     parser.add_argument("overrides", nargs="*", help="key=value overrides, dotted for sections (model.ridge=1e-3)")
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s: %(message)s", datefmt="%H:%M:%S")
