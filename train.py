@@ -22,7 +22,7 @@ import torch
 
 from torch_atr.config import config_to_dict, load_config
 from torch_atr.evaluation import fit_alpha, identity_distances, reconstruction_iou
-from torch_atr.io import atomic_write_text
+from torch_atr.io import atomic_path, atomic_write_text
 from torch_atr.model import GenerativeShapeModel
 from torch_atr.model.rbf import RBFViewMapping, ridge_hat
 from torch_atr.shape import iou
@@ -96,9 +96,9 @@ def main(argv: list[str] | None = None) -> dict:
     lap("fit")
 
     # 3. Measures (issue 3's quality bars).
-    train_iou = reconstruction_iou(model, masks, theta.to(torch.float32), phi.to(torch.float32))
-    held_iou = reconstruction_iou(model, masks_ho, theta_ho.to(torch.float32), phi_ho.to(torch.float32))
-    dist = identity_distances(model, signed, theta.to(torch.float32), phi.to(torch.float32))
+    train_iou = reconstruction_iou(model, masks, theta, phi)
+    held_iou = reconstruction_iou(model, masks_ho, theta_ho, phi_ho)
+    dist = identity_distances(model, signed, theta, phi)
     identity_ok = (dist.argmin(dim=1) == torch.arange(len(vehicles))).tolist()
     report = {
         "vehicles": len(vehicles), "views": len(theta), "pixel_rank": model.core.pixel_rank,
@@ -117,7 +117,7 @@ def main(argv: list[str] | None = None) -> dict:
         _, signed_test = render_set(test, theta, phi, cfg.template, "test split")
         results = []
         for vehicle, sd in zip(test, signed_test):
-            alpha, mse = fit_alpha(model, sd, theta.to(torch.float32), phi.to(torch.float32))
+            alpha, mse = fit_alpha(model, sd, theta, phi)
             a = torch.tensor([alpha])
             got = CLASS_NAMES[model.classify(a).item()]
             nearest = [names[k] for k in model.nearest_vehicles(a, 2)[0].tolist()]
@@ -134,9 +134,10 @@ def main(argv: list[str] | None = None) -> dict:
     out_dir = Path(cfg.log_dir) / cfg.name
     for name, image in figures.items():
         if isinstance(image, torch.Tensor):
-            viz.save_png(image, out_dir / f"{name.replace('/', '_')}.png")
+            viz.save_png(image, out_dir / f"{name}.png")
         else:
-            image.savefig(out_dir / f"{name}.png", dpi=110)
+            with atomic_path(out_dir / f"{name}.png") as tmp:
+                image.savefig(tmp, format="png", dpi=110)
     if cfg.tensorboard:
         from torch.utils.tensorboard import SummaryWriter
 
@@ -148,13 +149,14 @@ def main(argv: list[str] | None = None) -> dict:
             writer.add_scalar("iou/held_out", held_iou.mean().item())
             for name, image in figures.items():
                 if isinstance(image, torch.Tensor):
-                    writer.add_image(name, image if image.dim() == 3 else image.unsqueeze(0))
+                    writer.add_image(name, image)  # (C, H, W)
                 else:
                     writer.add_figure(name, image)
     lap("figures")
 
     # 5. The checkpoint, self-describing: resolved config and report travel with the weights.
-    report["width_tuning_mse"] = {"first": model.width_history[0], "last": model.width_history[-1]} if model.width_history else None
+    history = model.width_history
+    report["width_tuning_mse"] = {"first": history[0], "last": history[-1]} if history else None
     report["timings_s"] = timings
     model.save(cfg.checkpoint, extra={"config": config_to_dict(cfg), "report": report})
     atomic_write_text(json.dumps(report, indent=2), Path(cfg.log_dir) / cfg.name / "report.json")
