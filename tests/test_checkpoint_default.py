@@ -49,3 +49,15 @@ def test_fit_alpha_finds_a_training_vehicle_from_its_own_views():
         signed = signed_distance(render_templates(vehicles[name], theta, phi, model.template), model.template.tau_px)
         alpha, _ = fit_alpha(model, signed, theta, phi, grid=180)
         assert model.classify(torch.tensor([alpha])).item() == CLASS_NAMES.index(vehicles[name].cls)
+
+
+def test_reconstruction_at_each_alpha_k_matches_its_own_vehicle_best():
+    from torch_atr.evaluation import identity_distances
+    from torch_atr.training import ViewGridConfig, render_set
+
+    model = GenerativeShapeModel.from_checkpoint(CKPT)
+    by_name = {v.name: v for v in load_catalog("train")}
+    theta, phi = ViewGridConfig(azimuth_step_deg=36.0, elevation_step_deg=20.0).grid()  # 10 x 3 of the 150 views
+    _, signed = render_set([by_name[n] for n in model.vehicle_names], theta, phi, model.template)
+    dist = identity_distances(model, signed, theta, phi)  # (K, K)
+    assert torch.equal(dist.argmin(dim=1), torch.arange(len(model.vehicle_names)))
