@@ -20,38 +20,17 @@ from pathlib import Path
 
 import torch
 
+from torch_atr import viz
 from torch_atr.config import config_to_dict, load_config
-from torch_atr.evaluation import fit_alpha, identity_distances, reconstruction_iou
-from torch_atr.io import atomic_path, atomic_write_text
+from torch_atr.evaluation import (fit_alpha, identity_distances, per_class_mean, rbf_mapping_iou,
+                                  reconstruction_iou)
+from torch_atr.io import atomic_write_text
 from torch_atr.model import GenerativeShapeModel
-from torch_atr.model.rbf import RBFViewMapping, ridge_hat
-from torch_atr.shape import iou
+from torch_atr.model.rbf import RBFViewMapping
 from torch_atr.training import TrainConfig, render_set
 from torch_atr.vehicles import CLASS_NAMES, load_catalog
-from torch_atr import viz
 
 log = logging.getLogger("train")
-
-
-def per_class(values: torch.Tensor, classes: list[int]) -> dict[str, float]:
-    """values: (K, …) -> mean per class name (and "all")."""
-    out = {name: values[[k for k, c in enumerate(classes) if c == ci]].mean().item()
-           for ci, name in enumerate(CLASS_NAMES) if ci in classes}
-    out["all"] = values.mean().item()
-    return out
-
-
-@torch.no_grad()
-def rbf_only_iou(rbf, signed, theta, phi, masks_out, theta_out, phi_out, ridge) -> torch.Tensor:
-    """IoU at new views of the per-vehicle RBF mappings alone (no pixel basis, no identity spline).
-
-    signed: (K, V, H, W) at theta, phi (V,); masks_out: (K, Vo, H, W) bool at theta_out, phi_out.
-    Returns (K, Vo). Used to report the effect of the kernel-width tuning by itself.
-    """
-    W = ridge_hat(rbf(theta.to(rbf.log_width), phi.to(rbf.log_width)), ridge)  # (V, P)
-    H = rbf(theta_out.to(W), phi_out.to(W)) @ W.T  # (Vo, V)
-    pred = torch.einsum("uv,kvhw->kuhw", H.to(signed), signed)
-    return iou(pred > 0, masks_out)
 
 
 def main(argv: list[str] | None = None) -> dict:
@@ -90,9 +69,9 @@ def main(argv: list[str] | None = None) -> dict:
     # 2. Fit (chapter 4), tuning the kernel widths on the validation views if configured. The
     # held-out IoU of the RBF mappings alone is measured with the initial and the final widths.
     initial = RBFViewMapping(theta, phi, cfg.model.init_width)
-    held_out_before = rbf_only_iou(initial, signed, theta, phi, masks_ho, theta_ho, phi_ho, cfg.model.ridge)
+    held_out_before = rbf_mapping_iou(initial, signed, theta, phi, masks_ho, theta_ho, phi_ho, cfg.model.ridge)
     model = GenerativeShapeModel.fit(signed, theta, phi, names, classes, CLASS_NAMES, cfg.template, cfg.model, **val)
-    held_out_after = rbf_only_iou(model.rbf, signed, theta, phi, masks_ho, theta_ho, phi_ho, cfg.model.ridge)
+    held_out_after = rbf_mapping_iou(model.rbf, signed, theta, phi, masks_ho, theta_ho, phi_ho, cfg.model.ridge)
     lap("fit")
 
     # 3. Measures (issue 3's quality bars).
@@ -102,12 +81,16 @@ def main(argv: list[str] | None = None) -> dict:
     identity_ok = (dist.argmin(dim=1) == torch.arange(len(vehicles))).tolist()
     report = {
         "vehicles": len(vehicles), "views": len(theta), "pixel_rank": model.core.pixel_rank,
-        "truncation_error": model.core.relative_error.item(),
+        # Relative error the truncated pixel basis adds: on the templates, and on the mappings 𝒞 (the
+        # RBF weights, dominated by detail that changes fast with the view).
+        "pixel_basis_error_templates": ((1 - model.project(signed).square().sum() / signed.square().sum())
+                                        .clamp_min(0).sqrt().item()),
+        "pixel_basis_error_mappings": model.core.relative_error.item(),
         "order": [names[k] for k in model.identity.order.tolist()],
-        "train_iou": per_class(train_iou.mean(1), classes),
-        "held_out_iou": per_class(held_iou.mean(1), classes),
-        "held_out_iou_rbf_widths_initial": per_class(held_out_before.mean(1), classes),
-        "held_out_iou_rbf_widths_tuned": per_class(held_out_after.mean(1), classes),
+        "train_iou": per_class_mean(train_iou.mean(1), classes, CLASS_NAMES),
+        "held_out_iou": per_class_mean(held_iou.mean(1), classes, CLASS_NAMES),
+        "held_out_iou_rbf_widths_initial": per_class_mean(held_out_before.mean(1), classes, CLASS_NAMES),
+        "held_out_iou_rbf_widths_tuned": per_class_mean(held_out_after.mean(1), classes, CLASS_NAMES),
         "identity_self_match": {"all": all(identity_ok),
                                 "mismatched": [names[k] for k, ok in enumerate(identity_ok) if not ok]},
     }
@@ -130,14 +113,10 @@ def main(argv: list[str] | None = None) -> dict:
         lap("test split")
 
     # 4. Pictures: TensorBoard (scalars, histograms, images, figures) and the same images as PNGs.
-    figures = make_figures(model, masks, theta, phi, cfg)
+    figures = viz.model_figures(model, masks, theta, phi, math.radians(cfg.views.azimuth_step_deg),
+                                math.radians(cfg.views.elevation_step_deg))
     out_dir = Path(cfg.log_dir) / cfg.name
-    for name, image in figures.items():
-        if isinstance(image, torch.Tensor):
-            viz.save_png(image, out_dir / f"{name}.png")
-        else:
-            with atomic_path(out_dir / f"{name}.png") as tmp:
-                image.savefig(tmp, format="png", dpi=110)
+    viz.save_figures(figures, out_dir)
     if cfg.tensorboard:
         from torch.utils.tensorboard import SummaryWriter
 
@@ -164,48 +143,6 @@ def main(argv: list[str] | None = None) -> dict:
              cfg.checkpoint, Path(cfg.checkpoint).stat().st_size / 1e6, report["train_iou"]["all"],
              report["held_out_iou"]["all"], report["identity_self_match"]["all"])
     return report
-
-
-def make_figures(model, masks, theta, phi, cfg: TrainConfig) -> dict:
-    """Templates beside reconstructions (white: both, red: missed, cyan: extra), view and identity
-    sweeps (Fig. 6.3-6.5) and the identity circle. Returns name -> (C, H, W) image or Figure."""
-    K, V = masks.shape[:2]
-    figures: dict = {}
-    pick = torch.linspace(0, V - 1, 10).round().long()  # 10 views spread over the grid
-    like = model.alphas
-    with torch.no_grad():
-        rows = []
-        for k in range(K):
-            recon = model.silhouette(model.alphas[k].expand(len(pick)), theta[pick].to(like), phi[pick].to(like))
-            rows.append(viz.overlay_pairs(masks[k, pick], recon))  # (10, 3, H, W)
-        pairs = torch.cat(rows)
-        figures["reconstructions"] = torch.stack([viz.tile(pairs[:, c], ncol=len(pick)) for c in range(3)])
-    step_t, step_p = math.radians(cfg.views.azimuth_step_deg), math.radians(cfg.views.elevation_step_deg)
-    order = model.identity.order.tolist()
-    view_rows, within_rows = [], []
-    for ci, cname in enumerate(model.class_names):
-        members = [k for k in order if model.vehicle_classes[k] == ci]
-        if not members:
-            continue
-        view_rows.append(viz.view_sweep(model, model.alphas[members[0]].item(), math.radians(36), math.radians(10),
-                                        step_t, step_p))
-        if len(members) >= 3:
-            within_rows.append(viz.identity_sweep(model, [model.alphas[m].item() for m in members[:3]],
-                                                  math.radians(60), math.radians(10)))
-    figures["view_sweeps"] = viz.tile(viz.to_display(torch.cat(view_rows)), ncol=len(view_rows[0])).unsqueeze(0)
-    if within_rows:
-        figures["identity_sweeps_within_class"] = viz.tile(viz.to_display(torch.cat(within_rows)),
-                                                           ncol=len(within_rows[0])).unsqueeze(0)
-    between = [viz.identity_sweep(model, [model.alphas[a].item(), model.alphas[b].item()], math.radians(60),
-                                  math.radians(10), between=5)
-               for a, b in zip([order[-1]] + order[:-1], order) if model.vehicle_classes[a] != model.vehicle_classes[b]]
-    if between:
-        figures["identity_sweeps_between_classes"] = viz.tile(viz.to_display(torch.cat(between)),
-                                                             ncol=len(between[0])).unsqueeze(0)
-    figures["identity_manifold"] = viz.identity_circle_figure(
-        model.alphas.tolist(), model.vehicle_names, model.vehicle_classes, model.class_names,
-        model.identity.class_arcs())
-    return figures
 
 
 if __name__ == "__main__":

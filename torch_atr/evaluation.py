@@ -11,6 +11,7 @@ import math
 import torch
 
 from torch_atr._checks import check_shape
+from torch_atr.model.rbf import ridge_hat
 from torch_atr.shape import iou
 
 
@@ -20,6 +21,38 @@ def _views(model, templates: torch.Tensor, theta, phi, view_dim: int) -> tuple[t
     check_shape("theta", theta, (templates.shape[view_dim],))
     check_shape("phi", phi, (templates.shape[view_dim],))
     return theta, phi
+
+
+def per_class_mean(values: torch.Tensor, classes, class_names) -> dict[str, float]:
+    """Mean of per-vehicle values by class name, plus "all".
+
+    values: (K,); classes: K class indices into ``class_names``. Classes with no vehicle are left out.
+    """
+    values = torch.as_tensor(values)
+    classes = torch.as_tensor(classes)
+    check_shape("values", values, (classes.shape[0],))
+    out = {name: values[classes == c].mean().item() for c, name in enumerate(class_names) if (classes == c).any()}
+    out["all"] = values.mean().item()
+    return out
+
+
+@torch.no_grad()
+def rbf_mapping_iou(rbf, signed: torch.Tensor, theta, phi, masks_out: torch.Tensor, theta_out, phi_out,
+                    ridge: float) -> torch.Tensor:
+    """IoU at new views of the per-vehicle RBF mappings alone (eq. 4.13; no pixel basis, no identity spline).
+
+    rbf: an RBFViewMapping; signed: (K, V, H, W) templates at theta, phi (V,); masks_out: (K, Vo, H, W)
+    bool silhouettes at theta_out, phi_out (Vo,); ridge: λ. Returns (K, Vo). Measures the kernel
+    widths by themselves: the prediction Bᵏ Ψ_out with Bᵏ = Yᵏᵀ W is Yᵏᵀ (W Ψ_outᵀ), so B is never formed.
+    """
+    check_shape("signed", signed, ("K", "V", None, None))
+    check_shape("masks_out", masks_out, (signed.shape[0], "Vo", *signed.shape[2:]))
+    like = rbf.log_width
+    theta, phi, theta_out, phi_out = (torch.as_tensor(x).to(like) for x in (theta, phi, theta_out, phi_out))
+    W = ridge_hat(rbf(theta, phi), ridge)  # (V, P)
+    H = rbf(theta_out, phi_out) @ W.T  # (Vo, V)
+    pred = torch.einsum("uv,kvhw->kuhw", H.to(signed), signed)
+    return iou(pred > 0, masks_out)
 
 
 @torch.no_grad()

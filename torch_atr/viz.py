@@ -13,6 +13,7 @@ from typing import Sequence
 import numpy as np
 import torch
 
+from torch_atr._checks import check_shape
 from torch_atr.io import atomic_path
 
 
@@ -149,3 +150,57 @@ def identity_sweep(model, alphas: Sequence[float], theta: float, phi: float, bet
     like = model.alphas
     a = torch.tensor(path, dtype=like.dtype, device=like.device)
     return model.silhouette(a, torch.full_like(a, theta), torch.full_like(a, phi)).cpu()
+
+
+@torch.no_grad()
+def model_figures(model, masks: torch.Tensor, theta: torch.Tensor, phi: torch.Tensor, step_theta: float,
+                  step_phi: float) -> dict:
+    """The pictures of a trained model (what ``train.py`` logs).
+
+    masks: (K, V, H, W) bool training templates at theta, phi (V,) radians; step_theta, step_phi:
+    the view grid's steps, radians. Returns name -> (C, H', W') image in [0, 1] or a Figure:
+    ``reconstructions`` (10 views per vehicle, :func:`overlay_pairs` colours), ``view_sweeps``
+    (Fig. 6.3, one vehicle per class), ``identity_sweeps_within_class`` (Fig. 6.4),
+    ``identity_sweeps_between_classes`` (Fig. 6.5) and ``identity_manifold``.
+    """
+    check_shape("masks", masks, ("K", "V", None, None))
+    V = masks.shape[1]
+    like = model.alphas
+    pick = torch.linspace(0, V - 1, 10).round().long()  # 10 views spread over the grid
+    recon = torch.cat([model.reconstruct_grid(model.alphas[k:k + 1], theta[pick].to(like), phi[pick].to(like))[0]
+                       for k in range(masks.shape[0])]).cpu() > 0
+    pairs = overlay_pairs(masks[:, pick].reshape(recon.shape), recon)
+    figures: dict = {"reconstructions": torch.stack([tile(pairs[:, c], ncol=len(pick)) for c in range(3)])}
+    order = model.identity.order.tolist()
+    classes = model.vehicle_classes
+    view_rows, within_rows = [], []
+    for c in range(len(model.class_names)):
+        members = [k for k in order if classes[k] == c]
+        if members:
+            view_rows.append(view_sweep(model, model.alphas[members[0]].item(), math.radians(36), math.radians(10),
+                                        step_theta, step_phi))
+        if len(members) >= 3:
+            within_rows.append(identity_sweep(model, [model.alphas[m].item() for m in members[:3]],
+                                              math.radians(60), math.radians(10)))
+    between = [identity_sweep(model, [model.alphas[a].item(), model.alphas[b].item()], math.radians(60),
+                              math.radians(10), between=5)
+               for a, b in zip([order[-1]] + order[:-1], order) if classes[a] != classes[b]]
+    for name, rows in (("view_sweeps", view_rows), ("identity_sweeps_within_class", within_rows),
+                       ("identity_sweeps_between_classes", between)):
+        if rows:
+            figures[name] = tile(to_display(torch.cat(rows)), ncol=len(rows[0])).unsqueeze(0)
+    figures["identity_manifold"] = identity_circle_figure(model.alphas.tolist(), model.vehicle_names, classes,
+                                                          model.class_names, model.identity.class_arcs())
+    return figures
+
+
+def save_figures(figures: dict, folder: str | Path) -> None:
+    """Write each (C, H, W) image or matplotlib Figure of ``figures`` as ``folder/<name>.png``, atomically."""
+    folder = Path(folder)
+    for name, image in figures.items():
+        if isinstance(image, torch.Tensor):
+            save_png(image, folder / f"{name}.png")
+        else:
+            with atomic_path(folder / f"{name}.png") as tmp:
+                image.savefig(tmp, format="png", dpi=110)
+
