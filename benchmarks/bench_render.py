@@ -26,18 +26,9 @@ from torch_atr.shape import signed_distance
 logger = logging.getLogger("bench_render")
 
 
-def _cylinder_x(radius: float, length: float, sections: int, centre) -> trimesh.Trimesh:
-    """Cylinder along the body X axis."""
-    cyl = trimesh.creation.cylinder(radius=radius, height=length, sections=sections)
-    cyl.apply_transform(trimesh.transformations.rotation_matrix(math.pi / 2, (0.0, 1.0, 0.0)))
-    return cyl.apply_translation(centre)
-
-
-def _cylinder_y(radius: float, length: float, sections: int, centre) -> trimesh.Trimesh:
-    """Cylinder along the body Y axis (a wheel)."""
-    cyl = trimesh.creation.cylinder(radius=radius, height=length, sections=sections)
-    cyl.apply_transform(trimesh.transformations.rotation_matrix(math.pi / 2, (1.0, 0.0, 0.0)))
-    return cyl.apply_translation(centre)
+def _cylinder(radius: float, start, end, sections: int) -> trimesh.Trimesh:
+    """Cylinder between two points."""
+    return trimesh.creation.cylinder(radius=radius, segment=np.array([start, end], dtype=float), sections=sections)
 
 
 def vehicle_mesh(rng: np.random.Generator, sections: int) -> trimesh.Trimesh:
@@ -47,8 +38,8 @@ def vehicle_mesh(rng: np.random.Generator, sections: int) -> trimesh.Trimesh:
     hull = trimesh.creation.box((length, width, height)).apply_translation((0.0, 0.0, wheel_r + height / 2))
     top = wheel_r + height
     turret = trimesh.creation.box((length * 0.4, width * 0.6, 0.8)).apply_translation((-0.3, 0.0, top + 0.4))
-    gun = _cylinder_x(0.1, length * 0.7, sections, (length * 0.35, 0.0, top + 0.45))
-    wheels = [_cylinder_y(wheel_r, 0.5, sections, (x, y, wheel_r))
+    gun = _cylinder(0.1, (0.0, 0.0, top + 0.45), (length * 0.7, 0.0, top + 0.45), sections)
+    wheels = [_cylinder(wheel_r, (x, y - 0.25, wheel_r), (x, y + 0.25, wheel_r), sections)
               for x in np.linspace(-length / 2 + wheel_r, length / 2 - wheel_r, 5) for y in (-width / 2, width / 2)]
     return trimesh.util.concatenate([hull, turret, gun] + wheels)
 

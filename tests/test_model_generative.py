@@ -231,17 +231,16 @@ def test_checkpoint_errors_name_file_and_problem(model, tmp_path):
 
 def test_fine_tune_widths_lowers_validation_error(data):
     K, V = data["templates"].shape[:2]
-    model = _fit(data, ModelConfig(pixel_rank=None, ridge=1e-4)).double()
+    rbf = _fit(data, ModelConfig(pixel_rank=None, ridge=1e-4)).double().rbf
     train = data["templates"].double().reshape(K, V, -1)
     val = data["val"].double().reshape(K, data["val"].shape[1], -1)
-    views = [x.double() for x in (data["theta"], data["phi"], data["val_theta"], data["val_phi"])]
-    before = model.rbf.widths.detach().clone()
-    history = fine_tune_widths(model, train, views[0], views[1], val, views[2], views[3], steps=15, lr=0.05)
+    before = rbf.widths.detach().clone()
+    history = fine_tune_widths(rbf, train, data["theta"], data["phi"], val, data["val_theta"].tolist(),
+                               data["val_phi"].numpy(), steps=15, lr=0.05)  # views as tensors, lists, arrays
     assert len(history) == 15 and history[-1] < history[0]
-    assert not torch.equal(model.rbf.widths, before)
-    with torch.no_grad():  # the core was rebuilt from the tuned widths: training views still fit
-        recon = model(model.alphas.repeat_interleave(V), views[0].repeat(K), views[1].repeat(K))
-    assert _iou(recon.reshape(data["templates"].shape) > 0, data["templates"] > 0) > 0.99
+    assert not torch.equal(rbf.widths, before)
+    with pytest.raises(ValueError, match="RBFViewMapping"):
+        fine_tune_widths(object(), train, data["theta"], data["phi"], val, data["val_theta"], data["val_phi"], 1, 0.1)
 
 
 def test_fine_tune_widths_loss_is_the_mse_of_explicit_mappings(data):
@@ -265,7 +264,25 @@ def test_fit_tunes_widths_when_asked(data):
     with pytest.raises(ValueError, match="needs val_templates"):
         _fit(data, cfg)
     tuned = _fit(data, cfg, val_templates=data["val"], val_theta=data["val_theta"], val_phi=data["val_phi"])
+    untuned = _fit(data, ModelConfig(pixel_rank=None, ridge=1e-4))
     assert tuned.rbf.widths.std() > 0  # one width per centre, tuned apart from the shared initial value
+    assert len(tuned.width_history) == 5 and not untuned.width_history
+
+    def val_error(model):
+        with torch.no_grad():
+            recon = torch.stack([model.reconstruct_grid(model.alphas[k:k + 1], data["val_theta"], data["val_phi"])[0]
+                                 for k in range(len(NAMES))])
+        return ((recon - data["val"]) ** 2).mean().item()
+
+    assert val_error(tuned) < val_error(untuned)
+    # The kept mappings are the closed form at the tuned widths (the core was built after tuning).
+    K, V = data["templates"].shape[:2]
+    rbf = tuned.rbf.double()
+    B = rbf.fit(data["theta"].double(), data["phi"].double(), data["templates"].double().reshape(K, V, -1), 1e-4)
+    with torch.no_grad():
+        for k in range(K):
+            Bk = torch.einsum("dpj,j->dp", tuned.core.core.double(), tuned.core.identity_vectors[k].double())
+            torch.testing.assert_close(Bk, B[k], rtol=1e-4, atol=1e-4)
 
 
 def test_fit_rejects_bad_inputs(data):
@@ -300,3 +317,12 @@ def test_reconstruct_grid_equals_per_query_forward(model, data):
         for v in range(3):
             single = model(alpha[a:a + 1], theta[v:v + 1], phi[v:v + 1])[0]
             torch.testing.assert_close(grid[a, v], single, rtol=1e-5, atol=1e-5)
+
+
+def test_queries_of_another_dtype_or_type_are_converted(model):
+    g = torch.Generator().manual_seed(1)
+    alpha, theta, phi = torch.rand(3, generator=g), torch.rand(3, generator=g) * 6, torch.rand(3, generator=g)
+    expected = model(alpha, theta, phi)
+    torch.testing.assert_close(model(alpha.double(), theta.double().numpy(), phi.tolist()), expected)
+    assert torch.equal(model.classify(alpha.double()), model.classify(alpha))
+

@@ -209,3 +209,10 @@ def test_fit_errors_and_state_dict_round_trip():
     alpha = torch.linspace(0, 7, 13, dtype=torch.float64)
     torch.testing.assert_close(fresh(alpha), m(alpha), rtol=0, atol=0)
     assert fresh.class_arcs() == m.class_arcs()
+
+
+def test_class_block_search_rejects_too_large_a_class():
+    labels = torch.tensor([0] * 13 + [1] * 2)
+    D = torch.ones(15, 15, dtype=torch.float64) - torch.eye(15, dtype=torch.float64)
+    with pytest.raises(ValueError, match="13 vehicles.*at most 12 per class"):
+        shortest_closed_path(D, labels)

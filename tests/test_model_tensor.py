@@ -211,3 +211,16 @@ def test_project_gives_basis_coordinates_and_the_distance_identity():
     np.testing.assert_allclose(via.numpy(), direct, rtol=1e-10)
     with pytest.raises(ValueError, match="12"):
         core.project(torch.zeros(3, 11, dtype=torch.float64))
+
+
+def test_given_pixel_basis_core_and_error_against_numpy():
+    B = _random_mappings(seed=6)
+    g = torch.Generator().manual_seed(3)
+    U1 = torch.linalg.qr(torch.randn(12, 4, generator=g, dtype=torch.float64)).Q  # any orthonormal basis
+    core = TensorCore.from_mappings(B, pixel_basis=U1)
+    C, U, U3 = _stack(B), U1.numpy(), core.identity_vectors.numpy()
+    np.testing.assert_allclose(core.core.numpy(), np.einsum("ir,ipk,kj->rpj", U, C, U3), atol=1e-12)
+    residual = C - np.einsum("ir,jr,jpk->ipk", U, U, C)
+    assert core.relative_error.item() == pytest.approx(np.linalg.norm(residual) / np.linalg.norm(C), rel=1e-10)
+    with pytest.raises(ValueError, match="not both"):
+        TensorCore.from_mappings(B, 4, pixel_basis=U1)

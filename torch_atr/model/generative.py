@@ -174,21 +174,23 @@ class GenerativeShapeModel(nn.Module):
         model.width_history = width_history
         return model.to(templates.dtype)
 
-    def _check_queries(self, **queries: torch.Tensor) -> None:
-        sizes = set()
-        for name, value in queries.items():
+    def _queries(self, **queries) -> list[torch.Tensor]:
+        """Check that each query is (N,) of one N and convert it to the model's dtype and device."""
+        like = self.core.core
+        out = [as_float_tensor(name, value, like=like).to(like) for name, value in queries.items()]
+        for name, value in zip(queries, out):
             check_shape(name, value, ("N",))
-            sizes.add(value.shape[0])
-        if len(sizes) > 1:
+        if len({value.shape[0] for value in out}) > 1:
             raise ValueError("Expected " + ", ".join(queries) + " of one length N; got "
-                             + ", ".join(str(tuple(v.shape)) for v in queries.values()))
+                             + ", ".join(str(tuple(v.shape)) for v in out))
+        return out
 
     def forward(self, alpha: torch.Tensor, theta: torch.Tensor, phi: torch.Tensor) -> torch.Tensor:
         """Signed-distance reconstruction y(α, Θ) (eq. 4.18).
 
         alpha: (N,) identity angles; theta, phi: (N,) view, radians. Returns (N, H, W), positive inside.
         """
-        self._check_queries(alpha=alpha, theta=theta, phi=phi)
+        alpha, theta, phi = self._queries(alpha=alpha, theta=theta, phi=phi)
         y = self.core.reconstruct(self.identity(alpha), self.rbf(theta, phi))  # (N, d)
         return y.view(-1, self.template.size_px, self.template.size_px)
 
@@ -199,8 +201,8 @@ class GenerativeShapeModel(nn.Module):
         alpha: (A,) identity angles; theta, phi: (V,) view, radians. Returns (A, V, H, W), or
         with ``in_basis`` the (A, V, r) pixel-basis coordinates (compare them with :meth:`project`).
         """
-        check_shape("alpha", alpha, ("A",))
-        self._check_queries(theta=theta, phi=phi)
+        (alpha,) = self._queries(alpha=alpha)
+        theta, phi = self._queries(theta=theta, phi=phi)
         y = self.core.reconstruct_grid(self.identity(alpha), self.rbf(theta, phi), in_basis)  # (A, V, d or r)
         if in_basis:
             return y
@@ -211,7 +213,8 @@ class GenerativeShapeModel(nn.Module):
         if templates.shape[-2:] != (self.template.size_px, self.template.size_px):
             raise ValueError(f"Expected templates of shape (..., {self.template.size_px}, {self.template.size_px}); "
                              f"got {tuple(templates.shape)}")
-        return self.core.project(templates.flatten(-2))
+        like = self.core.core
+        return self.core.project(as_float_tensor("templates", templates, like=like).to(like).flatten(-2))
 
     def silhouette(self, alpha: torch.Tensor, theta: torch.Tensor, phi: torch.Tensor) -> torch.Tensor:
         """The reconstructed silhouette y(α, Θ) > 0 for alpha, theta, phi: (N,). Returns (N, H, W) bool."""
@@ -224,18 +227,18 @@ class GenerativeShapeModel(nn.Module):
         """
         if not 0 <= k < self.core.num_vehicles:
             raise ValueError(f"Expected a vehicle index in [0, {self.core.num_vehicles}); got {k}")
-        self._check_queries(theta=theta, phi=phi)
+        theta, phi = self._queries(theta=theta, phi=phi)
         identity = self.core.identity_vectors[k].expand(theta.shape[0], -1)  # (N, K)
         y = self.core.reconstruct(identity, self.rbf(theta, phi))
         return y.view(-1, self.template.size_px, self.template.size_px)
 
     def classify(self, alpha: torch.Tensor) -> torch.Tensor:
         """Class index whose identity arc holds alpha: (N,). Returns (N,) int64."""
-        return self.identity.classify(alpha)
+        return self.identity.classify(*self._queries(alpha=alpha))
 
     def nearest_vehicles(self, alpha: torch.Tensor, k: int = 2) -> torch.Tensor:
         """The k training vehicles nearest to alpha: (N,) on the identity circle. Returns (N, k) int64."""
-        return self.identity.nearest_vehicles(alpha, k)
+        return self.identity.nearest_vehicles(*self._queries(alpha=alpha), k)
 
     def save(self, path: str | os.PathLike, extra: dict | None = None) -> None:
         """Write a self-describing checkpoint atomically; it loads with ``torch.load(weights_only=True)``.
@@ -327,13 +330,12 @@ def _fit_core_and_identity(rbf: RBFViewMapping, Y: torch.Tensor, theta: torch.Te
         if pixel_rank is not None:
             basis, template_error = principal_basis(Y.reshape(-1, Y.shape[-1]), pixel_rank)
             log.info("pixel basis r=%d: relative template error %.4f", basis.shape[1], template_error.item())
-        core = TensorCore.from_mappings(B, pixel_rank, pixel_basis=basis)
+        core = TensorCore.from_mappings(B, pixel_basis=basis) if basis is not None else TensorCore.from_mappings(B)
         identity = IdentityManifold.fit(core.identity_vectors, labels, order)
     return core, identity
 
 
-def fine_tune_widths(model_or_rbf: GenerativeShapeModel | RBFViewMapping, train: torch.Tensor, theta: torch.Tensor,
-                     phi: torch.Tensor, val: torch.Tensor, val_theta: torch.Tensor, val_phi: torch.Tensor,
+def fine_tune_widths(rbf: RBFViewMapping, train: torch.Tensor, theta, phi, val: torch.Tensor, val_theta, val_phi,
                      steps: int, lr: float, ridge: float = ModelConfig.ridge) -> list[float]:
     """Tune the kernel widths by Adam on the reconstruction error of held-out views.
 
@@ -345,17 +347,16 @@ def fine_tune_widths(model_or_rbf: GenerativeShapeModel | RBFViewMapping, train:
     so the gradient flows through the solve. The held-out prediction is Hₖ = M Yᵏ with the small
     matrix M = Ψ_val Wᵀ (Vv × V), so the loss Σₖ ‖M Yᵏ − Valᵏ‖² = tr(M G Mᵀ) − 2 tr(M E) + ‖Val‖²
     needs only the Gram matrices G = Σₖ Yᵏ Yᵏᵀ (V × V) and E = Σₖ Yᵏ Valᵏᵀ (V × Vv), computed once:
-    a step costs microseconds instead of a K·Vv·V·d contraction. Given a model, its core and
-    identity spline are rebuilt from the tuned widths (the vehicle order is kept: it depends on
-    the templates only).
+    a step costs microseconds instead of a K·Vv·V·d contraction. :meth:`GenerativeShapeModel.fit`
+    calls this before it solves the mappings it keeps.
     """
-    rbf = model_or_rbf.rbf if isinstance(model_or_rbf, GenerativeShapeModel) else model_or_rbf
     if not isinstance(rbf, RBFViewMapping):
-        raise ValueError(f"Expected a GenerativeShapeModel or RBFViewMapping; got {type(model_or_rbf).__name__}")
+        raise ValueError(f"Expected an RBFViewMapping; got {type(rbf).__name__}")
+    like = rbf.log_width
+    theta, phi, val_theta, val_phi = (as_float_tensor(name, x, like=like).to(like) for name, x in
+                                      (("theta", theta), ("phi", phi), ("val_theta", val_theta), ("val_phi", val_phi)))
     check_shape("train", train, ("K", theta.shape[0], "d"))
     check_shape("val", val, (train.shape[0], val_theta.shape[0], train.shape[2]))
-    like = rbf.log_width
-    theta, phi, val_theta, val_phi = (x.to(like) for x in (theta, phi, val_theta, val_phi))
     with torch.no_grad():  # one vehicle at a time, so no widened copy of the templates is made
         G = torch.zeros(theta.shape[0], theta.shape[0], dtype=like.dtype, device=like.device)  # Σₖ Yᵏ Yᵏᵀ
         E = torch.zeros(theta.shape[0], val_theta.shape[0], dtype=like.dtype, device=like.device)  # Σₖ Yᵏ Valᵏᵀ
@@ -377,9 +378,4 @@ def fine_tune_widths(model_or_rbf: GenerativeShapeModel | RBFViewMapping, train:
         optimiser.step()
         history.append(loss.item())
         log.debug("width step %d: validation MSE %.6g", step, history[-1])
-    if isinstance(model_or_rbf, GenerativeShapeModel):
-        model = model_or_rbf
-        model.core, model.identity = _fit_core_and_identity(rbf, train.to(like), theta, phi, ridge,
-                                                            model.core.pixel_rank, model.identity.labels,
-                                                            model.identity.order)
     return history

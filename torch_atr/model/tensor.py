@@ -72,12 +72,6 @@ def _fix_signs(U: torch.Tensor) -> torch.Tensor:
     return U * torch.where(signs == 0, torch.ones_like(signs), signs)
 
 
-def _leading_eigvecs(G: torch.Tensor, rank: int) -> tuple[torch.Tensor, torch.Tensor]:
-    """The ``rank`` leading eigenvectors (n, r), signs fixed, and all eigenvalues of a Gram matrix G (n, n)."""
-    evals, evecs = torch.linalg.eigh(G)  # ascending
-    return _fix_signs(evecs[:, -rank:].flip(-1)), evals
-
-
 def principal_basis(Y: torch.Tensor, rank: int, oversample: int = 32, power_iters: int = 4,
                     seed: int = 0) -> tuple[torch.Tensor, torch.Tensor]:
     """Orthonormal basis of the ``rank`` leading principal directions of the rows of Y (no centring).
@@ -95,7 +89,8 @@ def principal_basis(Y: torch.Tensor, rank: int, oversample: int = 32, power_iter
     if rank < 1:
         raise ValueError(f"Expected rank >= 1; got {rank}")
     r = min(rank, *Y.shape)
-    with torch.random.fork_rng(devices=[]):
+    # manual_seed seeds every device, so fork (and restore) the RNG of Y's device too.
+    with torch.random.fork_rng(devices=[Y.device] if Y.is_cuda else []):
         torch.manual_seed(seed)
         _, _, V = torch.svd_lowrank(Y, q=min(r + oversample, *Y.shape), niter=power_iters)
     U = _fix_signs(V[:, :r])
@@ -132,7 +127,6 @@ class TensorCore(nn.Module):
         if pixel_rank is not None and not 1 <= pixel_rank <= pixels:
             raise ValueError(f"Expected pixel_rank in [1, {pixels}] or None; got {pixel_rank}")
         r = pixels if pixel_rank is None else pixel_rank
-        self.pixels = pixels
         self.register_buffer("core", torch.zeros(r, psi_dim, vehicles))
         self.register_buffer("pixel_basis", None if pixel_rank is None else torch.zeros(pixels, r))
         self.register_buffer("identity_vectors", torch.zeros(vehicles, vehicles))
@@ -141,6 +135,11 @@ class TensorCore(nn.Module):
     @property
     def pixel_rank(self) -> int | None:
         return None if self.pixel_basis is None else self.pixel_basis.shape[1]
+
+    @property
+    def pixels(self) -> int:
+        """d = H·W."""
+        return self.core.shape[0] if self.pixel_basis is None else self.pixel_basis.shape[0]
 
     @property
     def psi_dim(self) -> int:
@@ -156,8 +155,8 @@ class TensorCore(nn.Module):
         """HOSVD of 𝒞 = [B¹ … Bᴷ] on the identity mode and, optionally, a truncated pixel mode.
 
         B: (K, d, P) the per-vehicle mappings Bᵏ of eq. 4.13; pixel_rank: r or None.
-        pixel_basis: (d, r) orthonormal columns to use as U₁ instead of the mode-1 singular
-        vectors of 𝒞 (e.g. :func:`principal_basis` of the training templates, which ranks pixel
+        pixel_basis: (d, r) orthonormal columns to use as U₁ (give it instead of pixel_rank)
+        rather than the mode-1 singular vectors of 𝒞 (e.g. :func:`principal_basis` of the training templates, which ranks pixel
         directions by how much of the templates they explain rather than of the RBF weights).
         Without it r is capped at min(d, P·K), the rank of the mode-1 unfolding, beyond which
         the truncation is exact. The view mode is not decomposed: Ψ(Θ) multiplies it.
@@ -165,10 +164,13 @@ class TensorCore(nn.Module):
         check_shape("B", B, ("K", "d", "P"))
         if pixel_rank is not None and pixel_rank < 1:
             raise ValueError(f"Expected pixel_rank >= 1 or None; got {pixel_rank}")
+        if pixel_rank is not None and pixel_basis is not None:
+            raise ValueError("Give pixel_rank or pixel_basis, not both (the basis fixes the rank)")
         K, d, P = B.shape
         C = B.permute(1, 2, 0)  # 𝒞: (d, P, K), a view
         flat = B.reshape(K, d * P)  # 𝒞₍₃₎ up to column order, which the Gram matrix ignores
-        U3, _ = _leading_eigvecs(flat @ flat.T, K)  # (K, K), the left singular vectors of 𝒞₍₃₎; rows are the iᵏ
+        # U₃ (K, K): the left singular vectors of 𝒞₍₃₎, from its Gram matrix; rows are the iᵏ.
+        U3 = _fix_signs(torch.linalg.eigh(flat @ flat.T).eigenvectors.flip(-1))
         if pixel_basis is not None:
             check_shape("pixel_basis", pixel_basis, (d, None))
             U1 = pixel_basis.to(B)
@@ -197,6 +199,11 @@ class TensorCore(nn.Module):
         module.relative_error.copy_(error)
         return module
 
+    def _contract_views(self, psi: torch.Tensor) -> torch.Tensor:
+        """𝒜 ×₂ Ψ for psi: (M, P) as one (M × P) @ (P × r·K) matmul. Returns (M, r, K)."""
+        r, P, K = self.core.shape
+        return (psi @ self.core.permute(1, 0, 2).reshape(P, r * K)).view(-1, r, K)
+
     def reconstruct(self, identity: torch.Tensor, psi: torch.Tensor) -> torch.Tensor:
         """y = 𝒜 ×₃ i ×₂ Ψ, then the pixel basis (eq. 4.18), batched over queries.
 
@@ -204,11 +211,10 @@ class TensorCore(nn.Module):
         Contracts Ψ first as one (N × P) @ (P × r·K) matmul, then the identity per query, then
         U₁; contracting the identity first would materialise N × r × P.
         """
-        r, P, K = self.core.shape
+        K = self.num_vehicles
         check_shape("identity", identity, ("N", K))
-        check_shape("psi", psi, (identity.shape[0], P))
-        N = identity.shape[0]
-        per_view = (psi @ self.core.permute(1, 0, 2).reshape(P, r * K)).view(N, r, K)  # 𝒜 ×₂ Ψ per query
+        check_shape("psi", psi, (identity.shape[0], self.psi_dim))
+        per_view = self._contract_views(psi)  # 𝒜 ×₂ Ψ per query: (N, r, K)
         y = torch.bmm(per_view, identity.unsqueeze(-1)).squeeze(-1)  # ×₃ i(α): (N, r)
         return y if self.pixel_basis is None else y @ self.pixel_basis.T  # ×₁ U₁: (N, d)
 
@@ -219,10 +225,9 @@ class TensorCore(nn.Module):
         coordinates in the pixel basis (y = U₁ c). Ψ is contracted once per view, so A·V
         reconstructions cost one (V × P) @ (P × r·K) matmul plus an A·V·r·K contraction.
         """
-        r, P, K = self.core.shape
-        check_shape("identity", identity, ("A", K))
-        check_shape("psi", psi, ("V", P))
-        per_view = (psi @ self.core.permute(1, 0, 2).reshape(P, r * K)).view(-1, r, K)  # (V, r, K)
+        check_shape("identity", identity, ("A", self.num_vehicles))
+        check_shape("psi", psi, ("V", self.psi_dim))
+        per_view = self._contract_views(psi)  # (V, r, K)
         y = torch.einsum("vrk,ak->avr", per_view, identity)  # (A, V, r)
         return y if in_basis or self.pixel_basis is None else y @ self.pixel_basis.T
 
