@@ -1,13 +1,14 @@
 """Background subtraction on the IR scene simulator: IoU against the visible mask per vehicle and range.
 
 For every vehicle and range, a ForegroundSegmenter (MOG2, thesis 3.1) learns the background from
-``--warmup`` target-free frames, then segments ``--frames`` frames spread evenly over the run; the
-IoU of its mask with the simulator's visible mask is averaged per (vehicle, range). Also timed:
+``warmup_frames`` target-free frames (a ``--seg`` key, default 50), then segments ``--frames``
+frames spread evenly over the run; the IoU of its mask with the simulator's visible mask
+(torch_atr.shape.iou: 1 when both are empty) is averaged per (vehicle, range). Also timed:
 frames per second of the simulator (target frames; warm-up frames are cheaper) and of the
 segmenter (warm-up excluded). The table goes to the log; ``--json`` writes everything.
 
     python benchmarks/bench_segmentation.py [--vehicles t_72 btr_70] [--ranges 1000 3500] [--json out.json]
-        [--set night=false noise_k=0.2] [--seg var_threshold=36]
+        [--set night=false noise_k=0.2] [--seg var_threshold=36 warmup_frames=50]
 """
 
 from __future__ import annotations
@@ -25,6 +26,7 @@ from torch_atr.config import config_to_dict, load_config
 from torch_atr.data.synthetic import SceneConfig, SyntheticSequence
 from torch_atr.io import atomic_write_text
 from torch_atr.segmentation import ForegroundSegmenter, SegmentationConfig
+from torch_atr.shape import iou
 from torch_atr.vehicles.specs import SPLITS
 
 log = logging.getLogger("bench_segmentation")
@@ -32,11 +34,11 @@ log = logging.getLogger("bench_segmentation")
 RANGES = (1000.0, 1500.0, 2000.0, 2500.0, 3000.0, 3500.0)
 
 
-def run(vehicle: str, scene: SceneConfig, seg_cfg: SegmentationConfig, frames: int, warmup: int) -> dict:
+def run(vehicle: str, scene: SceneConfig, seg_cfg: SegmentationConfig, frames: int) -> dict:
     """IoU per frame and timings for one vehicle and scene."""
     seq = SyntheticSequence(vehicle, scene)
     start = time.perf_counter()
-    warm = list(seq.warmup_frames(warmup))
+    warm = list(seq.warmup_frames(seg_cfg.warmup_frames))
     warm_s = time.perf_counter() - start
     segmenter = ForegroundSegmenter(seg_cfg)
     segmenter.warm_up(warm)
@@ -48,8 +50,7 @@ def run(vehicle: str, scene: SceneConfig, seg_cfg: SegmentationConfig, frames: i
         start = time.perf_counter()
         mask = segmenter(frame)
         seg_s += time.perf_counter() - start
-        visible = seq.visible_mask(int(i))
-        ious.append(float((mask & visible).sum() / max((mask | visible).sum(), 1)))
+        ious.append(float(iou(mask, seq.visible_mask(int(i)))))
     return {"iou": ious, "sim_s": sim_s, "warmup_s": warm_s, "seg_s": seg_s}
 
 
@@ -59,7 +60,6 @@ def main() -> None:
                         help="catalog names or URDF / mesh paths (default: the test split)")
     parser.add_argument("--ranges", nargs="+", type=float, default=list(RANGES), help="metres")
     parser.add_argument("--frames", type=int, default=30, help="segmented frames per sequence")
-    parser.add_argument("--warmup", type=int, default=50, help="target-free frames for the background model")
     parser.add_argument("--set", nargs="*", default=[], metavar="KEY=VALUE", help="SceneConfig overrides")
     parser.add_argument("--seg", nargs="*", default=[], metavar="KEY=VALUE", help="SegmentationConfig overrides")
     parser.add_argument("--threads", type=int, default=None, help="torch intra-op threads (default: torch's)")
@@ -69,9 +69,9 @@ def main() -> None:
     if args.threads is not None:
         torch.set_num_threads(args.threads)
     scene = load_config(SceneConfig, overrides=args.set)
-    seg_cfg = load_config(SegmentationConfig, overrides=[f"warmup_frames={args.warmup}"] + args.seg)
+    seg_cfg = load_config(SegmentationConfig, overrides=args.seg)
 
-    results = {v: {r: run(v, dataclasses.replace(scene, range_m=r), seg_cfg, args.frames, args.warmup)
+    results = {v: {r: run(v, dataclasses.replace(scene, range_m=r), seg_cfg, args.frames)
                    for r in args.ranges} for v in args.vehicles}
 
     width = max(len(v) for v in args.vehicles + ["mean"])
@@ -85,7 +85,7 @@ def main() -> None:
     cells = [c for row in results.values() for c in row.values()]
     n_frames = args.frames * len(cells)
     sim_fps = n_frames / sum(c["sim_s"] for c in cells)
-    warm_fps = args.warmup * len(cells) / sum(c["warmup_s"] for c in cells)
+    warm_fps = seg_cfg.warmup_frames * len(cells) / sum(c["warmup_s"] for c in cells)
     seg_fps = n_frames / sum(c["seg_s"] for c in cells)
     log.info("simulator: %.1f frames/s (%d x %d), %.0f warm-up frames/s; segmenter: %.1f frames/s; "
              "torch %s, %d threads", sim_fps, scene.width, scene.height, warm_fps, seg_fps, torch.__version__,

@@ -26,6 +26,7 @@ import numpy as np  # noqa: E402
 from torch_atr.config import load_config  # noqa: E402
 from torch_atr.data.synthetic import PARTS, SceneConfig, SyntheticSequence  # noqa: E402
 from torch_atr.segmentation import ForegroundSegmenter, SegmentationConfig  # noqa: E402
+from torch_atr.shape import iou  # noqa: E402
 
 log = logging.getLogger("sim_contact_sheet")
 
@@ -82,18 +83,18 @@ def main() -> None:
         truth = seq.truth(args.frame)
         segmented = segmenter(frame)
         visible = seq.visible_mask(args.frame)
-        iou = (segmented & visible).sum() / max((segmented | visible).sum(), 1)
+        overlap = float(iou(segmented, visible))
         centre = (truth.u, truth.v)
         length = truth.u1 - truth.u0 + 1
         log.info("%5.0f m: target %3.0f x %3.0f px, PSF sigma %.2f px, IoU %.2f, view %.0f deg",
-                 range_m, length, truth.v1 - truth.v0 + 1, seq.cfg.psf_sigma, iou, np.degrees(truth.theta))
+                 range_m, length, truth.v1 - truth.v0 + 1, seq.cfg.psf_sigma, overlap, np.degrees(truth.theta))
         if range_m == RANGES[0]:
             full.imshow(stretch(frame), cmap="gray", interpolation="nearest")
             full.set_title(f"{seq.name}, frame {args.frame}: the full {frame.shape[1]} x {frame.shape[0]} frame",
                            fontsize=9)
         cells = (
             (stretch(crop(frame, centre)), f"{range_m:.0f} m: frame (PSF σ {seq.cfg.psf_sigma:.2f} px)"),
-            (crop(segmented, centre), f"segmented, IoU {iou:.2f} vs visible"),
+            (crop(segmented, centre), f"segmented, IoU {overlap:.2f} vs visible"),
             (crop(seq.true_mask(args.frame), centre), f"true mask, {length:.0f} px long"),
             (part_image(crop(seq.part_map(args.frame), centre)),
              ", ".join(f"{p} {c}" for p, c in zip(PARTS, PART_COLOURS))),

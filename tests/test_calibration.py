@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 import torch
 
-from torch_atr.calibration import (_canonical_order, calibrate_checkerboard, camera_from_focal, draw_cubes, find_checkerboard,
-                                   floor_pose, focal_from_target)
+from torch_atr.calibration import (_canonical_order, calibrate_checkerboard, camera_from_focal, draw_cubes,
+                                   find_checkerboard, floor_pose, focal_from_target)
 from torch_atr.camera import Camera
 
 # ---------------------------------------------------------------- IR: focal length from targets
@@ -81,6 +81,11 @@ def test_focal_from_target_errors():
         focal_from_target(uv, 1000.0, principal_point=PP, size_m=4.0)
     with pytest.raises(ValueError, match=r"extent_px\[1\]"):
         focal_from_target(uv, 1000.0, principal_point=PP, size_m=4.0, extent_px=[3.0, 0.0])
+    for pp in [(float("nan"), 255.5), (319.5, float("inf"))]:
+        with pytest.raises(ValueError, match="principal_point to be finite"):
+            focal_from_target(uv, 1000.0, principal_point=pp, position_xy=[[10.0, 2.0], [10.0, 2.0]])
+        with pytest.raises(ValueError, match="principal_point to be finite"):
+            focal_from_target(uv, 1000.0, principal_point=pp, size_m=4.0, extent_px=[3.0, 5.0])
 
 
 # ---------------------------------------------------------------- visible: checkerboards
@@ -188,6 +193,13 @@ def test_calibrate_checkerboard_names_the_image_without_a_board(views):
         calibrate_checkerboard(images[:2], PATTERN, SQUARE)
     with pytest.raises(ValueError, match="uint8"):
         calibrate_checkerboard([images[0].astype(np.uint16)] * 3, PATTERN, SQUARE)
+
+
+@pytest.mark.parametrize("flag", ["CALIB_RATIONAL_MODEL", "CALIB_THIN_PRISM_MODEL", "CALIB_TILTED_MODEL"])
+def test_calibrate_checkerboard_refuses_extra_distortion_terms(views, flag):
+    """K fitted with distortion terms that Camera (k1, k2, p1, p2, k3) cannot keep would be wrong."""
+    with pytest.raises(ValueError, match=flag):
+        calibrate_checkerboard([v[0] for v in views], PATTERN, SQUARE, flags=cv2.CALIB_FIX_K3 | getattr(cv2, flag))
 
 
 def _angle_deg(Ra: np.ndarray, Rb: np.ndarray) -> float:

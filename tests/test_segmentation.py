@@ -7,9 +7,11 @@ import numpy as np
 import pytest
 from scipy import ndimage
 
+from torch_atr._checks import to_grey
 from torch_atr.config import ConfigError, load_config
 from torch_atr.segmentation import (ForegroundSegmenter, SegmentationConfig, clean_mask, normalise_ir,
                                     select_blob)
+from torch_atr.shape import iou
 
 H, W = 120, 160
 # (background level, texture amplitude, per-frame noise sigma, target contrast) per pixel format
@@ -44,7 +46,7 @@ def _frame(kind: str, texture: np.ndarray, targets: list[np.ndarray], rng: np.ra
 
 
 def _iou(a: np.ndarray, b: np.ndarray) -> float:
-    return (a & b).sum() / max((a | b).sum(), 1)
+    return float(iou(a, b))
 
 
 def _warmed(kind: str, seed: int = 0, cfg: SegmentationConfig | None = None):
@@ -128,6 +130,24 @@ def test_bad_frames_raise():
         seg(_frame("uint8", texture, [], rng), near=(1.0, float("nan")))
 
 
+@pytest.mark.parametrize("dtype", [np.uint8, np.uint16, np.float32, np.float64])
+def test_to_grey_matches_the_bgr_weights(dtype):
+    """Colour frames become 0.299 R + 0.587 G + 0.114 B in their own dtype; grey ones pass through."""
+    rng = np.random.default_rng(8)
+    top = 255 if dtype == np.uint8 else 65535 if dtype == np.uint16 else 400
+    bgr = rng.uniform(0, top, (30, 40, 3)).astype(dtype)
+    grey = to_grey("frame", bgr, (dtype,))
+    ref = bgr.astype(np.float64) @ [0.114, 0.587, 0.299]
+    assert grey.shape == (30, 40) and grey.dtype == dtype
+    # integers: rounding, and OpenCV's 14-bit fixed-point weights (each within 2.5e-5 of the exact)
+    atol = 0.5 + 5e-5 * top if np.issubdtype(dtype, np.integer) else 1e-5 * top
+    np.testing.assert_allclose(grey, ref, atol=atol, rtol=0)
+    blue = bgr[..., 0]
+    assert to_grey("frame", blue, (dtype,)) is blue
+    with pytest.raises(ValueError, match="frame to have dtype int16; got"):
+        to_grey("frame", bgr, (np.int16,))
+
+
 def test_config_validation_and_loading(tmp_path):
     with pytest.raises(ConfigError, match="var_threshold=-1"):
         SegmentationConfig(var_threshold=-1.0)
@@ -174,7 +194,10 @@ def test_clean_mask_removes_specks_and_fills_holes():
     mask[10, 10] = True  # a speck
     out = clean_mask(mask, 3, 5)
     assert not out[10, 10] and out[50, 55]
-    np.testing.assert_array_equal(out[38:62, 38:72], clean_mask(_rect(40, 40, 30, 20), 3, 5)[38:62, 38:72])
+    # what is left is the clean rectangle, opened and closed by scipy
+    opened = ndimage.binary_opening(_rect(40, 40, 30, 20), cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (3, 3)))
+    ref = ndimage.binary_closing(opened, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (5, 5)))
+    np.testing.assert_array_equal(out, ref)
 
 
 def test_select_blob_matches_brute_force():

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from typing import Sequence
 
+import cv2
 import numpy as np
 import torch
 
@@ -46,3 +47,28 @@ def as_float_tensor(name: str, x, like: torch.Tensor | None = None) -> torch.Ten
     dtype = like.dtype if like is not None else torch.float32
     device = like.device if like is not None else None
     return torch.as_tensor(arr, dtype=dtype, device=device)
+
+
+def to_grey(name: str, image, dtypes: Sequence[type | np.dtype]) -> np.ndarray:
+    """Check a numpy image and return it grey, keeping its dtype.
+
+    Args:
+        name: the argument's name, for error messages.
+        image: (H, W) grey, returned as it is, or (H, W, 3) BGR, converted with OpenCV's
+            weights (float64 via float32).
+        dtypes: the accepted dtypes, among uint8, uint16, float32 and float64.
+    Returns:
+        (H, W) of ``image``'s dtype.
+    """
+    if not isinstance(image, np.ndarray):
+        raise ValueError(f"Expected {name} to be a numpy array; got {type(image).__name__}")
+    if image.dtype not in dtypes:
+        allowed = " or ".join(np.dtype(d).name for d in dtypes)
+        raise ValueError(f"Expected {name} to have dtype {allowed}; got {image.dtype} (shape {image.shape})")
+    if image.ndim == 2:
+        return image
+    if image.ndim == 3 and image.shape[2] == 3:
+        if image.dtype == np.float64:
+            return cv2.cvtColor(image.astype(np.float32), cv2.COLOR_BGR2GRAY).astype(np.float64)
+        return cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
+    raise ValueError(f"Expected {name} to have shape (H, W) or (H, W, 3); got {image.shape}")

@@ -31,7 +31,7 @@ import cv2
 import numpy as np
 import torch
 
-from torch_atr._checks import as_float_tensor, check_shape
+from torch_atr._checks import as_float_tensor, check_shape, to_grey
 from torch_atr.camera import Camera
 
 logger = logging.getLogger(__name__)
@@ -42,6 +42,10 @@ _CUBE_EDGES = [(a, b) for a in range(8) for b in range(a + 1, 8) if bin(a ^ b).c
 _FLOAT64 = torch.zeros((), dtype=torch.float64)  # arrays and lists are read in double precision
 _MAX_ITERATIONS = 100  # fixed-point steps of the size method
 _EDGE_SAMPLES = 9  # points per drawn edge, so edges bend with the lens distortion
+# cv2.calibrateCamera flags that fit distortion terms beyond Camera's (k1, k2, p1, p2, k3)
+_EXTRA_TERM_FLAGS = {"CALIB_RATIONAL_MODEL": cv2.CALIB_RATIONAL_MODEL,
+                     "CALIB_THIN_PRISM_MODEL": cv2.CALIB_THIN_PRISM_MODEL,
+                     "CALIB_TILTED_MODEL": cv2.CALIB_TILTED_MODEL}
 
 
 def _per_frame(name: str, x, n: int | None = None, cols: int | None = None) -> torch.Tensor:
@@ -86,8 +90,11 @@ def focal_from_target(pixel_uv, range_m, *, principal_point: tuple[float, float]
             length at aspect 90°; with a narrow field of view, across the line of sight).
         extent_px: (N,) or scalar pixel extent of that size: e = f s / z, with
             z = r / sqrt(1 + ρ² / f²) and ρ the centre's pixel distance from the principal
-            point. f minimises Σ (e - f s / z)² (pixel residuals), found by fixed-point steps
-            that re-solve the linear least squares with z from the previous f.
+            point. With a = s / z, f is the fixed point of f <- Σ a·e / Σ a·a, the linear least
+            squares of e = f a with z taken from the previous f (started from z = r). Without
+            noise that is the exact f; with noise it approximates the minimiser of the pixel
+            residuals Σ (e - f s / z)², whose normal equation weights each frame's term by a
+            further f² / (f² + ρ²) (near 1 for targets close to the optical axis).
     Returns:
         f in pixels.
     Raises:
@@ -100,6 +107,8 @@ def focal_from_target(pixel_uv, range_m, *, principal_point: tuple[float, float]
     _first_bad("range_m", r, r <= 0, "positive ranges")
     pp = as_float_tensor("principal_point", principal_point, like=_FLOAT64).to(torch.float64)
     check_shape("principal_point", pp, (2,))
+    if not torch.isfinite(pp).all():
+        raise ValueError(f"Expected principal_point to be finite; got {pp.tolist()}")
     b = uv - pp  # (N, 2) pixel offsets from (cx, cy)
     by_position = position_xy is not None
     if by_position == (size_m is not None or extent_px is not None):
@@ -140,19 +149,6 @@ def camera_from_focal(f: float, width: int, height: int,
     """
     cx, cy = ((width - 1) / 2, (height - 1) / 2) if principal_point is None else principal_point
     return Camera(float(f), float(f), float(cx), float(cy), width, height)
-
-
-def _check_image(name: str, image) -> np.ndarray:
-    """A uint8 (H, W) or (H, W, 3) BGR image -> (H, W) grey."""
-    if not isinstance(image, np.ndarray):
-        raise ValueError(f"Expected {name} to be a numpy array; got {type(image).__name__}")
-    if image.dtype != np.uint8:
-        raise ValueError(f"Expected {name} to be uint8; got {image.dtype}")
-    if image.ndim == 2:
-        return image
-    if image.ndim == 3 and image.shape[2] == 3:
-        return cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
-    raise ValueError(f"Expected {name} to have shape (H, W) or (H, W, 3); got {image.shape}")
 
 
 def _check_pattern(pattern) -> tuple[int, int]:
@@ -203,7 +199,7 @@ def find_checkerboard(image: np.ndarray, pattern: tuple[int, int]) -> np.ndarray
         module docstring (corner k sits at board position (k % columns, k // columns)).
     """
     cols, rows = _check_pattern(pattern)
-    grey = _check_image("image", image)
+    grey = to_grey("image", image, (np.uint8,))
     found, corners = cv2.findChessboardCorners(
         grey, (cols, rows), flags=cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE)
     if not found:
@@ -226,14 +222,21 @@ def calibrate_checkerboard(images: Sequence[np.ndarray], pattern: tuple[int, int
         pattern: (columns, rows) of inner corners.
         square_m: side of a board square, metres.
         flags: ``cv2.calibrateCamera`` flags; the default fits k1, k2, p1, p2 and keeps k3 = 0,
-            as the MATLAB toolbox the thesis used does.
+            as the MATLAB toolbox the thesis used does. Flags that add distortion terms
+            (``CALIB_RATIONAL_MODEL``, ``CALIB_THIN_PRISM_MODEL``, ``CALIB_TILTED_MODEL``) are
+            refused: :class:`Camera` holds only k1, k2, p1, p2, k3, and K fitted with the extra
+            terms would not match the distortion kept.
     Returns:
         (camera, rms): the camera posed at the world origin (world = sensor frame), and the RMS
         reprojection error in pixels.
     Raises:
-        ValueError: fewer than 3 images, an image of another size, or an image without the
-            board (naming its index).
+        ValueError: fewer than 3 images, an image of another size, an image without the
+            board (naming its index), or a flag that adds distortion terms (naming it).
     """
+    extra = [name for name, bit in _EXTRA_TERM_FLAGS.items() if flags & bit]
+    if extra:
+        raise ValueError(f"Expected flags without {' or '.join(extra)}: Camera keeps only the distortion "
+                         f"(k1, k2, p1, p2, k3); got flags={flags}")
     pattern = _check_pattern(pattern)
     obj = _board_points(pattern, square_m)
     if len(images) < 3:
@@ -241,7 +244,7 @@ def calibrate_checkerboard(images: Sequence[np.ndarray], pattern: tuple[int, int
     size = None
     img_points = []
     for i, image in enumerate(images):
-        grey = _check_image(f"images[{i}]", image)
+        grey = to_grey(f"images[{i}]", image, (np.uint8,))
         if size is None:
             size = grey.shape
         elif grey.shape != size:
@@ -271,7 +274,7 @@ def floor_pose(camera: Camera, image: np.ndarray, pattern: tuple[int, int], squa
     """
     pattern = _check_pattern(pattern)
     obj = _board_points(pattern, square_m)
-    grey = _check_image("image", image)
+    grey = to_grey("image", image, (np.uint8,))
     if grey.shape != (camera.height, camera.width):
         raise ValueError(f"Expected the floor image to be {camera.height} x {camera.width} like the camera; "
                          f"got {grey.shape[0]} x {grey.shape[1]}")
@@ -300,7 +303,7 @@ def draw_cubes(image: np.ndarray, camera: Camera, cube_size: float, positions,
         (H, W, 3) uint8 BGR copy of the image with the cubes drawn. Edges with a point behind the
         camera are left out.
     """
-    out = _check_image("image", image)
+    out = to_grey("image", image, (np.uint8,))
     out = cv2.cvtColor(out, cv2.COLOR_GRAY2BGR) if image.ndim == 2 else image.copy()
     if not cube_size > 0:
         raise ValueError(f"Expected a positive cube_size; got {cube_size}")

@@ -24,6 +24,7 @@ from typing import Iterable
 import cv2
 import numpy as np
 
+from torch_atr._checks import to_grey
 from torch_atr.config import ConfigError
 
 logger = logging.getLogger(__name__)
@@ -71,22 +72,6 @@ class SegmentationConfig:
             raise ConfigError("segmentation: bad value(s) " + ", ".join(f"{k}={getattr(self, k)!r}" for k in bad)
                               + " (history, warmup_frames >= 1; var_threshold > 0; learning_rate in [0, 1] or -1; "
                               "open_px, close_px, min_area_px, headroom >= 0; 0 <= low < high <= 100 percentiles)")
-
-
-def _to_grey(frame) -> np.ndarray:
-    """Validate a frame and return it as (H, W) of its own dtype (colour BGR -> grey)."""
-    if not isinstance(frame, np.ndarray):
-        raise ValueError(f"Expected frame to be a numpy array; got {type(frame).__name__}")
-    if frame.dtype not in _DTYPES:
-        raise ValueError(f"Expected frame dtype uint8, uint16, float32 or float64; got {frame.dtype} "
-                         f"(shape {frame.shape})")
-    if frame.ndim == 2:
-        return frame
-    if frame.ndim == 3 and frame.shape[2] == 3:
-        if frame.dtype == np.float64:
-            return cv2.cvtColor(frame.astype(np.float32), cv2.COLOR_BGR2GRAY).astype(np.float64)
-        return cv2.cvtColor(frame, cv2.COLOR_BGR2GRAY)
-    raise ValueError(f"Expected frame to have shape (H, W) or (H, W, 3); got {frame.shape}")
 
 
 def normalise_ir(frame: np.ndarray, lo: float, hi: float) -> np.ndarray:
@@ -181,7 +166,7 @@ class ForegroundSegmenter:
 
     def _prepare(self, frame) -> np.ndarray:
         """(H, W) or (H, W, 3) frame -> (H, W) uint8, checked against the warm-up frames."""
-        grey = _to_grey(frame)
+        grey = to_grey("frame", frame, _DTYPES)
         if (grey.shape, grey.dtype) != self._kind:
             raise ValueError(f"Expected a frame of size {self._kind[0]} and dtype {self._kind[1]} like the "
                              f"warm-up frames; got shape {frame.shape}, dtype {frame.dtype}")
@@ -199,7 +184,7 @@ class ForegroundSegmenter:
         for i, frame in enumerate(frames):
             if i == cfg.warmup_frames:
                 break
-            grey = _to_grey(frame)
+            grey = to_grey(f"warm-up frame {i}", frame, _DTYPES)
             if greys and (grey.shape, grey.dtype) != (greys[0].shape, greys[0].dtype):
                 raise ValueError(f"warm-up frame {i}: shape {frame.shape}, dtype {frame.dtype} differs from "
                                  f"frame 0's size {greys[0].shape}, dtype {greys[0].dtype}")
