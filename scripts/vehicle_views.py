@@ -1,10 +1,12 @@
 """Render a PNG contact sheet of the vehicle catalog: one row per vehicle, four views.
 
 Views (METHOD.md view angles, θ from the front, counter-clockwise seen from above): side
-(θ = 90°, φ = 0), front (θ = 0, φ = 0), oblique (θ = 45°, φ = 30°) and top (φ = 90°). Every cell
-uses the same metres per pixel, so sizes compare across rows. Triangles are drawn one at a time
-with ``cv2.fillConvexPoly`` (far to near, shaded by their facing), never ``cv2.fillPoly`` on
-many triangles at once, which fills by the even-odd rule and leaves holes.
+(θ = 90°, φ = 0), front (θ = 0, φ = 0), oblique (θ = 45°, φ = 30°) and top (θ = 90°, φ = 90°,
+the front on the left as in the side view). Image axes are those of the templates
+(:func:`torch_atr.render.view_basis`). Every cell uses the same metres per pixel, so sizes
+compare across rows. Triangles are drawn one at a time with ``cv2.fillConvexPoly`` (far to
+near, shaded by their facing), never ``cv2.fillPoly`` on many triangles at once, which fills
+by the even-odd rule and leaves holes.
 
     python scripts/vehicle_views.py --out /tmp/vehicle_views.png [--split train test heldout]
 """
@@ -13,43 +15,38 @@ from __future__ import annotations
 
 import argparse
 import logging
-import math
 from pathlib import Path
 
 import cv2
 import numpy as np
+import torch
 import trimesh
 
+from torch_atr.render import view_basis, view_directions
 from torch_atr.vehicles import Vehicle, load_catalog, load_heldout_meshes
 
 log = logging.getLogger("vehicle_views")
 
-VIEWS = (("side", 90.0, 0.0), ("front", 0.0, 0.0), ("oblique", 45.0, 30.0), ("top", 0.0, 90.0))
+VIEWS = (("side", 90.0, 0.0), ("front", 0.0, 0.0), ("oblique", 45.0, 30.0), ("top", 90.0, 90.0))
 LABEL_W = 230  # pixels of the name column
 
 
-def view_basis(theta: float, phi: float) -> np.ndarray:
-    """Rows: image right, image up, towards the camera, for view (θ, φ) in radians; (3, 3)."""
-    u = np.array([math.cos(phi) * math.cos(theta), math.cos(phi) * math.sin(theta), math.sin(phi)])
-    # Up hint: +Z; looking straight down, the vehicle's -Y, so the front is on the left as in
-    # the side view (seen from the left, +Y).
-    hint = np.array([0.0, 0.0, 1.0]) if abs(u[2]) < 0.99 else np.array([0.0, -1.0, 0.0])
-    right = np.cross(hint, u)
-    right /= np.linalg.norm(right)
-    up = np.cross(u, right)
-    return np.stack([right, up, u])
+def view_bases() -> np.ndarray:
+    """(V, 3, 3) rows image right, image up, towards the camera, for each of VIEWS."""
+    angles = torch.tensor([(th, ph) for _, th, ph in VIEWS], dtype=torch.float64).deg2rad()  # (V, 2)
+    theta, phi = angles[:, 0], angles[:, 1]
+    right, up = view_basis(theta, phi)
+    return torch.stack([right, up, view_directions(theta, phi)], dim=1).numpy()
 
 
-def render(mesh: trimesh.Trimesh, theta: float, phi: float, size: tuple[int, int], m_per_px: float) -> np.ndarray:
+def render(mesh: trimesh.Trimesh, basis: np.ndarray, size: tuple[int, int], m_per_px: float) -> np.ndarray:
     """Orthographic grey-shaded image (H, W) uint8 of ``mesh`` centred on its bounding-box centre.
 
-    Painter's algorithm on triangles split to edges <= 0.2 m, so that sorting by mean depth
-    occludes correctly for these convex-part meshes.
+    ``basis``: (3, 3) rows image right, image up, towards the camera. Painter's algorithm: the
+    mesh's triangles (split to edges <= 0.2 m by the caller, so that sorting by mean depth
+    occludes correctly for these convex-part meshes) are drawn far to near.
     """
     h, w = size
-    basis = view_basis(theta, phi)
-    verts, faces = trimesh.remesh.subdivide_to_size(mesh.vertices, mesh.faces, max_edge=0.2, max_iter=20)
-    mesh = trimesh.Trimesh(verts, faces, process=False)
     pts = (mesh.vertices - mesh.bounds.mean(axis=0)) @ basis.T  # (M, 3): right, up, depth
     px = np.stack([w / 2 + pts[:, 0] / m_per_px, h / 2 - pts[:, 1] / m_per_px], axis=1)
     tri_px = np.round(px[mesh.faces] * 16).astype(np.int32)  # (F, 3, 2), 4 fractional bits
@@ -69,13 +66,16 @@ def contact_sheet(vehicles: list[Vehicle], cell: tuple[int, int] = (170, 300), m
     for j, (title, th, ph) in enumerate(VIEWS):
         cv2.putText(header, f"{title} ({th:g}, {ph:g})", (LABEL_W + j * w + 8, 17), cv2.FONT_HERSHEY_SIMPLEX, 0.5, 0, 1)
     rows = [header]
+    bases = view_bases()
     for v in vehicles:
         label = np.full((h, LABEL_W), 255, np.uint8)
         cv2.putText(label, v.name, (6, h // 2 - 6), cv2.FONT_HERSHEY_SIMPLEX, 0.45, 0, 1)
         length, width, height = v.mesh.extents
         cv2.putText(label, f"{v.cls}  {length:.2f}x{width:.2f}x{height:.2f} m", (6, h // 2 + 16),
                     cv2.FONT_HERSHEY_SIMPLEX, 0.4, 80, 1)
-        cells = [render(v.mesh, math.radians(th), math.radians(ph), cell, m_per_px) for _, th, ph in VIEWS]
+        verts, faces = trimesh.remesh.subdivide_to_size(v.mesh.vertices, v.mesh.faces, max_edge=0.2, max_iter=20)
+        fine = trimesh.Trimesh(verts, faces, process=False)
+        cells = [render(fine, basis, cell, m_per_px) for basis in bases]
         row = np.concatenate([label, *cells], axis=1)
         row[-1, :] = 200
         rows.append(row)

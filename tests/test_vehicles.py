@@ -7,17 +7,20 @@ known orientation, and the byte content of the shipped files.
 
 from __future__ import annotations
 
+import dataclasses
 import math
+import re
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
 import numpy as np
 import pytest
 import trimesh
+from matplotlib.path import Path as MplPath
 from scipy.spatial import ConvexHull
 
 from torch_atr.vehicles import CLASS_NAMES, Vehicle, load_catalog, load_heldout_meshes, load_vehicle
-from torch_atr.vehicles.build import build_catalog
+from torch_atr.vehicles.build import _clip, build_catalog
 from torch_atr.vehicles.catalog import CATALOG_DIR, MESHES_ENV, default_meshes_root, read_manifest
 from torch_atr.vehicles.geometry import frustum_xy, prism_xz, signed_area, triangulate, volume
 from torch_atr.vehicles.loader import body_rotation
@@ -91,6 +94,9 @@ def test_unknown_split_raises():
 # ------------------------------------------------------------------------------------------
 @pytest.mark.parametrize("name", sorted(SPECS))
 def test_extents_match_published(by_name, name):
+    # Length and width are built straight from the spec (the x / y placements use them), so they
+    # mostly check the assembly; height (deck + turret or roof) and anything that could stick
+    # out (cupolas, extras, guns, wheels) are what this really tests.
     spec, v = SPECS[name], by_name[name]
     length = spec.gun_length if getattr(spec, "gun_length", None) else spec.length
     lo, hi = v.mesh.bounds
@@ -264,11 +270,68 @@ def test_limit_without_effort_and_velocity_loads_and_poses(tmp_path):
     # Closed form: the top box's vertices rotate about the joint axis through (0.5, 0, 1).
     top = trimesh.creation.box(extents=(2, 0.2, 0.2)).vertices + [1.0, 0.0, 0.0]
     expected = top @ _rot_z(angle).T + [0.5, 0.0, 1.0]
-    offset = rest.mesh.vertices[0] - trimesh.creation.box(extents=(2, 2, 1)).vertices[0]
+    # Rest pose (yaw 0): base x, y, z in [-1, 1] x [-1, 1] x [-0.5, 0.5], top [0.5, 2.5] x
+    # [-0.1, 0.1] x [0.9, 1.1]; centring the box [-1, 2.5] x [-1, 1] x [-0.5, 1.1] shifts by:
+    offset = np.array([-0.75, 0.0, 0.5])
+    base = trimesh.creation.box(extents=(2, 2, 1)).vertices + offset
+    np.testing.assert_allclose(rest.mesh.vertices[:8], base, atol=1e-12)
     np.testing.assert_allclose(posed.mesh.vertices[8:], expected + offset, atol=1e-9)
-    np.testing.assert_allclose(posed.mesh.vertices[:8], rest.mesh.vertices[:8], atol=1e-12)  # the base stays
+    np.testing.assert_allclose(posed.mesh.vertices[:8], base, atol=1e-12)  # the base stays
     with pytest.raises(ValueError, match="outside its limits"):
         rest.posed({"yaw": 2.5})
+
+
+def _arm(tmp_path: Path, joint_type: str, limit: str) -> Path:
+    path = tmp_path / "arm.urdf"
+    text = ARM.replace('type="revolute"', f'type="{joint_type}"')
+    path.write_text(text.replace('<limit lower="-1.0" upper="2.0"/>', limit))
+    return path
+
+
+@pytest.mark.parametrize("joint_type", ["revolute", "prismatic"])
+def test_missing_lower_or_upper_is_zero(tmp_path, joint_type):
+    """URDF specification: <limit> lower / upper default to 0 (not unbounded)."""
+    v = load_vehicle(_arm(tmp_path, joint_type, '<limit upper="0.5"/>'))
+    assert dict(v.joints) == {"yaw": 0.0}
+    v.posed({"yaw": 0.0})
+    with pytest.raises(ValueError, match=r"arm\.urdf: joint 'yaw' = -0\.1 is outside its limits \[0\.0, 0\.5\]"):
+        v.posed({"yaw": -0.1})
+    v = load_vehicle(_arm(tmp_path, joint_type, '<limit lower="-0.5"/>'))
+    with pytest.raises(ValueError, match=r"outside its limits \[-0\.5, 0\.0\]"):
+        v.posed({"yaw": 0.1})
+    with pytest.raises(ValueError, match=rf"arm\.urdf: joint 'yaw': a {joint_type} joint needs a <limit>"):
+        load_vehicle(_arm(tmp_path, joint_type, ""))
+
+
+def test_continuous_joint_is_unbounded(tmp_path):
+    v = load_vehicle(_arm(tmp_path, "continuous", ""), {"yaw": 10.0})
+    top = trimesh.creation.box(extents=(2, 0.2, 0.2)).vertices + [1.0, 0.0, 0.0]
+    expected = top @ _rot_z(10.0).T + [0.5, 0.0, 1.0] + [-0.75, 0.0, 0.5]  # rest-pose centring (test above)
+    np.testing.assert_allclose(v.mesh.vertices[8:], expected, atol=1e-9)
+
+
+def test_lower_above_upper_raises(tmp_path):
+    with pytest.raises(ValueError, match=r"arm\.urdf: joint 'yaw': limit lower 1\.0 is above upper -1\.0"):
+        load_vehicle(_arm(tmp_path, "revolute", '<limit lower="1" upper="-1"/>'))
+
+
+def test_unsupported_joint_type(tmp_path):
+    with pytest.raises(ValueError, match=r"arm\.urdf: joint 'yaw': unsupported joint type 'floating'"):
+        load_vehicle(_arm(tmp_path, "floating", ""))
+
+
+BOX_LINK = '<link name="{}"><visual><geometry><box size="1 1 1"/></geometry></visual></link>'
+FIXED = '<joint name="{}" type="fixed"><parent link="{}"/><child link="{}"/></joint>'
+
+
+def test_links_without_joints_raise(tmp_path):
+    (tmp_path / "two.urdf").write_text(f'<robot name="r">{BOX_LINK.format("a")}{BOX_LINK.format("b")}</robot>')
+    with pytest.raises(ValueError, match=r"two\.urdf: 2 links but no joint"):
+        load_vehicle(tmp_path / "two.urdf")
+    links = "".join(BOX_LINK.format(n) for n in "abc")
+    (tmp_path / "loose.urdf").write_text(f'<robot name="r">{links}{FIXED.format("j", "a", "b")}</robot>')
+    with pytest.raises(ValueError, match=r"loose\.urdf: links \['c'\] are not connected to the root"):
+        load_vehicle(tmp_path / "loose.urdf")
 
 
 def test_visual_rpy_is_fixed_axis_xyz(tmp_path):
@@ -290,6 +353,22 @@ def test_urdf_mesh_visual_is_resolved_beside_the_urdf(tmp_path):
         '<mesh filename="parts/cube.stl" scale="4 2 1.5"/></geometry></visual></link></robot>'
     )
     np.testing.assert_allclose(load_vehicle(tmp_path / "m.urdf").mesh.extents, [4, 2, 1.5], atol=1e-6)
+
+
+def test_package_uri_beside_the_urdf_then_one_folder_up(tmp_path):
+    """package://pkg/rest: ``rest`` beside the URDF wins, else one folder up (pkg/urdf/, pkg/meshes/)."""
+    (tmp_path / "pkg" / "urdf").mkdir(parents=True)
+    (tmp_path / "pkg" / "meshes").mkdir()
+    urdf = tmp_path / "pkg" / "urdf" / "v.urdf"
+    urdf.write_text('<robot name="v"><link name="l"><visual><geometry>'
+                    '<mesh filename="package://pkg/meshes/cube.stl"/></geometry></visual></link></robot>')
+    with pytest.raises(FileNotFoundError, match=r"v\.urdf.*urdf/meshes/cube\.stl or .*pkg/meshes/cube\.stl"):
+        load_vehicle(urdf)
+    trimesh.creation.box(extents=(3, 2, 1)).export(tmp_path / "pkg" / "meshes" / "cube.stl")
+    np.testing.assert_allclose(load_vehicle(urdf).mesh.extents, [3, 2, 1], atol=1e-6)
+    (tmp_path / "pkg" / "urdf" / "meshes").mkdir()
+    trimesh.creation.box(extents=(5, 2, 1)).export(tmp_path / "pkg" / "urdf" / "meshes" / "cube.stl")
+    np.testing.assert_allclose(load_vehicle(urdf).mesh.extents, [5, 2, 1], atol=1e-6)
 
 
 # ------------------------------------------------------------------------------------------
@@ -366,6 +445,30 @@ def test_broken_xml(tmp_path):
         load_vehicle(tmp_path / "broken.urdf")
 
 
+@pytest.mark.parametrize(
+    "geometry,message",
+    [
+        ('<cylinder length="1"/>', "<cylinder> radius: required attribute is missing"),
+        ('<cylinder radius="1"/>', "<cylinder> length: required attribute is missing"),
+        ("<box/>", "<box> size: required attribute is missing"),
+        ("<sphere/>", "<sphere> radius: required attribute is missing"),
+        ('<box size="1 0 1"/>', "<box> size: expected positive numbers; got '1 0 1'"),
+        ('<cylinder radius="-0.2" length="1"/>', "<cylinder> radius: expected positive numbers"),
+        ('<cylinder radius="0.2" length="0"/>', "<cylinder> length: expected positive numbers"),
+        ('<sphere radius="0"/>', "<sphere> radius: expected positive numbers"),
+        ('<mesh filename="c.stl" scale="1 -1 1"/>', "<mesh> scale: expected positive numbers"),
+        ('<box size="1 1"/>', "<box> size: expected 3 finite numbers"),
+    ],
+)
+def test_bad_geometry_attributes_name_file_and_element(tmp_path, geometry, message):
+    trimesh.creation.box().export(tmp_path / "c.stl")
+    (tmp_path / "g.urdf").write_text(
+        f'<robot name="g"><link name="body"><visual><geometry>{geometry}</geometry></visual></link></robot>'
+    )
+    with pytest.raises(ValueError, match=r"g\.urdf: link 'body' visual 0 .*" + re.escape(message)):
+        load_vehicle(tmp_path / "g.urdf")
+
+
 def test_unknown_class(tmp_path):
     trimesh.creation.box().export(tmp_path / "b.obj")
     with pytest.raises(ValueError, match=r"b\.obj.*'truck'"):
@@ -403,6 +506,53 @@ def test_triangulate_non_convex_polygon():
     areas = [signed_area(poly[t]) for t in tri]
     assert min(areas) > 0
     assert sum(areas) == pytest.approx(signed_area(poly))
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2, 3])
+def test_triangulate_star_polygons_cover_each_point_once(seed):
+    """Every sample point inside the polygon (matplotlib) lies in exactly one triangle, outside in none."""
+    rng = np.random.default_rng(seed)
+    n = 12
+    ang = np.sort(rng.uniform(0, 2 * np.pi, n))
+    poly = rng.uniform(0.2, 1.0, (n, 1)) * np.stack([np.cos(ang), np.sin(ang)], 1)  # star-shaped about 0
+    tri = triangulate(poly)
+    assert tri.shape == (n - 2, 3)
+    pts = rng.uniform(-1.0, 1.0, (4000, 2))
+    a, b, c = (poly[tri[:, k]][:, None, :] for k in range(3))  # (n - 2, 1, 2)
+
+    def left_of(p, q):  # (n - 2, P): pts strictly left of the edge p -> q
+        return (q[..., 0] - p[..., 0]) * (pts[:, 1] - p[..., 1]) - (q[..., 1] - p[..., 1]) * (pts[:, 0] - p[..., 0]) > 0
+
+    count = (left_of(a, b) & left_of(b, c) & left_of(c, a)).sum(axis=0)  # (P,)
+    inside = MplPath(poly).contains_points(pts)
+    assert inside.sum() > 500 and (~inside).sum() > 500
+    np.testing.assert_array_equal(count, inside.astype(int))
+
+
+def test_triangulate_rejects_clockwise_and_non_simple():
+    square = np.array([(0, 0), (1, 0), (1, 1), (0, 1)], float)
+    with pytest.raises(ValueError, match="counter-clockwise"):
+        triangulate(square[::-1])
+    crossed = np.array([(0, 0), (3, 0), (3, 3), (2, 3), (2, -1), (1, -1), (1, 3), (0, 3)], float)
+    assert signed_area(crossed) > 0  # passes the winding check, then finds no ear
+    with pytest.raises(ValueError, match="not simple"):
+        triangulate(crossed)
+    with pytest.raises(ValueError, match=r"shape \(n>=3, 2\)"):
+        triangulate(square[:2])
+
+
+@pytest.mark.parametrize("above", [True, False])
+def test_clip_trapezoid(above):
+    """Trapezoid base [0, 4] at z = 0, top [1, 3] at z = 2, cut at z = 1: the cut runs x in [0.5, 3.5]."""
+    trapezoid = [(0.0, 0.0), (4.0, 0.0), (3.0, 2.0), (1.0, 2.0)]
+    out = _clip(trapezoid, 1.0, above=above)
+    if above:
+        expected, area = {(3.5, 1.0), (3.0, 2.0), (1.0, 2.0), (0.5, 1.0)}, (3.0 + 2.0) / 2
+    else:
+        expected, area = {(0.0, 0.0), (4.0, 0.0), (3.5, 1.0), (0.5, 1.0)}, (4.0 + 3.0) / 2
+    assert {(round(x, 12), round(z, 12)) for x, z in out} == expected
+    assert signed_area(np.array(out)) == pytest.approx(area)  # counter-clockwise kept
+    assert _clip(trapezoid, 3.0, above=above) == ([] if above else trapezoid)
 
 
 @pytest.mark.parametrize("seed", [0, 1, 2])
@@ -496,3 +646,17 @@ def test_load_catalog_vehicle_by_name_either_split():
     assert load_catalog_vehicle("m1a2_abrams").cls == "tank"
     with pytest.raises(ValueError, match="Unknown catalog vehicle 'tiger'.*t_72"):
         load_catalog_vehicle("tiger")
+
+
+def test_spec_gun_validation():
+    btr = SPECS["btr_80"]
+    turret = dataclasses.replace(btr.turret, gun=dataclasses.replace(btr.turret.gun, length=None))
+    with pytest.raises(ValueError, match="btr_80: a wheeled vehicle has no gun_length to reach; give turret.gun.length"):
+        dataclasses.replace(btr, turret=turret)
+    with pytest.raises(ValueError, match="m113: gun_length 6.0 needs a turret with a gun; there is none"):
+        dataclasses.replace(SPECS["m113"], turret=None, gun_length=6.0)
+    with pytest.raises(ValueError, match="t_72: give exactly one of gun_length and turret.gun.length"):
+        dataclasses.replace(SPECS["t_72"], gun_length=None)
+    for name in ("btr_80", "toyota_camry"):
+        with pytest.raises(ValueError, match=rf"{name}: wheels \(track 3\.0, tyre"):
+            dataclasses.replace(SPECS[name], track=3.0)

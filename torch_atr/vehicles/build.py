@@ -155,14 +155,22 @@ def _hull_profile(spec: Tracked | Wheeled, rear_low: float, rear_mid: float) -> 
             (L, rear_mid), (L - spec.rear_slope, spec.deck), (spec.glacis, spec.deck)]
 
 
+def _body_x(length: float, overhang: float = 0.0) -> Callable[[float], float]:
+    """s (behind the front) -> body x, the bounding box (``overhang`` of gun ahead of it) centred."""
+    return lambda s: (length - overhang) / 2 - s
+
+
+def _wheels(hull: _Link, spec: Wheeled | Road, axles: Sequence[float], x: Callable[[float], float]) -> None:
+    """A pair of tyres (cylinders on the ground, axis Y) at each axle position s."""
+    for s in axles:
+        for side in (1, -1):
+            hull.cylinder(spec.wheel_d / 2, spec.tyre_w, (x(s), side * spec.track / 2, spec.wheel_d / 2), "y")
+
+
 def _tracked(spec: Tracked) -> tuple[list[_Link], str]:
     """Hull between and over two track runs, road wheels, optional skirts, turret and gun."""
     L, W = spec.length, spec.width
-    overhang = spec.gun_length - L if spec.gun_length is not None else 0.0
-
-    def x(s: float) -> float:  # s behind the hull front -> body x (bounding box centred, gun forward)
-        return (L - overhang) / 2 - s
-
+    x = _body_x(L, spec.gun_length - L if spec.gun_length is not None else 0.0)
     hull = _Link("hull")
     z_top = spec.wheel_d + 0.15  # top run of the track
     z_fender = z_top + 0.03
@@ -193,10 +201,7 @@ def _tracked(spec: Tracked) -> tuple[list[_Link], str]:
 def _wheeled(spec: Wheeled) -> tuple[list[_Link], str]:
     """Narrow lower hull between the wheels, wide upper hull with sloped sides over them."""
     L, W = spec.length, spec.width
-
-    def x(s: float) -> float:  # s behind the front -> body x
-        return L / 2 - s
-
+    x = _body_x(L)
     hull = _Link("hull")
     z_w = spec.wheel_d + 0.05  # widest level, just above the tyres
     profile = [(x(s), z) for s, z in _hull_profile(spec, spec.belly + 0.4, z_w)]
@@ -206,19 +211,14 @@ def _wheeled(spec: Wheeled) -> tuple[list[_Link], str]:
     # Sloped sides: the half-width falls linearly with height, so each cap stays planar.
     widths = [W / 2 - spec.side_slope * (z - z_w) / (spec.deck - z_w) for _, z in upper]
     hull.lofts.append(("upper_hull", prism_xz(upper, widths)))
-    for s in spec.axles:
-        for side in (1, -1):
-            hull.cylinder(spec.wheel_d / 2, spec.tyre_w, (x(s), side * spec.track / 2, spec.wheel_d / 2), "y")
+    _wheels(hull, spec, spec.axles, x)
     return _military(spec, hull, x)
 
 
 def _road(spec: Road) -> tuple[list[_Link], str]:
     """Lower body (side profile), greenhouse with tumblehome, wheels, and a pickup's open bed."""
     L, W, H, sh = spec.length, spec.width, spec.height, spec.shape
-
-    def x(s: float) -> float:  # s behind the front -> body x
-        return L / 2 - s
-
+    x = _body_x(L)
     hull = _Link("hull")
     body = L - spec.bed - 0.03 if spec.bed else L  # a pickup's cab ends where its bed starts
     z0, zn, zb, zd = spec.clearance, sh.nose * H, sh.belt * H, sh.deck * H
@@ -233,9 +233,7 @@ def _road(spec: Road) -> tuple[list[_Link], str]:
     cabin = [(s_ws, zb - 0.02), (sh.roof[0] * body, H), (sh.roof[1] * body, H), (min(s_tail, body), zb - 0.02)]
     w_belt, w_roof = W / 2 - 0.04, sh.roof_w * W / 2
     hull.lofts.append(("greenhouse", prism_xz([(x(s), z) for s, z in cabin], [w_belt, w_roof, w_roof, w_belt])))
-    for s in (spec.front, spec.front + spec.wheelbase):
-        for side in (1, -1):
-            hull.cylinder(spec.wheel_d / 2, spec.tyre_w, (x(s), side * spec.track / 2, spec.wheel_d / 2), "y")
+    _wheels(hull, spec, (spec.front, spec.front + spec.wheelbase), x)
     if spec.bed:
         s0, floor, rail = body + 0.03, spec.wheel_d + 0.08, zb
         mid, length = x((s0 + L) / 2), L - s0

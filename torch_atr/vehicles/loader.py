@@ -5,6 +5,8 @@ ground (x/y centre of the bounding box, z = 0 at the lowest point).
 
 URDF: links carry box / cylinder / sphere / mesh visuals (``<origin xyz rpy>``); joints
 (revolute, continuous, prismatic, fixed) are posed with pytorch-kinematics' forward kinematics.
+Joint limits follow the URDF specification: revolute and prismatic joints need a ``<limit>``
+whose missing ``lower`` / ``upper`` are 0; continuous joints are unbounded.
 Two measured pitfalls of ``pk.build_chain_from_urdf`` are handled here: it raises on a valid
 URDF with a single link and no joint (the lone link's visuals are used directly), and it
 requires ``effort`` and ``velocity`` on every ``<limit>`` (missing ones are filled with 0).
@@ -14,6 +16,7 @@ pytorch-kinematics only supplies the link poses.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass, field
@@ -156,9 +159,15 @@ def load_vehicle(
         cls: one of CLASS_NAMES or "unknown" (the default when None).
         name: defaults to the file stem.
 
+    A URDF ``<mesh filename>`` is read as a path relative to the URDF's folder (or absolute,
+    with or without ``file://``). ``package://pkg/rest`` has no ROS package index to consult:
+    ``rest`` is looked up beside the URDF first, then one folder up (the ROS layout
+    ``pkg/urdf/x.urdf`` with meshes under ``pkg/meshes/``).
+
     Raises:
         FileNotFoundError: the file, or a mesh a URDF references, is missing (message names it).
-        ValueError: broken XML, unreadable or empty mesh, unknown class, bad axes or joints.
+        ValueError: broken XML, a missing or non-positive geometry size, unreadable or empty
+            mesh, unknown class, bad axes, joints or joint limits.
     """
     path = Path(path)
     cls = UNKNOWN if cls is None else cls
@@ -172,8 +181,9 @@ def load_vehicle(
     name = path.stem if name is None else name
     if path.suffix.lower() == ".urdf":
         rig = _load_urdf(path, rotation)
-        rest = _rest_pose(rig.limits)
-        return Vehicle(name, cls, rig.mesh(rest), path, MappingProxyType(rest), rig).posed(joints or {})
+        values = _rest_pose(rig.limits)
+        values.update(_check_joints(rig, joints or {}, path))
+        return Vehicle(name, cls, rig.mesh(values), path, MappingProxyType(values), rig)
     if joints:
         raise ValueError(f"{path} is a plain mesh and has no joints; got {sorted(joints)}")
     mesh = _read_mesh(path, process=True)
@@ -205,8 +215,11 @@ def _read_mesh(path: Path, process: bool) -> trimesh.Trimesh:
     return mesh
 
 
-def _floats(text: str | None, n: int, default: tuple[float, ...], where: str) -> np.ndarray:
+def _floats(text: str | None, n: int, default: tuple[float, ...] | None, where: str) -> np.ndarray:
+    """``n`` finite numbers parsed from ``text``, or ``default`` if ``text`` is None (an error if both are)."""
     if text is None:
+        if default is None:
+            raise ValueError(f"{where}: required attribute is missing")
         return np.array(default, dtype=np.float64)
     try:
         vals = [float(t) for t in text.split()]
@@ -227,13 +240,27 @@ def _origin(elem: ET.Element, where: str) -> np.ndarray:
     return t
 
 
-def _mesh_path(urdf: Path, filename: str) -> Path:
-    if filename.startswith("file://"):
-        filename = filename[len("file://"):]
-    elif filename.startswith("package://"):
-        filename = filename[len("package://"):].partition("/")[2]  # resolved beside the URDF
-    p = Path(filename)
-    return p if p.is_absolute() else urdf.parent / p
+def _positive(g: ET.Element, attr: str, n: int, where: str, default: tuple[float, ...] | None = None) -> np.ndarray:
+    """Attribute ``attr`` of geometry ``g``: ``n`` positive numbers (required without a default)."""
+    what = f"{where} <{g.tag}> {attr}"
+    vals = _floats(g.get(attr), n, default, what)
+    if not (vals > 0).all():
+        raise ValueError(f"{what}: expected positive numbers; got {g.get(attr)!r}")
+    return vals
+
+
+def _mesh_path(urdf: Path, filename: str, where: str) -> Path:
+    """The mesh file a URDF ``filename`` names (resolution rule: :func:`load_vehicle`)."""
+    if filename.startswith("package://"):
+        rest = filename[len("package://"):].partition("/")[2]
+        candidates = [urdf.parent / rest, urdf.parent.parent / rest]
+    else:
+        p = Path(filename.removeprefix("file://"))
+        candidates = [p if p.is_absolute() else urdf.parent / p]
+    for p in candidates:
+        if p.is_file():
+            return p
+    raise FileNotFoundError(f"{where}: mesh file not found: {' or '.join(str(p) for p in candidates)}")
 
 
 def _geometry(geom: ET.Element, urdf: Path, where: str) -> trimesh.Trimesh:
@@ -242,21 +269,17 @@ def _geometry(geom: ET.Element, urdf: Path, where: str) -> trimesh.Trimesh:
         raise ValueError(f"{where}: <geometry> must hold exactly one shape; got {[k.tag for k in kids]}")
     g = kids[0]
     if g.tag == "box":
-        return trimesh.creation.box(extents=_floats(g.get("size"), 3, (), f"{where} box size"))
+        return trimesh.creation.box(extents=_positive(g, "size", 3, where))
     if g.tag == "cylinder":
-        r = _floats(g.get("radius"), 1, (), f"{where} cylinder radius")[0]
-        h = _floats(g.get("length"), 1, (), f"{where} cylinder length")[0]
+        r, h = _positive(g, "radius", 1, where)[0], _positive(g, "length", 1, where)[0]
         return trimesh.creation.cylinder(radius=r, height=h, sections=_CYLINDER_SECTIONS)
     if g.tag == "sphere":
-        return trimesh.creation.icosphere(subdivisions=2, radius=_floats(g.get("radius"), 1, (), f"{where} sphere radius")[0])
+        return trimesh.creation.icosphere(subdivisions=2, radius=_positive(g, "radius", 1, where)[0])
     if g.tag == "mesh":
         if not g.get("filename"):
             raise ValueError(f"{where}: <mesh> without a filename")
-        p = _mesh_path(urdf, g.get("filename"))
-        if not p.is_file():
-            raise FileNotFoundError(f"{where}: mesh file not found: {p}")
-        mesh = _read_mesh(p, process=False)
-        s = _floats(g.get("scale"), 3, (1.0, 1.0, 1.0), f"{where} mesh scale")
+        s = _positive(g, "scale", 3, where, default=(1.0, 1.0, 1.0))
+        mesh = _read_mesh(_mesh_path(urdf, g.get("filename"), where), process=False)
         return trimesh.Trimesh(mesh.vertices * s, mesh.faces, process=False)
     raise ValueError(f"{where}: unsupported geometry <{g.tag}>")
 
@@ -293,9 +316,13 @@ def _load_urdf(path: Path, rotation: np.ndarray) -> _Rig:
             lim.set("effort", lim.get("effort", "0"))
             lim.set("velocity", lim.get("velocity", "0"))
         if j.get("type") in ("revolute", "prismatic"):
-            lo = _floats(None if lim is None else lim.get("lower"), 1, (-math.inf,), f"{where} lower")[0]
-            hi = _floats(None if lim is None else lim.get("upper"), 1, (math.inf,), f"{where} upper")[0]
-            limits[j.get("name")] = (float(lo), float(hi))
+            if lim is None:
+                raise ValueError(f"{where}: a {j.get('type')} joint needs a <limit> (URDF specification)")
+            lo = float(_floats(lim.get("lower"), 1, (0.0,), f"{where} limit lower")[0])  # URDF default 0
+            hi = float(_floats(lim.get("upper"), 1, (0.0,), f"{where} limit upper")[0])
+            if lo > hi:
+                raise ValueError(f"{where}: limit lower {lo} is above upper {hi}")
+            limits[j.get("name")] = (lo, hi)
         elif j.get("type") == "continuous":
             limits[j.get("name")] = (-math.inf, math.inf)
         elif j.get("type") not in ("fixed",):
@@ -316,4 +343,4 @@ def _load_urdf(path: Path, rotation: np.ndarray) -> _Rig:
             raise ValueError(f"{path}: links {sorted(missing)} are not connected to the root")
     rig = _Rig(chain, links[0].get("name"), names, MappingProxyType(limits), tuple(parts), rotation, np.zeros(3))
     v, _ = rig.file_vertices(_rest_pose(limits))
-    return _Rig(chain, rig.root, names, rig.limits, rig.parts, rotation, _centring_offset(v @ rotation.T))
+    return dataclasses.replace(rig, offset=_centring_offset(v @ rotation.T))

@@ -106,6 +106,8 @@ class Tracked:
 
     def __post_init__(self) -> None:
         _check_common(self)
+        if self.turret is None and self.gun_length is not None:
+            raise ValueError(f"{self.name}: gun_length {self.gun_length} needs a turret with a gun; there is none")
         if self.gun_length is not None and self.gun_length <= self.length:
             raise ValueError(f"{self.name}: gun_length {self.gun_length} must exceed the hull length")
         if (self.gun_length is None) == (self.turret is not None and self.turret.gun.length is None):
@@ -139,8 +141,8 @@ class Wheeled:
 
     def __post_init__(self) -> None:
         _check_common(self)
-        if self.track / 2 + self.tyre_w / 2 > self.width / 2 + 1e-9:
-            raise ValueError(f"{self.name}: wheels (track {self.track}, tyre {self.tyre_w}) stick out of width {self.width}")
+        if self.turret is not None and self.turret.gun.length is None:
+            raise ValueError(f"{self.name}: a wheeled vehicle has no gun_length to reach; give turret.gun.length")
 
 
 @dataclass(frozen=True)
@@ -196,8 +198,6 @@ class Road:
         _check_common(self)
         if self.front + self.wheelbase >= self.length:
             raise ValueError(f"{self.name}: front overhang + wheelbase must be shorter than the length")
-        if self.track / 2 + self.tyre_w / 2 > self.width / 2 + 1e-9:
-            raise ValueError(f"{self.name}: wheels (track {self.track}, tyre {self.tyre_w}) stick out of width {self.width}")
         if (self.bed > 0) != (self.cls == "pickup"):
             raise ValueError(f"{self.name}: exactly the pickups have a bed")
 
@@ -210,6 +210,9 @@ def _check_common(spec) -> None:
         raise ValueError(f"{spec.name}: class {spec.cls!r} is not one of {CLASS_NAMES}")
     if not (spec.length > 0 and spec.width > 0 and spec.height > 0):
         raise ValueError(f"{spec.name}: length, width and height must be positive")
+    if isinstance(spec, (Wheeled, Road)) and spec.track / 2 + spec.tyre_w / 2 > spec.width / 2 + 1e-9:
+        raise ValueError(f"{spec.name}: wheels (track {spec.track}, tyre {spec.tyre_w}) "
+                         f"stick out of width {spec.width}")
     turret = getattr(spec, "turret", None)
     if turret is not None and not 0 < turret.nose <= 0.9:
         raise ValueError(f"{spec.name}: turret.nose must be in (0, 0.9]; got {turret.nose}")
