@@ -2,7 +2,9 @@
 
 import json
 import math
+import os
 import re
+import stat
 import types
 
 import numpy as np
@@ -19,6 +21,7 @@ from torch_atr.data import (
     save_sequence,
 )
 from torch_atr.data import sequence as sequence_module
+from torch_atr.data.sequence import parse_spec_options
 
 
 class ListSequence(Sequence):
@@ -98,7 +101,8 @@ def test_truth_csv_is_readable_by_hand(tmp_path):
 
     seq = ListSequence([np.zeros((4, 5), np.uint8)] * 2, [FrameTruth(z=12.5, vehicle="a,b"), None])
     save_sequence(seq, tmp_path / "s", progress=False)
-    rows = list(csv.DictReader(open(tmp_path / "s" / "truth.csv", newline="")))
+    with open(tmp_path / "s" / "truth.csv", newline="") as fh:
+        rows = list(csv.DictReader(fh))
     assert rows[0]["z"] == "12.5" and rows[0]["vehicle"] == "a,b" and rows[0]["x"] == ""
     assert all(v == "" for v in rows[1].values())
 
@@ -114,15 +118,46 @@ def test_no_truth_no_camera(tmp_path):
 def test_save_refuses_non_empty_folder_and_overwrites(tmp_path):
     target = tmp_path / "s"
     target.mkdir()
+    seq = ListSequence([np.full((3, 4), 5, np.uint8)])
+    save_sequence(seq, target, progress=False)  # an empty folder is replaced
     (target / "keep.txt").write_text("x")
     seq = ListSequence([np.full((3, 4), 7, np.uint8)])
-    with pytest.raises(FileExistsError, match=re.escape(str(target))):
+    with pytest.raises(FileExistsError, match=re.escape(f"{target} is not empty; pass overwrite=True")):
         save_sequence(seq, target, progress=False)
-    assert (target / "keep.txt").exists()
+    assert (target / "keep.txt").exists() and open_sequence(str(target)).frame(0)[0, 0] == 5
     save_sequence(seq, target, progress=False, overwrite=True)
     assert not (target / "keep.txt").exists()
     assert open_sequence(str(target)).frame(0)[0, 0] == 7
     assert sorted(p.name for p in tmp_path.iterdir()) == ["s"]
+
+
+@pytest.mark.parametrize("meta", [None, "{not json", '{"format": "something.else"}', "[1]"])
+def test_overwrite_never_replaces_a_foreign_folder(tmp_path, meta):
+    target = tmp_path / "photos"
+    target.mkdir()
+    (target / "holiday.jpg").write_bytes(b"precious")
+    if meta is not None:
+        (target / "meta.json").write_text(meta)
+    seq = ListSequence([np.zeros((3, 4), np.uint8)])
+    with pytest.raises(FileExistsError, match=re.escape(f"{target} is not a sequence folder")):
+        save_sequence(seq, target, progress=False, overwrite=True)
+    assert (target / "holiday.jpg").read_bytes() == b"precious"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["photos"]
+
+
+@pytest.mark.parametrize("umask", [0o022, 0o077, 0o002])
+def test_saved_folder_has_a_plain_folder_mode(tmp_path, umask):
+    """The folder's mode is what os.mkdir gives under the umask (mkdtemp alone gives 0700)."""
+    seq = ListSequence([np.zeros((3, 4), np.uint8)])
+    old = os.umask(umask)
+    try:
+        out = save_sequence(seq, tmp_path / "s", progress=False)
+        (tmp_path / "reference").mkdir()
+    finally:
+        os.umask(old)
+    want = stat.S_IMODE((tmp_path / "reference").stat().st_mode)
+    assert want == 0o777 & ~umask
+    assert stat.S_IMODE(out.stat().st_mode) == want
 
 
 def test_save_crash_leaves_nothing(tmp_path):
@@ -223,10 +258,39 @@ def test_frame_truth_checks_and_equality():
     assert a == FrameTruth(x=1.0, vehicle="T72") and a != FrameTruth(x=1.0)
     assert isinstance(a.x, float) and math.isnan(a.y)
     assert FrameTruth().is_unknown() and not a.is_unknown()
+    assert FrameTruth(u0=np.int64(3), v0=np.float32(0.5)) == FrameTruth(u0=3.0, v0=0.5)
     with pytest.raises(ValueError, match="FrameTruth.z: expected a number; got 'far'"):
         FrameTruth(z="far")
+    for bad in ("12", True, np.bool_(False), None, [1.0]):
+        with pytest.raises(ValueError, match=re.escape(f"FrameTruth.range_m: expected a number; got {bad!r}")):
+            FrameTruth(range_m=bad)
     with pytest.raises(ValueError, match="FrameTruth.vehicle: expected a string"):
         FrameTruth(vehicle=3)
+
+
+def test_all_unknown_truth_is_no_truth(tmp_path):
+    """truth(i) is None both for None and for FrameTruth(), before and after a round trip."""
+    frames = [np.zeros((3, 4), np.uint8)] * 3
+    seq = ListSequence(frames, [FrameTruth(), None, FrameTruth(speed=2.0)])
+    assert [seq.truth(i) for i in range(3)] == [None, None, FrameTruth(speed=2.0)]
+    back = open_sequence(str(save_sequence(seq, tmp_path / "a", progress=False)))
+    assert [back.truth(i) for i in range(3)] == [None, None, FrameTruth(speed=2.0)]
+    only_unknown = ListSequence(frames[:1], [FrameTruth()])
+    out = save_sequence(only_unknown, tmp_path / "b", progress=False)
+    assert not (out / "truth.csv").exists() and open_sequence(str(out)).truth(0) is None
+
+
+def test_parse_spec_options():
+    assert parse_spec_options(" f.arf , calib = c.json,fps=3", ("fps", "calib")) == (
+        "f.arf", {"calib": "c.json", "fps": "3"})
+    assert parse_spec_options("a=1,anything=x", None, has_target=False) == ("", {"a": "1", "anything": "x"})
+    assert parse_spec_options("  ", has_target=False) == ("", {})
+    with pytest.raises(ValueError, match=r"expected key=value; got ''"):
+        parse_spec_options("a=1,,b=2", has_target=False)
+    with pytest.raises(ValueError, match=r"option 'a' given twice"):
+        parse_spec_options("a=1,a=2", has_target=False)
+    with pytest.raises(ValueError, match=r"unknown option 'z'; allowed: a, b"):
+        parse_spec_options("f,z=1", ("b", "a"))
 
 
 def test_open_sequence_errors(tmp_path):

@@ -5,10 +5,12 @@
       meta.json              format, format_version, name, fps, frames, dtype, shape, source
       camera.json            ``Camera.to_dict()``; absent = uncalibrated
       truth.csv              one row per frame, header = FrameTruth fields, empty cell = unknown
-                             (a row of empty cells = no truth for that frame); absent = no truth
+                             (a row of empty cells = no truth for that frame, which is also how
+                             an all-unknown FrameTruth is written); absent = no truth
 
 :func:`save_sequence` writes the folder into a temporary folder beside the target and renames
-it into place at the end, so a crash leaves no half-written sequence. :class:`FolderSequence`
+it into place at the end, so a crash leaves no half-written sequence; it replaces only an empty
+folder or (with ``overwrite=True``) an earlier sequence folder. :class:`FolderSequence`
 reads it lazily: opening checks the file list and parses the small CSV, frames are read on demand.
 """
 
@@ -43,6 +45,13 @@ logger = logging.getLogger(__name__)
 FORMAT = "torch_atr.sequence"
 FORMAT_VERSION = 1
 _FRAME_RE = re.compile(r"\d{6,}\.png")
+FRAME_RULE = "(H, W) uint8/uint16 or (H, W, 3) uint8"
+
+
+def _is_stored_frame(shape: tuple[int, ...], dtype: str) -> bool:
+    """True for a frame shape and dtype name we store: ``FRAME_RULE``."""
+    return (len(shape) == 2 and dtype in ("uint8", "uint16")) or (
+        len(shape) == 3 and shape[2] == 3 and dtype == "uint8")
 
 
 def _frame_filename(i: int) -> str:
@@ -51,17 +60,12 @@ def _frame_filename(i: int) -> str:
 
 
 def _check_frame(name: str, i: int, img, like: np.ndarray | None = None) -> None:
-    """Raise ``ValueError`` unless ``img`` is a frame we store, shaped like ``like`` if given.
-
-    Frames are (H, W) uint8 or uint16, or (H, W, 3) uint8 (RGB).
-    """
+    """Raise ``ValueError`` unless ``img`` is a frame we store (``FRAME_RULE``, colour in RGB
+    order), shaped like ``like`` if given."""
     if not isinstance(img, np.ndarray):
         raise ValueError(f"{name}: frame {i}: expected a numpy array; got {type(img).__name__}")
-    ok = (img.ndim == 2 and img.dtype in (np.uint8, np.uint16)) or (
-        img.ndim == 3 and img.shape[2] == 3 and img.dtype == np.uint8)
-    if not ok:
-        raise ValueError(f"{name}: frame {i}: expected (H, W) uint8/uint16 or (H, W, 3) uint8; "
-                         f"got {img.shape} {img.dtype}")
+    if not _is_stored_frame(img.shape, str(img.dtype)):
+        raise ValueError(f"{name}: frame {i}: expected {FRAME_RULE}; got {img.shape} {img.dtype}")
     if like is not None and (img.shape != like.shape or img.dtype != like.dtype):
         raise ValueError(f"{name}: frame {i} is {img.shape} {img.dtype}; frame 0 was {like.shape} {like.dtype}")
 
@@ -131,11 +135,8 @@ def _read_meta(path: Path) -> dict:
     shape, dtype = meta["shape"], meta["dtype"]
     dims_ok = isinstance(shape, list) and all(isinstance(s, int) and not isinstance(s, bool) and s > 0
                                               for s in shape)
-    valid = dims_ok and (
-        (len(shape) == 2 and dtype in ("uint8", "uint16")) or (len(shape) == 3 and shape[2] == 3 and dtype == "uint8"))
-    if not valid:
-        raise ValueError(f"{path}: shape {shape!r} with dtype {dtype!r} is not a frame we store "
-                         f"([H, W] uint8/uint16 or [H, W, 3] uint8)")
+    if not (dims_ok and _is_stored_frame(tuple(shape), dtype)):
+        raise ValueError(f"{path}: shape {shape!r} with dtype {dtype!r} is not a frame we store ({FRAME_RULE})")
     return meta
 
 
@@ -208,8 +209,11 @@ def save_sequence(seq: Sequence, folder: str | os.PathLike, progress: bool = Tru
                   overwrite: bool = False) -> Path:
     """Write ``seq`` (frames, camera, truth, meta) to ``folder`` in our format; return the folder.
 
-    Refuses an existing non-empty ``folder`` unless ``overwrite=True``. Everything is written
-    into a temporary folder beside ``folder`` and renamed into place at the end.
+    An existing empty ``folder`` is replaced. A non-empty one is refused (``FileExistsError``
+    naming it) unless ``overwrite=True`` and it is a sequence folder (its ``meta.json`` says our
+    format), so no other folder is ever deleted. Everything is written into a temporary folder
+    beside ``folder`` and renamed into place at the end; the folder gets the mode a new folder
+    gets (0o777 less the umask).
     """
     folder = Path(folder)
     n = len(seq)
@@ -218,11 +222,18 @@ def save_sequence(seq: Sequence, folder: str | os.PathLike, progress: bool = Tru
     if folder.exists():
         if not folder.is_dir():
             raise FileExistsError(f"{folder} exists and is not a folder")
-        if any(folder.iterdir()) and not overwrite:
-            raise FileExistsError(f"{folder} is not empty; pass overwrite=True to replace it")
+        if any(folder.iterdir()):
+            if not overwrite:
+                raise FileExistsError(f"{folder} is not empty; pass overwrite=True to replace it")
+            if not _is_sequence_folder(folder):
+                raise FileExistsError(f"{folder} is not a sequence folder (no meta.json with format "
+                                      f"{FORMAT!r}); refusing to replace it even with overwrite=True")
     folder.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{folder.name}.", suffix=".tmp", dir=folder.parent))
     try:
+        umask = os.umask(0)
+        os.umask(umask)
+        os.chmod(tmp, 0o777 & ~umask)  # mkdtemp makes 0700; give the folder a plain folder's mode
         (tmp / "frames").mkdir()
         first = None
         truths = []
@@ -249,6 +260,15 @@ def save_sequence(seq: Sequence, folder: str | os.PathLike, progress: bool = Tru
         raise
     logger.info("saved %d frames of %s to %s", n, seq.name, folder)
     return folder
+
+
+def _is_sequence_folder(folder: Path) -> bool:
+    """True when ``folder/meta.json`` is a JSON object whose format is ours."""
+    try:
+        meta = read_json_object(folder / "meta.json", "")
+    except (OSError, ValueError):
+        return False
+    return meta.get("format") == FORMAT
 
 
 def _swap_in(tmp: Path, folder: Path) -> None:

@@ -12,9 +12,9 @@ layout is detected from the file size and recorded in ``meta["arf_layout"]`` as
 or numbers, e.g. ``TgtType "BTR70"``, ``Range "1000.5"``, ``PixLoc 320 256``,
 ``Time year julian_day hour min sec ms``. A value may also sit on the line after its key. The
 frames are the ``TgtUpd`` blocks of ``Agt -> TgtSect``, in order; a frame's target is its first
-``Tgt``. ``Aspect`` is in degrees, 0 when the target faces the sensor, clockwise; it is kept
-as SENSIAC gives it (in radians) in ``FrameTruth.aspect``, and not converted to METHOD.md's Θ,
-which needs the calibration module.
+``Tgt``. ``Aspect`` is in degrees, 0 when the target faces the sensor, clockwise seen from
+above; it is kept in ``FrameTruth.aspect`` (in radians), which equals θ of METHOD.md's view Θ.
+The elevation φ needs the sensor's calibration and is left unknown.
 
 ``.bbox_met`` per-frame bounding-box metadata, a comma-separated file of 18 columns and no
 header. The only public loader we found (a DSIAC tool on GitHub) names the first eleven
@@ -44,15 +44,8 @@ from typing import Iterable
 import numpy as np
 
 from torch_atr.camera import Camera
-from torch_atr.data.sequence import (
-    FrameTruth,
-    Sequence,
-    load_camera_json,
-    parse_fps,
-    parse_spec_options,
-    register_scheme,
-)
-from torch_atr.io import atomic_path
+from torch_atr.data.sequence import FrameTruth, Sequence, check_fps, parse_reader_spec, register_scheme
+from torch_atr.io import atomic_path, atomic_write_text
 
 logger = logging.getLogger(__name__)
 
@@ -85,8 +78,8 @@ class ArfHeader:
 def read_arf_header(path: str | os.PathLike) -> tuple[ArfHeader, str]:
     """Read and check an ARF header; return it and the layout (``"contiguous"``/``"trailer40"``).
 
-    Raises ``ValueError`` naming the file and byte offset for a bad magic, zero rows, cols or
-    frames, a truncated file, or a size that matches neither layout.
+    Raises ``ValueError`` naming the file and byte offset for a bad magic, an image type other
+    than 16-bit, zero rows, cols or frames, a truncated file, or a size that matches neither layout.
     """
     path = Path(path)
     size = path.stat().st_size
@@ -98,6 +91,9 @@ def read_arf_header(path: str | os.PathLike) -> tuple[ArfHeader, str]:
     h = ArfHeader(*ARF_HEADER.unpack(raw))
     if h.magic != ARF_MAGIC:
         raise ValueError(f"{path}: bad ARF magic 0x{h.magic:08X} at byte offset 0; expected 0x{ARF_MAGIC:08X}")
+    if h.image_type != ARF_IMAGE_TYPE_U16:
+        raise ValueError(f"{path}: ARF image type {h.image_type} (byte offset 16) is not supported; "
+                         f"this reader reads type {ARF_IMAGE_TYPE_U16} (16-bit pixels) only")
     if h.rows == 0 or h.cols == 0:
         raise ValueError(f"{path}: ARF header gives rows={h.rows}, cols={h.cols} (byte offsets 8, 12); "
                          f"a frame needs at least one pixel")
@@ -357,8 +353,7 @@ def write_agt(path: str | os.PathLike, truths: Iterable[FrameTruth | None]) -> N
             lines += ["      Tgt", "      {"] + [f"        {s}" for s in tgt] + ["      }"]
         lines.append("    }")
     lines += ["  }", "}"]
-    with atomic_path(path) as tmp:
-        tmp.write_text("\n".join(lines) + "\n", encoding="utf-8")
+    atomic_write_text("\n".join(lines) + "\n", path)
 
 
 # --------------------------------------------------------------------------------- bbox_met
@@ -447,27 +442,25 @@ class SensiacSequence(Sequence):
     Args:
         arf_path: the ``.arf`` file.
         camera: a calibrated camera (SENSIAC ships none), or None.
-        fps: frame rate; SENSIAC records at 30 Hz and the ARF does not say.
+        fps: frame rate, positive; SENSIAC records at 30 Hz and the ARF does not say.
         agt_path, bbox_met_path: companion files; None = look beside the ARF by stem.
-    Frames are (rows, cols) native uint16, each a fresh copy out of the memory map.
+    Frames are (rows, cols) native uint16, each a fresh copy out of the memory map, which is
+    opened last, once every check has passed.
     """
 
     def __init__(self, arf_path: str | os.PathLike, camera: Camera | None = None, fps: float = SENSIAC_FPS,
                  agt_path: str | os.PathLike | None = None, bbox_met_path: str | os.PathLike | None = None):
         arf = Path(arf_path)
+        self.fps = check_fps(fps, str(arf))
         if not arf.is_file():
             raise FileNotFoundError(f"ARF file not found: {arf}")
         header, layout = read_arf_header(arf)
         logger.info("%s: ARF layout %s, %d frames of %d x %d", arf, layout, header.frames, header.cols, header.rows)
-        stride = header.frame_bytes + (ARF_TRAILER_BYTES if layout == "trailer40" else 0)
-        self._mm: np.memmap | None = np.memmap(arf, dtype=">u2", mode="r", offset=header.offset,
-                                               shape=(header.frames, stride // 2))
-        self._header = header
-        self.name = arf.stem
-        self.fps = float(fps)
         if camera is not None and (camera.height, camera.width) != (header.rows, header.cols):
             raise ValueError(f"{arf}: camera is {camera.width} x {camera.height} px; frames are "
                              f"{header.cols} x {header.rows}")
+        self._header = header
+        self.name = arf.stem
         self.camera = camera
         agt = _companion(arf, agt_path, ".agt", "agt")
         met = _companion(arf, bbox_met_path, ".bbox_met", "metric")
@@ -479,6 +472,9 @@ class SensiacSequence(Sequence):
                      "arf_version": header.version, "arf_image_type": header.image_type,
                      "arf_flags": header.flags, "arf_data_offset": header.offset,
                      "agt_frames": len(agt_truths), "bbox_met_rows": len(met_rows)}
+        stride = header.frame_bytes + (ARF_TRAILER_BYTES if layout == "trailer40" else 0)
+        self._mm: np.memmap | None = np.memmap(arf, dtype=">u2", mode="r", offset=header.offset,
+                                               shape=(header.frames, stride // 2))
 
     def __len__(self) -> int:
         return self._header.frames
@@ -524,10 +520,8 @@ def _merge_truth(n: int, agt: list[FrameTruth | None], met: list[BboxMetRow], so
 
 
 def _open_spec(rest: str) -> SensiacSequence:
-    target, opts = parse_spec_options(rest, ("calib", "fps"))
-    camera = load_camera_json(opts["calib"]) if "calib" in opts else None
-    fps = parse_fps(opts["fps"], f"sensiac:{rest}") if "fps" in opts else SENSIAC_FPS
-    return SensiacSequence(target, camera=camera, fps=fps)
+    target, kwargs, _ = parse_reader_spec("sensiac", rest)
+    return SensiacSequence(target, **kwargs)
 
 
 register_scheme("sensiac", _open_spec)

@@ -23,6 +23,7 @@ import dataclasses
 import importlib
 import json
 import math
+import numbers
 import operator
 import re
 from dataclasses import dataclass
@@ -49,10 +50,14 @@ class FrameTruth:
         u0, v0, u1, v1: bounding box, upper-left (u0, v0) and lower-right (u1, v1) corners, pixels.
         vehicle: vehicle name (e.g. SENSIAC's ``TgtType``); vehicle_class: its class.
         range_m: sensor-to-target range as SENSIAC gives it, metres.
-        aspect: target aspect as SENSIAC gives it (0 = facing the sensor, clockwise), radians.
+        aspect: the target's clockwise rotation seen from above away from facing the sensor
+            (0 = front towards the sensor), radians; equal to θ of METHOD.md's view.
         time_s: time stamp, POSIX seconds (UTC).
 
-    Equality treats NaN as equal to NaN, so a truth read back from disk equals the one written.
+    Numbers must be real numbers (int, float or numpy scalars; not bool, not str) and are stored
+    as float. Equality treats NaN as equal to NaN, so a truth read back from disk equals the one
+    written. An all-unknown truth means the same as no truth: :meth:`Sequence.truth` returns None
+    for it.
     """
 
     x: float = math.nan
@@ -80,11 +85,10 @@ class FrameTruth:
             if f.name in TEXT_FIELDS:
                 if not isinstance(value, str):
                     raise ValueError(f"FrameTruth.{f.name}: expected a string; got {value!r}")
+            elif isinstance(value, numbers.Real) and not isinstance(value, bool):
+                object.__setattr__(self, f.name, float(value))
             else:
-                try:
-                    object.__setattr__(self, f.name, float(value))
-                except (TypeError, ValueError) as exc:
-                    raise ValueError(f"FrameTruth.{f.name}: expected a number; got {value!r}") from exc
+                raise ValueError(f"FrameTruth.{f.name}: expected a number; got {value!r}")
 
     def __eq__(self, other: object) -> bool:
         if not isinstance(other, FrameTruth):
@@ -152,8 +156,10 @@ class Sequence(abc.ABC):
         return self._read_frame(self._index(i))
 
     def truth(self, i: int) -> FrameTruth | None:
-        """Ground truth of frame ``i``, or None where the source has none for it."""
-        return self._truth(self._index(i))
+        """Ground truth of frame ``i``, or None where the source has none for it (an all-unknown
+        FrameTruth counts as none)."""
+        t = self._truth(self._index(i))
+        return None if t is None or t.is_unknown() else t
 
     def __iter__(self) -> Iterator[np.ndarray]:
         for i in range(len(self)):
@@ -212,7 +218,7 @@ def open_sequence(spec: str) -> Sequence:
         scheme, rest = "folder", spec
     else:
         scheme, rest = m.group(1).lower(), m.group(2)
-    if scheme not in _SCHEMES and _SCHEME_RE.fullmatch(scheme):
+    if scheme not in _SCHEMES:
         try:
             importlib.import_module(f"{__package__}.{scheme}")
         except ModuleNotFoundError as exc:
@@ -224,28 +230,44 @@ def open_sequence(spec: str) -> Sequence:
     return _SCHEMES[scheme](rest)
 
 
-def parse_spec_options(spec: str, allowed: tuple[str, ...]) -> tuple[str, dict[str, str]]:
-    """Split ``"TARGET,key=value,..."`` into the target and its options.
+def parse_spec_options(spec: str, allowed: tuple[str, ...] | None = None,
+                       has_target: bool = True) -> tuple[str, dict[str, str]]:
+    """Split ``"TARGET,key=value,..."`` into the target and its options (values stripped).
 
-    Raises ``ValueError`` naming the spec for an empty target, an option without ``=``, a
-    repeated option or one not in ``allowed``.
+    ``allowed``: the option names accepted, or None for any. ``has_target=False`` parses
+    ``"key=value,..."`` (a blank spec: no options) and returns ``""`` as the target. Raises
+    ``ValueError`` naming the spec for an empty target, an option without ``=`` (an empty part
+    included), a repeated option or one not in ``allowed``.
     """
-    target, *parts = spec.split(",")
-    target = target.strip()
-    if not target:
-        raise ValueError(f"Sequence spec {spec!r} names no file")
+    parts = spec.split(",")
+    if has_target:
+        target = parts.pop(0).strip()
+        if not target:
+            raise ValueError(f"Sequence spec {spec!r} names no file")
+    else:
+        target = ""
+        parts = parts if spec.strip() else []
     options: dict[str, str] = {}
     for part in parts:
         key, sep, value = part.partition("=")
         key = key.strip()
         if not sep or not key:
             raise ValueError(f"Sequence spec {spec!r}: expected key=value; got {part!r}")
-        if key not in allowed:
-            raise ValueError(f"Sequence spec {spec!r}: unknown option {key!r}; allowed: {', '.join(allowed)}")
+        if allowed is not None and key not in allowed:
+            raise ValueError(f"Sequence spec {spec!r}: unknown option {key!r}; "
+                             f"allowed: {', '.join(sorted(allowed))}")
         if key in options:
             raise ValueError(f"Sequence spec {spec!r}: option {key!r} given twice")
         options[key] = value.strip()
     return target, options
+
+
+def check_fps(fps, source: str) -> float:
+    """``fps`` as a float after checking it is a positive finite real number (not a bool);
+    ``ValueError`` naming ``source``."""
+    if isinstance(fps, bool) or not isinstance(fps, numbers.Real) or not (math.isfinite(fps) and fps > 0):
+        raise ValueError(f"{source}: fps must be a positive number; got {fps!r}")
+    return float(fps)
 
 
 def parse_fps(value: str, source: str) -> float:
@@ -257,6 +279,22 @@ def parse_fps(value: str, source: str) -> float:
     if not (math.isfinite(fps) and fps > 0):
         raise ValueError(f"{source}: fps must be a positive number; got {value!r}")
     return fps
+
+
+def parse_reader_spec(scheme: str, rest: str, extra: tuple[str, ...] = ()) -> tuple[str, dict, dict[str, str]]:
+    """Split the spec of a file reader taking ``camera=`` and ``fps=`` keywords.
+
+    ``rest`` is ``"FILE[,calib=CAMERA.json][,fps=RATE][,OPTION=VALUE...]"`` with OPTION in
+    ``extra``. Returns the file, the reader's keyword arguments (``camera``: a Camera or None;
+    ``fps``: a float, present only when the spec gives it, so the reader's default applies
+    otherwise) and the ``extra`` options given, as strings. Errors name the spec.
+    """
+    target, options = parse_spec_options(rest, ("calib", "fps") + extra)
+    calib = options.pop("calib", None)
+    kwargs: dict = {"camera": None if calib is None else load_camera_json(calib)}
+    if "fps" in options:
+        kwargs["fps"] = parse_fps(options.pop("fps"), f"{scheme}:{rest}")
+    return target, kwargs, options
 
 
 def read_json_object(path: Path, missing: str) -> dict:

@@ -98,7 +98,7 @@ import trimesh
 from torch_atr._checks import check_shape
 from torch_atr.camera import Camera
 from torch_atr.config import ConfigError, load_config
-from torch_atr.data.sequence import FrameTruth, Sequence, register_scheme
+from torch_atr.data.sequence import FrameTruth, Sequence, parse_spec_options, register_scheme
 from torch_atr.render import VehiclePose, body_to_world, render_mask, view_of_pose
 from torch_atr.vehicles import Vehicle, load_vehicle
 from torch_atr.vehicles import load_catalog_vehicle
@@ -672,16 +672,11 @@ def parse_synthetic_spec(rest: str) -> tuple[str, SceneConfig]:
     ``ValueError`` names the spec and the bad part, key or value.
     """
     where = f"synthetic spec {rest!r}"
-    options: dict[str, str] = {}
-    for part in filter(None, (p.strip() for p in rest.split(","))):
-        key, sep, value = part.partition("=")
-        key = key.strip()
-        key = "range_m" if key == "range" else key
-        if not sep or not key:
-            raise ValueError(f"{where}: expected key=value; got {part!r}")
-        if key in options:
-            raise ValueError(f"{where}: option {key!r} given twice")
-        options[key] = value.strip()
+    _, options = parse_spec_options(rest, has_target=False)
+    if "range" in options:
+        if "range_m" in options:
+            raise ValueError(f"{where}: option 'range_m' given twice (as 'range' and 'range_m')")
+        options["range_m"] = options.pop("range")
     vehicle = options.pop("vehicle", "")
     if not vehicle:
         raise ValueError(f"{where}: missing vehicle=NAME_OR_PATH")

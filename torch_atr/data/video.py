@@ -18,7 +18,7 @@ import cv2
 import numpy as np
 
 from torch_atr.camera import Camera
-from torch_atr.data.sequence import Sequence, load_camera_json, parse_fps, parse_spec_options, register_scheme
+from torch_atr.data.sequence import Sequence, check_fps, parse_reader_spec, register_scheme
 
 logger = logging.getLogger(__name__)
 
@@ -61,8 +61,8 @@ class VideoSequence(Sequence):
     def __init__(self, path: str | os.PathLike, camera: Camera | None = None, color: bool = False,
                  fps: float | None = None):
         self.path = str(path)
-        if fps is not None and not (math.isfinite(fps) and fps > 0):
-            raise ValueError(f"{self.path}: fps must be a positive number; got {fps!r}")
+        if fps is not None:
+            fps = check_fps(fps, self.path)
         self.color = bool(color)
         self.camera = camera
         self._cap = None
@@ -81,26 +81,26 @@ class VideoSequence(Sequence):
                 raise FileNotFoundError(f"No files match the pattern {self.path!r}")
             self.name = p.parent.name or self.path
         elif p.is_file():
-            self._open_video(p)
+            h, w = self._open_video(p)
         else:
             raise FileNotFoundError(f"Video file or image folder not found: {p}")
         if self._files:
             self._n = len(self._files)
             self._first = self._read_image(0)
-            self._shape = self._first.shape
+            h, w = self._first.shape[:2]
             self.fps = math.nan
             self.meta = {"path": self.path, "kind": "images", "color": self.color,
                          "first_file": str(self._files[0]), "last_file": str(self._files[-1])}
         if fps is not None:
-            self.fps = float(fps)
-        h, w = self._shape[:2]
+            self.fps = fps
         if camera is not None and (camera.height, camera.width) != (h, w):
             self.close()
             raise ValueError(f"{self.path}: the camera is {camera.width} x {camera.height} px but the "
                              f"frames are {w} x {h}")
         logger.info("%s: %d frames of %d x %d (%s), fps %s", self.path, self._n, w, h, self.meta["kind"], self.fps)
 
-    def _open_video(self, p: Path) -> None:
+    def _open_video(self, p: Path) -> tuple[int, int]:
+        """Open the video ``p``, set its name, fps, length and meta; return its (height, width)."""
         cap = cv2.VideoCapture(str(p))
         if not cap.isOpened():
             raise ValueError(f"{p}: OpenCV cannot open it as a video")
@@ -112,11 +112,11 @@ class VideoSequence(Sequence):
         rate = cap.get(cv2.CAP_PROP_FPS)
         fourcc = int(cap.get(cv2.CAP_PROP_FOURCC))
         self._cap, self._pos, self._n = cap, 0, n
-        self._shape = (h, w, 3) if self.color else (h, w)
         self.name = p.stem
         self.fps = rate if rate > 0 else math.nan
         self.meta = {"path": self.path, "kind": "video", "color": self.color, "video_fps": rate,
                      "fourcc": "".join(chr((fourcc >> 8 * k) & 0xFF) for k in range(4)).strip("\0")}
+        return h, w
 
     def __len__(self) -> int:
         return self._n
@@ -157,13 +157,11 @@ _FALSE = ("0", "false", "no", "off")
 
 
 def _open_spec(rest: str) -> VideoSequence:
-    target, opts = parse_spec_options(rest, ("calib", "color", "fps"))
+    target, kwargs, opts = parse_reader_spec("video", rest, ("color",))
     color = opts.get("color", "0").lower()
     if color not in _TRUE + _FALSE:
         raise ValueError(f"video:{rest}: color must be one of {'/'.join(_TRUE + _FALSE)}; got {opts['color']!r}")
-    camera = load_camera_json(opts["calib"]) if "calib" in opts else None
-    fps = parse_fps(opts["fps"], f"video:{rest}") if "fps" in opts else None
-    return VideoSequence(target, camera=camera, color=color in _TRUE, fps=fps)
+    return VideoSequence(target, color=color in _TRUE, **kwargs)
 
 
 register_scheme("video", _open_spec)
