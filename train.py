@@ -12,6 +12,7 @@ resolved config and the report.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import logging
 import math
@@ -21,7 +22,7 @@ from pathlib import Path
 import torch
 
 from torch_atr import viz
-from torch_atr.config import config_to_dict, load_config
+from torch_atr.config import load_config
 from torch_atr.evaluation import (fit_alpha, identity_distances, per_class_mean, rbf_mapping_iou,
                                   reconstruction_iou)
 from torch_atr.io import atomic_write_text
@@ -137,7 +138,7 @@ def main(argv: list[str] | None = None) -> dict:
     history = model.width_history
     report["width_tuning_mse"] = {"first": history[0], "last": history[-1]} if history else None
     report["timings_s"] = timings
-    model.save(cfg.checkpoint, extra={"config": config_to_dict(cfg), "report": report})
+    model.save(cfg.checkpoint, extra={"config": dataclasses.asdict(cfg), "report": report})
     atomic_write_text(json.dumps(report, indent=2), Path(cfg.log_dir) / cfg.name / "report.json")
     log.info("wrote %s (%.1f MB); train IoU %.3f, held-out IoU %.3f, identity self-match %s",
              cfg.checkpoint, Path(cfg.checkpoint).stat().st_size / 1e6, report["train_iou"]["all"],

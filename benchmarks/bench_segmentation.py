@@ -22,7 +22,7 @@ import time
 import numpy as np
 import torch
 
-from torch_atr.config import config_to_dict, load_config
+from torch_atr.config import load_config
 from torch_atr.data.synthetic import SceneConfig, SyntheticSequence
 from torch_atr.io import atomic_write_text
 from torch_atr.segmentation import ForegroundSegmenter, SegmentationConfig
@@ -91,7 +91,7 @@ def main() -> None:
              "torch %s, %d threads", sim_fps, scene.width, scene.height, warm_fps, seg_fps, torch.__version__,
              torch.get_num_threads())
     if args.json:
-        out = {"scene": config_to_dict(scene), "segmentation": config_to_dict(seg_cfg), "frames": args.frames,
+        out = {"scene": dataclasses.asdict(scene), "segmentation": dataclasses.asdict(seg_cfg), "frames": args.frames,
                "iou": {v: {f"{r:g}": float(np.mean(row[r]["iou"])) for r in args.ranges}
                        for v, row in results.items()},
                "iou_min": {v: {f"{r:g}": float(np.min(row[r]["iou"])) for r in args.ranges}

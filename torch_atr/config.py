@@ -155,11 +155,6 @@ def load_config(cls: type[T], path: str | Path | None = None, overrides: list[st
         raise
 
 
-def config_to_dict(cfg: Any) -> dict:
-    """A plain dict of a config dataclass (for checkpoints and logs)."""
-    return dataclasses.asdict(cfg)
-
-
 @dataclass(frozen=True)
 class ModelConfig:
     """Fitting the generative model (chapter 4; METHOD.md "Generative model").

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import os
 import pickle
@@ -15,7 +16,7 @@ from tqdm import tqdm
 
 import torch_atr
 from torch_atr._checks import as_float_tensor, check_shape
-from torch_atr.config import ConfigError, ModelConfig, TemplateConfig, config_to_dict
+from torch_atr.config import ConfigError, ModelConfig, TemplateConfig
 from torch_atr.io import atomic_torch_save
 from torch_atr.model.identity import IdentityManifold, dissimilarity, shortest_closed_path
 from torch_atr.model.rbf import RBFViewMapping, ridge_hat
@@ -83,7 +84,7 @@ class GenerativeShapeModel(nn.Module):
         return {"num_centres": self.rbf.num_centres, "num_vehicles": self.core.num_vehicles,
                 "pixel_rank": self.core.pixel_rank, "vehicle_names": list(self.vehicle_names),
                 "vehicle_classes": self.vehicle_classes, "class_names": list(self.class_names),
-                "template": config_to_dict(self.template)}
+                "template": dataclasses.asdict(self.template)}
 
     @classmethod
     def from_model_args(cls, model_args: dict) -> GenerativeShapeModel:
