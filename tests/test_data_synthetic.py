@@ -51,7 +51,8 @@ def test_truth_centre_and_box_are_those_of_the_true_mask(t72):
         mask, t = t72.true_mask(i), t72.truth(i)
         rows, cols = np.nonzero(mask)
         assert mask.sum() > 500
-        assert math.hypot(t.u - cols.mean(), t.v - rows.mean()) <= 1.0
+        assert 0 < rows.min() and rows.max() < mask.shape[0] - 1 and 0 < cols.min() and cols.max() < mask.shape[1] - 1
+        assert (t.u, t.v) == pytest.approx((cols.mean(), rows.mean()), abs=1e-6)  # wholly inside the frame
         assert (t.u0, t.v0, t.u1, t.v1) == (cols.min(), rows.min(), cols.max(), rows.max())
         # The centre lies near the projection of the body origin lifted by half the vehicle's height.
         lifted = torch.tensor([t.x, t.y + t72.vehicle.mesh.extents[2] / 2, t.z])
@@ -135,9 +136,14 @@ def test_background_is_static_and_noise_is_white():
     warm = [w.astype(np.float64) for w in seq.warmup_frames(2)]
     far = ~cv2.dilate(seq.true_mask(1).astype(np.uint8), np.ones((25, 25), np.uint8)).astype(bool)
     for diff in (seq.frame(1) - warm[0], warm[1] - warm[0]):
-        diff = diff[far]
-        assert abs(diff.mean()) < 1.0
-        assert diff.std() == pytest.approx(math.sqrt(2) * seq.cfg.noise_k * 100.0, rel=0.05)  # 100 counts per K
+        assert abs(diff[far].mean()) < 1.0
+        assert diff[far].std() == pytest.approx(math.sqrt(2) * seq.cfg.noise_k * 100.0, rel=0.05)  # 100 counts per K
+        centred = diff - diff[far].mean()
+        for axis in (0, 1):  # lag-1 correlation down the columns and along the rows
+            n = diff.shape[axis] - 1
+            a, b = centred.take(range(n), axis), centred.take(range(1, n + 1), axis)
+            pairs = far.take(range(n), axis) & far.take(range(1, n + 1), axis)
+            assert abs(np.corrcoef(a[pairs], b[pairs])[0, 1]) < 0.05
 
 
 def _contrast(seq: SyntheticSequence, i: int) -> float:
@@ -156,15 +162,34 @@ def test_night_target_is_warmer_and_day_has_less_contrast():
     assert day.cfg.temperatures()["ground_k"] > night.cfg.temperatures()["ground_k"]
 
 
+def test_night_engine_and_exhaust_are_warmer_than_the_body():
+    """Seen from 150 m up (the engine deck in view) driving left at the near point, noise-free."""
+    for name, engine_on_the_right in (("t_72", True), ("ford_f150", False)):  # rear engine, front engine
+        seq = SyntheticSequence(name, SceneConfig(frames=1, start_deg=180.0, camera_height_m=150.0, noise_k=0.0))
+        assert seq.truth(0).heading == pytest.approx(1.5 * math.pi)  # towards −x: the rear is on the right
+        scene, parts = seq.scene(0), seq.part_map(0)
+        body = scene[parts == BODY].mean()
+        for part in (ENGINE_DECK, EXHAUST):
+            assert (parts == part).sum() >= 10
+            assert scene[parts == part].mean() > body + 5.0  # kelvin
+        deck_u, body_u = np.nonzero(parts == ENGINE_DECK)[1].mean(), np.nonzero(parts == BODY)[1].mean()
+        assert (deck_u > body_u) == engine_on_the_right
+
+
 def _fitted_psf_sigma(range_m: float) -> float:
     """PSF σ that best maps the noise-free sharp frame onto the blurred one with scipy's Gaussian."""
     cfg = SceneConfig(frames=1, range_m=range_m, noise_k=0.0)
     blurred = SyntheticSequence("t_72", cfg)
     sharp = SyntheticSequence("t_72", dataclasses.replace(cfg, psf_sigma_px=0.0, psf_sigma_per_km=0.0))
     t = blurred.truth(0)
-    box = (slice(int(t.v0) - 15, int(t.v1) + 16), slice(int(t.u0) - 15, int(t.u1) + 16))
-    a, b = sharp.frame(0).astype(np.float64), blurred.frame(0).astype(np.float64)
     sigmas = np.arange(0.3, 3.0, 0.01)
+    reach = math.ceil(4 * sigmas[-1])  # gaussian_filter's kernel radius (truncate=4) at the largest σ
+    # The target box with a 15 px margin, filtered in a crop wider by the kernel's reach (as the full frame).
+    m = 15 + reach
+    crop = (slice(int(t.v0) - m, int(t.v1) + m + 1), slice(int(t.u0) - m, int(t.u1) + m + 1))
+    a, b = sharp.frame(0)[crop].astype(np.float64), blurred.frame(0)[crop].astype(np.float64)
+    assert a.shape == (t.v1 - t.v0 + 1 + 2 * m, t.u1 - t.u0 + 1 + 2 * m)  # the crop lies inside the frame
+    box = (slice(reach, -reach), slice(reach, -reach))
     errors = [np.square(ndimage.gaussian_filter(a, s)[box] - b[box]).mean() for s in sigmas]
     return float(sigmas[int(np.argmin(errors))])
 
@@ -177,6 +202,34 @@ def test_blur_grows_with_range():
     assert far > near + 0.5
 
 
+def _check_occluder_projection(occluder: np.ndarray, cfg: SceneConfig) -> None:
+    """The occluder's pixels against its wall projected by hand: z = occluder range (by default
+    20 m before the circle's near point), x within occluder_x_m ± width / 2, from the ground line
+    y = −camera_height_m up to a top 0.75 to 1.25 times occluder_height_m above it; camera tilted
+    down by τ (sensor y = cos τ y + sin τ z, depth = −sin τ y + cos τ z)."""
+    z_occ = cfg.range_m - cfg.circle_diameter_m / 2 - 20.0
+    tau = math.atan2(cfg.camera_height_m, cfg.range_m)
+    cx, cy, f = (cfg.width - 1) / 2, (cfg.height - 1) / 2, cfg.focal_px
+
+    def pixel(x: float, height: float) -> tuple[float, float]:
+        y = height - cfg.camera_height_m
+        depth = -math.sin(tau) * y + math.cos(tau) * z_occ
+        return cx + f * x / depth, cy - f * (math.cos(tau) * y + math.sin(tau) * z_occ) / depth
+
+    u_left, v_ground = pixel(cfg.occluder_x_m - cfg.occluder_width_m / 2, 0.0)
+    u_right, _ = pixel(cfg.occluder_x_m + cfg.occluder_width_m / 2, 0.0)
+    v_low_top, v_high_top = pixel(cfg.occluder_x_m, 0.75 * cfg.occluder_height_m)[1], pixel(
+        cfg.occluder_x_m, 1.25 * cfg.occluder_height_m)[1]
+    rows, cols = np.nonzero(occluder)
+    assert abs(cols.min() - u_left) <= 1.0 and abs(cols.max() - u_right) <= 1.0
+    assert np.array_equal(np.unique(cols), np.arange(cols.min(), cols.max() + 1))
+    for u in range(cols.min(), cols.max() + 1):
+        column = np.nonzero(occluder[:, u])[0]
+        assert abs(column.max() - v_ground) <= 1.0  # stands on the ground line
+        assert v_high_top - 1.0 <= column.min() <= v_low_top + 1.0  # its bushy top
+        assert len(column) == column.max() - column.min() + 1  # one solid run
+
+
 def test_occluder_hides_part_of_the_target():
     cfg = SceneConfig(frames=1, start_deg=180.0, occluder_width_m=12.0, occluder_x_m=2.0)
     seq = SyntheticSequence("t_72", cfg)
@@ -184,7 +237,7 @@ def test_occluder_hides_part_of_the_target():
     assert not (visible & ~true).any()
     assert 0.1 * true.sum() < (true & ~visible).sum() < 0.9 * true.sum()
     occluder = seq.occluder_mask()
-    np.testing.assert_array_equal(true & ~visible, true & occluder)
+    _check_occluder_projection(occluder, cfg)
     # The occluder is static scene: it is in the warm-up frames, and the hidden target adds nothing.
     warm = next(seq.warmup_frames(1)).astype(np.float64)
     hidden = occluder & true & ~cv2.dilate(visible.astype(np.uint8), np.ones((9, 9), np.uint8)).astype(bool)

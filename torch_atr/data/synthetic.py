@@ -302,6 +302,12 @@ def visible_faces(uv: torch.Tensor, depth: torch.Tensor, faces: torch.Tensor, he
     equal depth the one of highest index. Cost grows with the summed areas of the triangles'
     pixel bounding boxes.
 
+    Each face's three edge equations, divided by its doubled signed area and by its corners'
+    depths, form one 3 x 3 matrix B: for a pixel centre p = (u, v) relative to the first pixel
+    centre of the face's bounding box, B (u, v, 1) = (w_k / depth_k), k = 0, 1, 2, with w_k the
+    image-plane barycentric weights (all >= 0 inside, for either winding); their sum is
+    1 / depth at p.
+
     Args:
         uv: (M, 2) projected vertices in pixels (u right = column, v down = row).
         depth: (M,) depth of the vertices along the optical axis, positive.
@@ -320,28 +326,33 @@ def visible_faces(uv: torch.Tensor, depth: torch.Tensor, faces: torch.Tensor, he
     H, W = int(height), int(width)
     device = uv.device
     tri = uv.to(torch.float64)[faces]  # (F, 3, 2)
-    inv_z = (1.0 / depth.to(torch.float64))[faces]  # (F, 3)
-    a, b, c = tri.unbind(1)
-    area = (b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0])
-    lo = tri.amin(1).ceil().clamp(min=0)
+    lo = tri.amin(1).ceil().clamp(min=0)  # (F, 2) first pixel centre of the bounding box
     hi = torch.minimum(tri.amax(1).floor(), torch.tensor([W - 1.0, H - 1.0], dtype=torch.float64, device=device))
     n_u = (hi[:, 0] - lo[:, 0] + 1).clamp(min=0).long()
     n_v = (hi[:, 1] - lo[:, 1] + 1).clamp(min=0).long()
-    count = torch.where(area != 0, n_u * n_v, torch.zeros_like(n_u))  # pixel centres in each bounding box
+    # Edge k runs through the other two corners (p0, p1); twice the signed area of (p0, p1, p) is
+    # (p0_v − p1_v) u + (p1_u − p0_u) v + (p0_u p1_v − p1_u p0_v), and the three constants sum to
+    # the face's doubled signed area.
+    q = tri - lo[:, None, :]  # (F, 3, 2) corners relative to the bounding box
+    p0, p1 = q.roll(-1, dims=1), q.roll(-2, dims=1)  # (F, 3, 2) corners k + 1 and k + 2
+    edges = torch.stack([p0[..., 1] - p1[..., 1], p1[..., 0] - p0[..., 0],
+                         p0[..., 0] * p1[..., 1] - p1[..., 0] * p0[..., 1]], dim=2)  # (F, 3, 3)
+    area = edges[:, :, 2].sum(dim=1)  # (F,)
+    flat = area == 0
+    inv_z = (1.0 / depth.to(torch.float64))[faces]  # (F, 3)
+    B = edges * (inv_z / torch.where(flat, 1.0, area)[:, None])[..., None]  # (F, 3, 3)
+    count = torch.where(flat, torch.zeros_like(n_u), n_u * n_v)  # pixel centres in each bounding box
     f = torch.repeat_interleave(torch.arange(len(faces), device=device), count)  # (C,) candidate's face
     k = torch.arange(len(f), device=device) - torch.repeat_interleave(torch.cumsum(count, 0) - count, count)
-    col = lo[f, 0].long() + k % n_u[f]
-    row = lo[f, 1].long() + k // n_u[f]
-    p = torch.stack([col, row], dim=1).to(torch.float64)  # (C, 2)
-
-    def edge(p0: torch.Tensor, p1: torch.Tensor) -> torch.Tensor:  # twice the signed area of (p0, p1, p)
-        return (p1[:, 0] - p0[:, 0]) * (p[:, 1] - p0[:, 1]) - (p1[:, 1] - p0[:, 1]) * (p[:, 0] - p0[:, 0])
-
-    w0 = edge(b[f], c[f]) / area[f]  # image-plane barycentric weights, >= 0 inside for either winding
-    w1 = edge(c[f], a[f]) / area[f]
-    w = torch.stack([w0, w1, 1.0 - w0 - w1], dim=1) * inv_z[f]  # (C, 3): w_k / depth_k
+    n = n_u.index_select(0, f)
+    dv = k // n  # (C,) row and column in the face's bounding box
+    du = k - dv * n
+    p = torch.stack([du, dv, torch.ones_like(du)], dim=1).to(torch.float64)  # (C, 3)
+    w = torch.einsum("cij,cj->ci", B.index_select(0, f), p)  # (C, 3): w_k / depth_k
     inside = (w >= 0).all(dim=1)
-    f, pix, w = f[inside], (row * W + col)[inside], w[inside]
+    f, w = f[inside], w[inside]
+    first = lo[:, 1].long() * W + lo[:, 0].long()  # (F,) flat index of the bounding box's first pixel
+    pix = first.index_select(0, f) + dv[inside] * W + du[inside]
     iz = w.sum(dim=1)  # 1 / depth at the pixel centre
     nearest = torch.full((H * W,), -math.inf, dtype=torch.float64, device=device)
     nearest = nearest.scatter_reduce(0, pix, iz, reduce="amax")
@@ -383,12 +394,11 @@ def _generator(seed: int, stream: int, index: int) -> torch.Generator:
 
 
 def _gaussian_blur(img: np.ndarray, sigma_x: float, sigma_y: float, border: int) -> np.ndarray:
-    """cv2 Gaussian blur with kernels reaching 4 σ; σ = 0 leaves that axis alone."""
-    kx = 2 * math.ceil(_PSF_TRUNCATE * sigma_x) + 1 if sigma_x > 0 else 1
-    ky = 2 * math.ceil(_PSF_TRUNCATE * sigma_y) + 1 if sigma_y > 0 else 1
-    if kx == 1 and ky == 1:
+    """cv2 Gaussian blur with kernels reaching 4 σ; a copy when σ_x = σ_y = 0."""
+    if sigma_x == 0 and sigma_y == 0:
         return img.copy()
-    return cv2.GaussianBlur(img, (kx, ky), sigmaX=max(sigma_x, 1e-9), sigmaY=max(sigma_y, 1e-9), borderType=border)
+    kx, ky = (2 * math.ceil(_PSF_TRUNCATE * sigma) + 1 for sigma in (sigma_x, sigma_y))
+    return cv2.GaussianBlur(img, (kx, ky), sigmaX=sigma_x, sigmaY=sigma_y, borderType=border)
 
 
 @dataclass(frozen=True, eq=False)
@@ -623,20 +633,21 @@ class SyntheticSequence(Sequence):
         i = self._index(i)
         sharp, blurred, occluder = self._static_scene()
         target = self._target(i)
-        cover = self._paste(target, target.cover, np.float32(0))
-        cover[occluder] = 0
         out = blurred.copy()
+        h, w = target.cover.shape
+        window = (slice(target.v0, target.v0 + h), slice(target.u0, target.u0 + w))
+        cover = np.where(occluder[window], np.float32(0), target.cover)
         if not cover.any():
             return out
+        # A pixel shows cover · T_target + (1 - cover) · T_scene, and blur is linear:
+        # blur(scene with target) = blur(scene) + blur(cover · (T_target - T_scene)), zero beyond
+        # the kernel's reach (pad) around the window.
+        diff = np.where(cover > 0, target.radiance - cover * sharp[window], np.float32(0))
         sigma = self.cfg.psf_sigma
         pad = math.ceil(_PSF_TRUNCATE * sigma)
-        rows, cols = np.nonzero(cover)
-        r0, r1 = max(rows.min() - pad, 0), min(rows.max() + pad + 1, self.cfg.height)
-        c0, c1 = max(cols.min() - pad, 0), min(cols.max() + pad + 1, self.cfg.width)
-        radiance = self._paste(target, target.radiance, np.float32(0))
-        # A pixel shows cover · T_target + (1 - cover) · T_scene, and blur is linear:
-        # blur(scene with target) = blur(scene) + blur(cover · (T_target - T_scene)).
-        diff = np.where(cover > 0, radiance - cover * sharp, np.float32(0))[r0:r1, c0:c1]
+        r0, r1 = max(target.v0 - pad, 0), min(target.v0 + h + pad, self.cfg.height)
+        c0, c1 = max(target.u0 - pad, 0), min(target.u0 + w + pad, self.cfg.width)
+        diff = np.pad(diff, ((target.v0 - r0, r1 - target.v0 - h), (target.u0 - c0, c1 - target.u0 - w)))
         out[r0:r1, c0:c1] += _gaussian_blur(diff, sigma, sigma, cv2.BORDER_CONSTANT)
         return out
 
@@ -655,9 +666,9 @@ class SyntheticSequence(Sequence):
         pose = self.pose(i)
         target = self._target(i)
         theta, phi = view_of_pose(pose, self.camera)
-        inside = self._paste(target, target.silhouette, False)
-        rows, cols = np.nonzero(inside)
-        box = (cols.min(), rows.min(), cols.max(), rows.max()) if rows.size else (math.nan,) * 4
+        rows, cols = np.nonzero(target.silhouette)
+        box = ((target.u0 + cols.min(), target.v0 + rows.min(), target.u0 + cols.max(), target.v0 + rows.max())
+               if rows.size else (math.nan,) * 4)
         return FrameTruth(x=pose.x, y=pose.y, z=pose.z, heading=pose.heading, speed=cfg.speed_mps,
                           theta=float(theta), phi=float(phi), u=target.centroid[0], v=target.centroid[1],
                           u0=box[0], v0=box[1], u1=box[2], v1=box[3], vehicle=self.vehicle.name,
