@@ -15,7 +15,8 @@ from torch_atr.config import ConfigError
 from torch_atr.data import FolderSequence, open_sequence, save_sequence
 from torch_atr.data.synthetic import (BODY, ENGINE_DECK, EXHAUST, RUNNING_GEAR, SceneConfig, SyntheticSequence,
                                       demo_sequence, surface_parts, visible_faces)
-from torch_atr.render import VehiclePose, body_to_world, render_mask
+from torch_atr.pose import VehiclePose, body_to_world
+from torch_atr.render import render_mask
 from torch_atr.segmentation import ForegroundSegmenter
 from torch_atr.vehicles.specs import SPLITS
 
@@ -62,7 +63,7 @@ def test_truth_centre_and_box_are_those_of_the_true_mask(t72):
 
 def test_true_mask_is_render_mask_with_the_scene_camera(t72):
     for i in (0, 150):
-        np.testing.assert_array_equal(t72.true_mask(i), render_mask(t72.vehicle, t72.camera, t72.pose(i)))
+        np.testing.assert_array_equal(t72.true_mask(i), render_mask(t72.vehicle, t72.camera, t72.pose(i)).numpy())
     parts = t72.part_map(150)
     np.testing.assert_array_equal(parts >= 0, t72.true_mask(150))
     assert set(np.unique(parts[parts >= 0])) <= {BODY, RUNNING_GEAR, ENGINE_DECK, EXHAUST}

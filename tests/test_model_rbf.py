@@ -7,7 +7,8 @@ import pytest
 import torch
 from scipy.spatial import cKDTree
 
-from torch_atr.model.rbf import RBFViewMapping, rbf_features, ridge_hat, view_vectors
+from torch_atr.model.rbf import RBFViewMapping, rbf_features, ridge_hat
+from torch_atr.pose import view_vectors
 
 
 def _grid(n_theta: int, phis_deg, dtype=torch.float64):
@@ -15,24 +16,6 @@ def _grid(n_theta: int, phis_deg, dtype=torch.float64):
     phi = torch.tensor(phis_deg, dtype=dtype).deg2rad()
     T, P = torch.meshgrid(theta, phi, indexing="ij")
     return T.reshape(-1), P.reshape(-1)
-
-
-def test_view_vectors_axes_and_unit_norm():
-    theta = torch.tensor([0.0, math.pi / 2, math.pi, 0.3], dtype=torch.float64)
-    phi = torch.tensor([0.0, 0.0, 0.0, math.pi / 2], dtype=torch.float64)
-    u = view_vectors(theta, phi)
-    expected = torch.tensor([[1.0, 0, 0], [0, 1.0, 0], [-1.0, 0, 0], [0, 0, 1.0]], dtype=torch.float64)
-    torch.testing.assert_close(u, expected, atol=1e-12, rtol=0)
-    g = torch.Generator().manual_seed(0)
-    u = view_vectors(torch.rand(50, generator=g) * 7, torch.rand(50, generator=g) * 1.5)
-    torch.testing.assert_close(u.norm(dim=1), torch.ones(50))
-
-
-def test_view_vectors_rejects_mismatched_shapes():
-    with pytest.raises(ValueError, match="phi"):
-        view_vectors(torch.zeros(3), torch.zeros(4))
-    with pytest.raises(ValueError, match="theta"):
-        view_vectors(torch.zeros(3, 1), torch.zeros(3))
 
 
 def test_rbf_features_match_brute_force():

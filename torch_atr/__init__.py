@@ -1,7 +1,10 @@
 """torch_atr: joint target tracking and recognition with a shape-based generative model.
 
 The package follows the method of the thesis in ``shared/mission`` (chapters 4-6):
-vehicles -> rendering -> shape encoding -> model (rbf, tensor, identity, generative).
+vehicles -> pose -> rendering -> shape encoding -> model (rbf, tensor, identity, generative).
+
+Rendered silhouettes and model outputs are torch tensors; frames and masks that come from
+OpenCV (sequences, segmentation) are NumPy arrays.
 
 Dimension letters used in every docstring:
 

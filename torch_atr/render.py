@@ -39,30 +39,23 @@ vectorised tensor operations: about 0.3 ms per 64 × 64 template of a 2,840-tria
 one core (``benchmarks/bench_render.py``).
 
 Camera masks. :func:`render_mask` places the body frame in the camera's world frame with
-:func:`body_to_world` and projects the vertices with :meth:`Camera.project` (lens distortion
-included; triangle edges stay straight between projected vertices). Pixel (u, v) centres are
-integers, (0, 0) the top-left pixel. The world frame is sensor-like: x right, y up, z forward.
-That frame is LEFT-handed, so the body -> world matrix of a real (unmirrored) vehicle has
-determinant −1; composed with the y-flip into OpenCV's camera frame it is a proper rotation.
+:func:`~torch_atr.pose.body_to_world` (frames: :mod:`torch_atr.pose`) and projects the vertices
+with :meth:`Camera.project` (lens distortion included; triangle edges stay straight between
+projected vertices). Pixel (u, v) centres are integers, (0, 0) the top-left pixel.
+
+Like every rendered silhouette and model output of the library, both return torch tensors;
+frames and masks that come from OpenCV (sequences, segmentation) are NumPy arrays.
 """
 
 from __future__ import annotations
 
-import math
-from dataclasses import dataclass
-
-import numpy as np
 import torch
 import trimesh
-from pytorch_kinematics.transforms import euler_angles_to_matrix
 
 from torch_atr._checks import as_float_tensor, check_shape
 from torch_atr.camera import Camera
 from torch_atr.config import TemplateConfig
-from torch_atr.model.rbf import view_vectors
-
-# Body axes -> world axes at heading 0: X (forward) -> +z, Y (left) -> -x, Z (up) -> +y.
-_BODY_TO_WORLD_H0 = ((0.0, -1.0, 0.0), (0.0, 0.0, 1.0), (1.0, 0.0, 0.0))
+from torch_atr.pose import VehiclePose, body_to_world, check_sensor_like, view_vectors
 
 # Triangle-views per vectorised batch in render_templates (peak memory ~0.1 GB).
 _TRIANGLES_PER_BATCH = 1 << 19
@@ -241,99 +234,7 @@ def render_templates(vehicle, theta, phi, cfg: TemplateConfig | None = None) -> 
     return torch.cat(out)
 
 
-@dataclass(frozen=True)
-class VehiclePose:
-    """Pose of a vehicle's body frame in the camera's world frame (x right, y up, z forward).
-
-    Each field is a float or a tensor; tensors of shape (N,) describe N poses at once.
-    ``x, y, z``: position of the body origin (footprint centre on the ground), metres.
-    ``heading``: radians from +z towards +x (the vehicle moves along (sin h, 0, cos h)).
-    ``roll``, ``pitch``: radians, right-hand rotations about the body's +X then +Y axes
-    (positive pitch lowers the nose, positive roll lowers the right side); 0 on flat ground.
-    """
-
-    x: float | torch.Tensor
-    y: float | torch.Tensor
-    z: float | torch.Tensor
-    heading: float | torch.Tensor
-    roll: float | torch.Tensor = 0.0
-    pitch: float | torch.Tensor = 0.0
-
-    def stacked(self) -> torch.Tensor:
-        """(..., 6) tensor [x, y, z, heading, roll, pitch], ... = () or (N,); dtype and device of
-        the first floating tensor field, else float64 on the CPU."""
-        names = ("x", "y", "z", "heading", "roll", "pitch")
-        values = [getattr(self, n) for n in names]
-        ref = next((v for v in values if isinstance(v, torch.Tensor) and v.is_floating_point()),
-                   torch.zeros((), dtype=torch.float64))
-        fields = [as_float_tensor(f"pose.{n}", v, like=ref).to(ref) for n, v in zip(names, values)]
-        try:
-            fields = torch.broadcast_tensors(*fields)
-        except RuntimeError as exc:
-            shapes = ", ".join(f"{n}={tuple(f.shape)}" for n, f in zip(names, fields))
-            raise ValueError(f"Expected pose fields of one shape () or (N,); got {shapes}") from exc
-        if fields[0].dim() > 1:
-            raise ValueError(f"Expected pose fields of shape () or (N,); got {tuple(fields[0].shape)}")
-        return torch.stack(fields, dim=-1)
-
-
-def body_to_world(pose: VehiclePose) -> tuple[torch.Tensor, torch.Tensor]:
-    """Rigid map of body coordinates to world coordinates: p_w = R p_b + t.
-
-    R = R_y(h) · A · R_Y(pitch) · R_X(roll), where A maps the body axes to the world axes at
-    heading 0 (X -> +z, Y -> −x, Z -> +y) and R_y(h) turns +z towards +x about the world's up
-    axis. det R = −1 because the world frame (x right, y up, z forward) is left-handed.
-
-    Args:
-        pose: fields of shape () or (N,).
-    Returns:
-        R: (..., 3, 3); t: (..., 3) = (x, y, z); ... is () or (N,).
-    """
-    p = pose.stacked()
-    zero = torch.zeros_like(p[..., 3])
-    yaw = euler_angles_to_matrix(torch.stack([zero, p[..., 3], zero], dim=-1), "XYZ")  # R_y(h)
-    tilt = euler_angles_to_matrix(torch.stack([p[..., 5], p[..., 4], zero], dim=-1), "YXZ")  # R_Y R_X
-    A = torch.tensor(_BODY_TO_WORLD_H0, dtype=p.dtype, device=p.device)
-    return yaw @ A @ tilt, p[..., :3]
-
-
-def _check_sensor_like(camera: Camera) -> None:
-    """VehiclePose's world frame is sensor-like (left-handed), so the camera's R must be a rotation."""
-    det = float(torch.linalg.det(camera.R.double()))
-    if det < 0:
-        raise ValueError(f"Expected a camera whose world frame is sensor-like (x right, y up, z forward; "
-                         f"det R = +1); got det R = {det:.3f}, a right-handed world such as from_opencv's")
-
-
-def view_of_pose(pose: VehiclePose, camera: Camera) -> tuple[torch.Tensor, torch.Tensor]:
-    """The view Θ = (θ, φ) under which ``camera`` sees a vehicle at ``pose`` (METHOD.md).
-
-    Θ is the direction from the body origin to the camera centre, in the body frame:
-    θ = atan2(d_Y, d_X) wrapped to [0, 2π) (0 sees the front, π/2 the left side, π the rear),
-    φ = atan2(d_Z, ‖(d_X, d_Y)‖) in [−π/2, π/2] (positive: camera above; not clamped).
-
-    Args:
-        pose: fields of shape () or (N,) (e.g. positions (N, 3) and headings (N,) of particles).
-        camera: its centre in the world frame is −Rᵀ t; its world frame must be sensor-like.
-    Returns:
-        theta, phi: (...,) radians, shape and dtype of the pose fields.
-
-    Example: particles with positions ``pos`` (N, 3) and headings ``h`` (N,):
-    ``view_of_pose(VehiclePose(pos[:, 0], pos[:, 1], pos[:, 2], h), camera)``.
-    """
-    _check_sensor_like(camera)
-    R, t = body_to_world(pose)
-    cam_R, cam_t = camera.R.to(t), camera.t.to(t)
-    centre = -(cam_R.T @ cam_t)  # camera centre in the world frame
-    d = ((centre - t).unsqueeze(-1) * R).sum(dim=-2)  # Rᵀ (c − t): (..., 3) in the body frame
-    two_pi = 2 * math.pi
-    theta = torch.remainder(torch.atan2(d[..., 1], d[..., 0]), two_pi)
-    theta = torch.where(theta >= two_pi, torch.zeros_like(theta), theta)
-    phi = torch.atan2(d[..., 2], torch.hypot(d[..., 0], d[..., 1]))
-    return theta, phi
-
-
-def render_mask(vehicle, camera: Camera, pose: VehiclePose) -> np.ndarray:
+def render_mask(vehicle, camera: Camera, pose: VehiclePose) -> torch.Tensor:
     """Perspective silhouette of a vehicle seen by a pinhole camera.
 
     Pixel (v, u) is set when its centre lies inside a projected triangle. Triangles with a
@@ -342,12 +243,12 @@ def render_mask(vehicle, camera: Camera, pose: VehiclePose) -> np.ndarray:
     Args:
         vehicle: a Vehicle (its ``.mesh``) or a ``trimesh.Trimesh`` in the body frame.
         camera: intrinsics, distortion and world -> sensor pose (a sensor-like world frame).
-        pose: one pose (scalar fields) in the camera's world frame.
+        pose: one pose of the body-frame origin (scalar fields) in the camera's world frame.
     Returns:
-        (camera.height, camera.width) bool array.
+        (camera.height, camera.width) bool tensor on the camera's device.
     """
     verts, faces, _ = _mesh_arrays(vehicle)
-    _check_sensor_like(camera)
+    check_sensor_like(camera)
     R, t = body_to_world(pose)
     if t.dim() != 1:
         raise ValueError(f"Expected one pose (scalar fields); got fields of shape {tuple(t.shape[:-1])}")
@@ -355,4 +256,4 @@ def render_mask(vehicle, camera: Camera, pose: VehiclePose) -> np.ndarray:
     uv, _ = camera.project(verts @ R.to(verts).T + t.to(verts))  # (M, 2), NaN behind the camera
     uv = uv.unsqueeze(0)  # (1, M, 2)
     faces = faces.to(uv.device)
-    return _fill(uv, faces, _orientation(uv, faces), camera.height, camera.width)[0].cpu().numpy()
+    return _fill(uv, faces, _orientation(uv, faces), camera.height, camera.width)[0]

@@ -9,7 +9,7 @@ ground), 640 x 512 pixels, focal length ``focal_px`` (10,000 px: a 7 m vehicle s
 
 World frame. The camera's world frame is sensor-like and ground-levelled: origin at the camera
 centre, x right (horizontal), y up (vertical), z forward (horizontal, along the camera's
-azimuth); metres. It is left-handed like the sensor frame (render.py). The ground is the plane
+azimuth); metres. It is left-handed like the sensor frame (:mod:`torch_atr.pose`). The ground is the plane
 y = −camera_height_m. The camera's rotation world -> sensor is the proper rotation (det +1)
 
     R = [[1, 0, 0], [0, cos τ, sin τ], [0, −sin τ, cos τ]],   t = 0,
@@ -99,7 +99,8 @@ from torch_atr._checks import check_shape
 from torch_atr.camera import Camera
 from torch_atr.config import ConfigError, load_config
 from torch_atr.data.sequence import FrameTruth, Sequence, parse_spec_options, register_scheme
-from torch_atr.render import VehiclePose, body_to_world, render_mask, view_of_pose
+from torch_atr.pose import VehiclePose, body_to_world, view_of_pose
+from torch_atr.render import render_mask
 from torch_atr.vehicles import Vehicle, load_vehicle
 from torch_atr.vehicles import load_catalog_vehicle
 
@@ -487,7 +488,7 @@ class SyntheticSequence(Sequence):
         u0, v0 = (int(math.floor(float(x))) for x in uv.amin(0))
         u1, v1 = (int(math.ceil(float(x))) for x in uv.amax(0))
         window = Camera(cam.fx, cam.fy, cam.cx - u0, cam.cy - v0, u1 - u0 + 1, v1 - v0 + 1, R=cam.R)
-        silhouette = render_mask(vehicle, window, pose)  # complete, for the centroid
+        silhouette = render_mask(vehicle, window, pose).numpy()  # complete, for the centroid
         rows, cols = np.nonzero(silhouette)
         centroid = (u0 + float(cols.mean()), v0 + float(rows.mean())) if rows.size else (math.nan, math.nan)
         # The rest only inside the frame: the window clipped to it (possibly empty).

@@ -7,11 +7,11 @@ and :class:`GenerativeShapeModel` ties them together with the vehicle metadata a
 
 from torch_atr.model.generative import GenerativeShapeModel, fine_tune_widths, load_checkpoint
 from torch_atr.model.identity import IdentityManifold, dissimilarity, shortest_closed_path
-from torch_atr.model.rbf import RBFViewMapping, rbf_features, ridge_hat, view_vectors
+from torch_atr.model.rbf import RBFViewMapping, rbf_features, ridge_hat
 from torch_atr.model.tensor import TensorCore, mode_basis, mode_product, unfold
 
 __all__ = [
     "GenerativeShapeModel", "IdentityManifold", "RBFViewMapping", "TensorCore", "dissimilarity",
     "fine_tune_widths", "load_checkpoint", "mode_basis", "mode_product", "rbf_features", "ridge_hat",
-    "shortest_closed_path", "unfold", "view_vectors",
+    "shortest_closed_path", "unfold",
 ]

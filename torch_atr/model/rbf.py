@@ -11,18 +11,7 @@ import torch
 from torch import nn
 
 from torch_atr._checks import as_float_tensor, check_shape
-
-
-def view_vectors(theta: torch.Tensor, phi: torch.Tensor) -> torch.Tensor:
-    """Unit view vectors u(θ, φ) = (cos φ cos θ, cos φ sin θ, sin φ) in the vehicle body frame.
-
-    theta: (N,) azimuth from the vehicle's front, radians; phi: (N,) elevation, radians.
-    Returns (N, 3).
-    """
-    check_shape("theta", theta, ("N",))
-    check_shape("phi", phi, (theta.shape[0],))
-    cos_phi = torch.cos(phi)
-    return torch.stack((cos_phi * torch.cos(theta), cos_phi * torch.sin(theta), torch.sin(phi)), dim=-1)
+from torch_atr.pose import view_vectors
 
 
 def rbf_features(u: torch.Tensor, centres_u: torch.Tensor, widths: torch.Tensor) -> torch.Tensor:
