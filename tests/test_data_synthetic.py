@@ -55,10 +55,12 @@ def test_truth_centre_and_box_are_those_of_the_true_mask(t72):
         assert 0 < rows.min() and rows.max() < mask.shape[0] - 1 and 0 < cols.min() and cols.max() < mask.shape[1] - 1
         assert (t.u, t.v) == pytest.approx((cols.mean(), rows.mean()), abs=1e-6)  # wholly inside the frame
         assert (t.u0, t.v0, t.u1, t.v1) == (cols.min(), rows.min(), cols.max(), rows.max())
-        # The centre lies near the projection of the body origin lifted by half the vehicle's height.
-        lifted = torch.tensor([t.x, t.y + t72.vehicle.mesh.extents[2] / 2, t.z])
-        uv, _ = t72.camera.project(lifted)
-        assert abs(float(uv[1]) - t.v) < 3.0
+        # The truth position is the bounding-box centre: the body origin (footprint centre on
+        # the ground) lifted by half the vehicle's height; its projection is near the centroid.
+        origin = t72.pose(i)
+        assert (t.x, t.y, t.z) == pytest.approx((origin.x, origin.y + t72.vehicle.mesh.extents[2] / 2, origin.z))
+        uv, _ = t72.camera.project(torch.tensor([t.x, t.y, t.z]))
+        assert abs(float(uv[1]) - t.v) < 3.0  # (not u: a forward gun moves the box centre off the centroid)
 
 
 def test_true_mask_is_render_mask_with_the_scene_camera(t72):
@@ -75,7 +77,7 @@ def test_positions_speed_and_heading_follow_the_circle():
     truths = [seq.truth(i) for i in range(len(seq))]
     pos = np.array([[t.x, t.y, t.z] for t in truths])
     np.testing.assert_allclose(np.hypot(pos[:, 0], pos[:, 2] - cfg.range_m), cfg.circle_diameter_m / 2, atol=1e-9)
-    np.testing.assert_allclose(pos[:, 1], -cfg.camera_height_m)
+    np.testing.assert_allclose(pos[:, 1], -cfg.camera_height_m + seq.vehicle.mesh.extents[2] / 2)
     step = pos[2:] - pos[:-2]  # central differences over 2 frames
     np.testing.assert_allclose(np.linalg.norm(step, axis=1) * cfg.fps / 2, cfg.speed_mps, rtol=1e-3)
     for t, d in zip(truths[1:-1], step):
@@ -99,7 +101,8 @@ def test_view_angles_match_the_geometry():
     # Crossing to the right at the near point (counter-clockwise): the right side, θ = 3π/2.
     right = SyntheticSequence("bmp_2", dataclasses.replace(cfg, frames=1, start_deg=180.0, clockwise=False)).truth(0)
     assert abs(_wrap(right.theta - 1.5 * math.pi)) < 1e-9 and abs(_wrap(right.heading - math.pi / 2)) < 1e-9
-    assert right.phi == pytest.approx(math.atan2(cfg.camera_height_m, cfg.range_m - 50.0), abs=1e-9)
+    centre_height = SyntheticSequence("bmp_2", cfg).vehicle.mesh.extents[2] / 2
+    assert right.phi == pytest.approx(math.atan2(cfg.camera_height_m - centre_height, cfg.range_m - 50.0), abs=1e-9)
 
 
 def test_apparent_length_is_focal_times_length_over_range():

@@ -42,8 +42,11 @@ class FrameTruth:
     """Ground truth of one frame; NaN (or ``""`` for names) where unknown.
 
     Attributes:
-        x, y, z: target position in the sensor frame (x right, y up, z forward), metres.
-        heading: direction of travel from +z towards +x, radians (METHOD.md).
+        x, y, z: the target's centre (the centre of its 3D bounding box) in the camera's world
+            frame, metres: sensor-centred and ground-levelled (x right, y up, z forward
+            horizontally; :mod:`torch_atr.pose`), the frame of the tracker's state. It is the
+            sensor frame when the camera's rotation R is the identity.
+        heading: direction of travel from +z towards +x in that frame, radians (METHOD.md).
         speed: metres per second.
         theta, phi: view Θ = (θ, φ) of the target, radians (METHOD.md).
         u, v: target centre in pixels (u right, v down).

@@ -65,13 +65,15 @@ its own generator seeded from (seed, stream, i), so random access equals sequent
 :meth:`SyntheticSequence.warmup_frames` gives target-free frames of the same noise process (on
 another stream) for learning the background.
 
-Ground truth (:class:`~torch_atr.data.sequence.FrameTruth`), exact per frame: x, y, z, heading
-and speed of the body origin in the world frame above; θ, φ from
-:func:`~torch_atr.render.view_of_pose`; u, v the centroid of the pixel centres of the complete
+Ground truth (:class:`~torch_atr.data.sequence.FrameTruth`), exact per frame: x, y, z of the
+vehicle's centre (the centre of its rest-pose 3D bounding box, a fixed point of the body: the
+point templates are centred on and the tracker's state follows), heading and speed, all in the
+world frame above; θ, φ the view from that centre (:func:`~torch_atr.pose.view_of_pose`); u, v
+the centroid of the pixel centres of the complete
 silhouette (:meth:`SyntheticSequence.true_mask` when the target is inside the frame; parts
 outside the frame count too); u0, v0, u1, v1 the first and last column and row of the true
 mask inside the frame (NaN when it is empty); range_m the slant range from the camera centre to
-the centre of the vehicle's 3D bounding box; aspect = θ (the vehicle's clockwise turn, seen
+the vehicle's centre; aspect = θ (the vehicle's clockwise turn, seen
 from above, away from facing the sensor, SENSIAC's convention); time_s = i / fps.
 
 Spec: ``open_sequence("synthetic:vehicle=NAME_OR_PATH,range=2000,frames=300,seed=0,...")``,
@@ -413,7 +415,6 @@ class _Target:
     cover: np.ndarray  # (h, w) float32 fraction of the pixel's sub-samples on the target
     radiance: np.ndarray  # (h, w) float32 Σ apparent temperature over the target's sub-samples / sub-samples
     centroid: tuple[float, float]  # (u, v) of the complete silhouette's pixel centres, in or out of the frame
-    bbox_centre: np.ndarray  # (3,) world position of the 3D bounding-box centre
 
 
 class SyntheticSequence(Sequence):
@@ -466,6 +467,12 @@ class SyntheticSequence(Sequence):
         heading = 0.0 if heading >= 2 * math.pi else heading
         return VehiclePose(r * math.sin(a), -cfg.camera_height_m, cfg.range_m + r * math.cos(a), heading)
 
+    def centre(self, i: int) -> np.ndarray:
+        """(3,) the vehicle's centre in frame ``i`` (world frame, metres): the centre of the rest
+        pose's 3D bounding box, carried by the pose (what the truth's x, y, z report)."""
+        R, t = body_to_world(self.pose(i))
+        return (R @ torch.as_tensor(self.vehicle.mesh.bounds.mean(axis=0)) + t).numpy()
+
     def _posed_vehicle(self, i: int) -> Vehicle:
         """The vehicle of frame i, its turret turned by the sweep."""
         if not self._sweep:
@@ -495,11 +502,10 @@ class SyntheticSequence(Sequence):
         fu0, fv0 = min(max(u0, 0), cam.width), min(max(v0, 0), cam.height)
         fu1, fv1 = max(min(u1 + 1, cam.width), fu0), max(min(v1 + 1, cam.height), fv0)
         silhouette = silhouette[fv0 - v0:fv1 - v0, fu0 - u0:fu1 - u0]
-        bbox_centre = (torch.as_tensor(mesh.bounds.mean(axis=0)) @ R.T + t).numpy()
         cover, radiance, centre_parts = self._radiance(vehicle, uv - torch.tensor([fu0, fv0]), depth,
-                                                       silhouette.shape, float(np.linalg.norm(bbox_centre)))
+                                                       silhouette.shape, float(np.linalg.norm(self.centre(i))))
         parts = np.where(silhouette, np.where(centre_parts >= 0, centre_parts, BODY), -1)
-        target = _Target(fu0, fv0, silhouette, parts, cover, radiance, centroid, bbox_centre)
+        target = _Target(fu0, fv0, silhouette, parts, cover, radiance, centroid)
         self._cached = (i, target)
         return target
 
@@ -665,15 +671,16 @@ class SyntheticSequence(Sequence):
     def _truth(self, i: int) -> FrameTruth:
         cfg = self.cfg
         pose = self.pose(i)
+        x, y, z = self.centre(i).tolist()
         target = self._target(i)
-        theta, phi = view_of_pose(pose, self.camera)
+        theta, phi = view_of_pose(VehiclePose(x, y, z, pose.heading), self.camera)
         rows, cols = np.nonzero(target.silhouette)
         box = ((target.u0 + cols.min(), target.v0 + rows.min(), target.u0 + cols.max(), target.v0 + rows.max())
                if rows.size else (math.nan,) * 4)
-        return FrameTruth(x=pose.x, y=pose.y, z=pose.z, heading=pose.heading, speed=cfg.speed_mps,
+        return FrameTruth(x=x, y=y, z=z, heading=pose.heading, speed=cfg.speed_mps,
                           theta=float(theta), phi=float(phi), u=target.centroid[0], v=target.centroid[1],
                           u0=box[0], v0=box[1], u1=box[2], v1=box[3], vehicle=self.vehicle.name,
-                          vehicle_class=self.vehicle.cls, range_m=float(np.linalg.norm(target.bbox_centre)),
+                          vehicle_class=self.vehicle.cls, range_m=math.hypot(x, y, z),
                           aspect=float(theta), time_s=i / cfg.fps)
 
 
