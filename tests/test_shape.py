@@ -5,7 +5,7 @@ import pytest
 import torch
 from scipy import ndimage
 
-from torch_atr.shape import dice, iou, signed_distance, silhouette
+from torch_atr.shape import clip_distance, dice, iou, signed_distance, signed_distance_px, silhouette
 
 
 def _blobs(rng: np.random.Generator, n: int, h: int, w: int) -> np.ndarray:
@@ -45,6 +45,30 @@ def test_signed_distance_values_and_single_mask():
     assert got[1, 4] == pytest.approx(-1.0, abs=1e-5)
     assert got[0, 0] == pytest.approx(-2 * np.sqrt(2), abs=1e-4)
     assert (np.abs(got) >= 1 - 1e-6).all()
+
+
+def test_signed_distance_px_is_unclipped_and_finite():
+    masks = _blobs(np.random.default_rng(2), 4, 30, 50)
+    got = signed_distance_px(torch.from_numpy(masks))
+    ref = np.stack([ndimage.distance_transform_edt(m) - ndimage.distance_transform_edt(~m) for m in masks])
+    assert np.abs(ref).max() > 6  # beyond any template clip
+    np.testing.assert_allclose(got.numpy(), ref, atol=1e-4, rtol=0)
+    none = signed_distance_px(torch.zeros(2, 30, 50, dtype=torch.bool))
+    assert (none == -80).all()  # −(H + W): finite, beyond any in-image distance
+    assert (signed_distance_px(np.ones((30, 50), dtype=bool)) == 80).all()
+
+
+def test_clip_distance_per_batch_tau_against_numpy():
+    d = torch.linspace(-20, 20, 41).expand(3, 2, 41).contiguous()
+    tau = torch.tensor([1.0, 4.0, 9.5]).reshape(3, 1, 1)
+    got = clip_distance(d, tau)
+    want = np.clip(d.numpy(), -tau.numpy(), tau.numpy()) / tau.numpy()
+    np.testing.assert_allclose(got.numpy(), want, rtol=1e-7)
+    assert clip_distance(d.double(), 2.0).dtype == torch.float64
+    with pytest.raises(ValueError, match="tau_px > 0"):
+        clip_distance(d, torch.tensor([1.0, 0.0, 2.0]).reshape(3, 1, 1))
+    with pytest.raises(ValueError, match="floating tensor"):
+        clip_distance(torch.zeros(2, 2, dtype=torch.long), 1.0)
 
 
 def test_signed_distance_empty_and_full_masks():

@@ -1,7 +1,10 @@
 """Shape encoding of silhouettes (METHOD.md, "Templates"): clipped signed distance and overlaps.
 
 The encoding of a binary silhouette is its signed Euclidean distance transform in pixels,
-positive inside, clipped to [−τ, τ] and divided by τ; a reconstruction's silhouette is y > 0.
+positive inside (:func:`signed_distance_px`), clipped to [−τ, τ] and divided by τ
+(:func:`clip_distance`); a reconstruction's silhouette is y > 0. The two steps are separate
+because the tracker measures distances once per frame in image pixels and rescales them to
+template pixels per particle before clipping.
 """
 
 from __future__ import annotations
@@ -22,34 +25,67 @@ def _as_masks(name: str, mask) -> torch.Tensor:
     return mask
 
 
-def signed_distance(mask, tau_px: float) -> torch.Tensor:
-    """Clipped signed Euclidean distance transform, in units of τ.
+def signed_distance_px(mask) -> torch.Tensor:
+    """Signed Euclidean distance transform in pixels, unclipped, positive inside.
 
-    Inside pixels get the distance (in pixels) to the nearest outside pixel centre, outside
-    pixels minus the distance to the nearest inside pixel centre (so |d| >= 1 everywhere);
-    then d is clipped to [−τ, τ] and divided by τ. An all-empty mask gives −1, an all-full one +1.
+    Inside pixels get the distance to the nearest outside pixel centre, outside pixels minus the
+    distance to the nearest inside pixel centre (so |d| >= 1 everywhere). A mask without a
+    boundary (all empty or all full) has no finite distance and gets ∓(H + W), more than any
+    distance inside an H × W image. Exact (OpenCV's ``DIST_MASK_PRECISE``), one call per mask.
 
     Args:
         mask: (..., H, W) bool, e.g. (H, W) or (N, H, W); a tensor or an array.
-        tau_px: τ > 0, the clip distance in pixels.
     Returns:
-        (..., H, W) float32 on the CPU, values in [−1, 1].
+        (..., H, W) float32 on ``mask``'s device (the CPU for an array).
     """
-    if not tau_px > 0:
-        raise ValueError(f"Expected tau_px > 0; got {tau_px}")
     mask = _as_masks("mask", mask)
-    flat = mask.detach().cpu().reshape(-1, *mask.shape[-2:]).numpy().astype(np.uint8)  # (N, H, W)
+    H, W = mask.shape[-2:]
+    flat = mask.detach().cpu().reshape(-1, H, W).numpy().astype(np.uint8)  # (N, H, W)
     dist = np.empty(flat.shape, dtype=np.float32)
     for n, inside in enumerate(flat):
-        if inside.all() or not inside.any():  # no boundary: saturate
-            dist[n] = tau_px if inside.all() else -tau_px
+        if inside.all() or not inside.any():  # no boundary
+            dist[n] = H + W if inside.all() else -(H + W)
             continue
         # distanceTransform: distance of every non-zero pixel to the nearest zero pixel.
         d_in = cv2.distanceTransform(inside, cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
         d_out = cv2.distanceTransform(1 - inside, cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
         dist[n] = d_in - d_out
-    dist = np.clip(dist, -tau_px, tau_px) / np.float32(tau_px)
-    return torch.from_numpy(dist).reshape(mask.shape)
+    return torch.from_numpy(dist).reshape(mask.shape).to(mask.device)
+
+
+def clip_distance(d: torch.Tensor, tau_px: float | torch.Tensor) -> torch.Tensor:
+    """The template encoding of a signed distance: clip to [−τ, τ] and divide by τ.
+
+    Args:
+        d: (..., H, W) signed distance in (template) pixels, any float dtype and device.
+        tau_px: τ > 0, a number or a tensor broadcastable to ``d`` (e.g. (N, 1, 1), one τ per
+            particle when image distances are rescaled per particle).
+    Returns:
+        (..., H, W) in [−1, 1], dtype and device of ``d``.
+    """
+    if not isinstance(d, torch.Tensor) or not d.is_floating_point():
+        raise ValueError(f"Expected d to be a floating tensor; got {getattr(d, 'dtype', type(d).__name__)}")
+    tau = torch.as_tensor(tau_px, dtype=d.dtype, device=d.device)
+    if not bool((tau > 0).all()):
+        raise ValueError(f"Expected tau_px > 0; got {tau_px}")
+    return torch.maximum(torch.minimum(d, tau), -tau) / tau
+
+
+def signed_distance(mask, tau_px: float) -> torch.Tensor:
+    """Clipped signed Euclidean distance transform in units of τ (the template encoding).
+
+    :func:`clip_distance` of :func:`signed_distance_px`: values in [−1, 1]; an all-empty mask
+    gives −1, an all-full one +1.
+
+    Args:
+        mask: (..., H, W) bool, a tensor or an array.
+        tau_px: τ > 0, the clip distance in pixels.
+    Returns:
+        (..., H, W) float32 on ``mask``'s device.
+    """
+    if not tau_px > 0:
+        raise ValueError(f"Expected tau_px > 0; got {tau_px}")
+    return clip_distance(signed_distance_px(mask), tau_px)
 
 
 def silhouette(y: torch.Tensor) -> torch.Tensor:
