@@ -1,7 +1,9 @@
 """Batched reconstruction y(α, Θ) (eq. 4.18) against a naive per-query loop over the full tensor.
 
-A model with random contents (K vehicles, Nc = V centres on the training-view grid, H = W
-pixels, pixel rank r) reconstructs N random (α, θ, φ) queries. The naive reference evaluates
+Two models reconstruct N random (α, θ, φ) queries each: the shipped checkpoint (``--checkpoint``)
+and a model with random contents of the requested sizes (K vehicles, Nc = V centres on the
+training-view grid, H = W pixels, pixel rank r). The shipped model's trained kernel widths make
+most of Ψ(Θ) tiny, which a random model does not show (the denormal pitfall of METHOD.md). The naive reference evaluates
 𝒜 ×₃ i(α) ×₂ Ψ(Θ) one query at a time on the full d × P × K core (no pixel basis) for a subset of
 queries, scaled to N. Rates are reported against a dense float32 matmul measured in the same run.
 
@@ -14,6 +16,7 @@ import argparse
 import logging
 import math
 import time
+from pathlib import Path
 
 import torch
 
@@ -21,6 +24,7 @@ from torch_atr.config import TemplateConfig
 from torch_atr.model import GenerativeShapeModel, IdentityManifold, RBFViewMapping, TensorCore, mode_product
 
 log = logging.getLogger("bench_reconstruct")
+SHIPPED = Path(__file__).resolve().parents[1] / "checkpoints" / "default.pt"
 
 
 def timed(fn, repeats: int) -> float:
@@ -53,9 +57,52 @@ def random_model(K: int, azimuths: int, elevations: int, size: int, rank: int, g
                                 ["tank", "apc", "suv", "pickup"], TemplateConfig(size_px=size))
 
 
+def bench(model: GenerativeShapeModel, label: str, N: int, n_naive: int, repeats: int, matmul_rate: float,
+          g: torch.Generator) -> None:
+    """Time the reconstruction stages of ``model`` on N random queries and log a table."""
+    K, r, P = model.core.num_vehicles, model.core.pixel_rank, model.rbf.psi_dim
+    d = model.core.pixels
+    alpha = torch.rand(N, generator=g) * 2 * math.pi
+    theta = torch.rand(N, generator=g) * 2 * math.pi
+    phi = torch.rand(N, generator=g) * math.radians(40.0)
+    with torch.no_grad():
+        identity, psi = model.identity(alpha), model.rbf(theta, phi)
+        A = model.core.core  # (r, P, K)
+        rows = [
+            ("Ψ(Θ)", timed(lambda: model.rbf(theta, phi), repeats), 0.0),
+            ("i(α)", timed(lambda: model.identity(alpha), repeats), 0.0),
+            ("core: Ψ first (ours)", timed(lambda: model.core.reconstruct(identity, psi), repeats),
+             2 * N * P * K * r + 2 * N * K * r + 2 * N * r * d),
+            # The other order materialises 𝒜 ×₃ i per query: N × r × P.
+            ("core: identity first", timed(lambda: torch.bmm(torch.einsum("rpk,nk->nrp", A, identity),
+                                                            psi.unsqueeze(-1)).squeeze(-1) @ model.core.pixel_basis.T,
+                                           repeats), 2 * N * r * P * K + 2 * N * r * P + 2 * N * r * d),
+            ("forward (α, θ, φ) total", timed(lambda: model(alpha, theta, phi), repeats),
+             2 * N * P * K * r + 2 * N * K * r + 2 * N * r * d),
+        ]
+        # Naive eq. 4.18 on the full core 𝒜 ×₁ U₁ (d × P × K), one query at a time.
+        A_full = mode_product(A, model.core.pixel_basis, 0)
+        n = min(n_naive, N)
+
+        def naive() -> torch.Tensor:
+            return torch.stack([mode_product(A_full, identity[q], 2) @ psi[q] for q in range(n)])
+
+        t_naive = timed(naive, repeats) * N / n
+        rows.append((f"naive per query (x{N / n:.0f} from {n})", t_naive, N * (2 * d * P * K + 2 * d * P)))
+        error = (naive() - model.core.reconstruct(identity[:n], psi[:n])).abs().max().item()
+    log.info("%s: K=%d Nc=%d P=%d d=%d r=%d N=%d threads=%d", label, K, P - 4, P, d, r, N, torch.get_num_threads())
+    log.info("%-34s %10s %9s %9s %8s %9s", "stage", "time ms", "GFLOP", "GFLOP/s", "of mm", "speed-up")
+    for name, seconds, flops in rows:
+        rate = flops / seconds / 1e9
+        log.info("%-34s %10.2f %9.2f %9.1f %7.0f%% %8.1fx", name, 1e3 * seconds, flops / 1e9, rate,
+                 100 * rate / matmul_rate, t_naive / seconds)
+    log.info("max |naive - batched| over %d queries: %.2e", n, error)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--vehicles", type=int, default=36, help="K")
+    parser.add_argument("--checkpoint", default=str(SHIPPED), help="a trained model to time (default: the shipped one)")
+    parser.add_argument("--vehicles", type=int, default=36, help="K of the random model")
     parser.add_argument("--azimuths", type=int, default=30, help="training azimuths (12° steps)")
     parser.add_argument("--elevations", type=int, default=5, help="training elevations (10° steps); V = Nc = product")
     parser.add_argument("--size", type=int, default=64, help="H = W template pixels")
@@ -68,51 +115,14 @@ def main() -> None:
     logging.basicConfig(level=logging.INFO, format="%(message)s")
 
     g = torch.Generator().manual_seed(args.seed)
-    model = random_model(args.vehicles, args.azimuths, args.elevations, args.size, args.rank, g)
-    N, K, r, d, P = args.batch, args.vehicles, args.rank, args.size ** 2, model.rbf.psi_dim
-    alpha = torch.rand(N, generator=g) * 2 * math.pi
-    theta = torch.rand(N, generator=g) * 2 * math.pi
-    phi = torch.rand(N, generator=g) * math.radians(40.0)
-
     a = torch.randn(2048, 2048, generator=g)
     t_matmul = timed(lambda: a @ a, 2 * args.repeats)
     matmul_rate = 2 * 2048 ** 3 / t_matmul / 1e9
-
-    with torch.no_grad():
-        identity, psi = model.identity(alpha), model.rbf(theta, phi)
-        A = model.core.core  # (r, P, K)
-        rows = [
-            ("Ψ(Θ)", timed(lambda: model.rbf(theta, phi), args.repeats), 0.0),
-            ("i(α)", timed(lambda: model.identity(alpha), args.repeats), 0.0),
-            ("core: Ψ first (ours)", timed(lambda: model.core.reconstruct(identity, psi), args.repeats),
-             2 * N * P * K * r + 2 * N * K * r + 2 * N * r * d),
-            # The other order materialises 𝒜 ×₃ i per query: N × r × P.
-            ("core: identity first", timed(lambda: torch.bmm(torch.einsum("rpk,nk->nrp", A, identity),
-                                                            psi.unsqueeze(-1)).squeeze(-1) @ model.core.pixel_basis.T,
-                                           args.repeats), 2 * N * r * P * K + 2 * N * r * P + 2 * N * r * d),
-            ("forward (α, θ, φ) total", timed(lambda: model(alpha, theta, phi), args.repeats),
-             2 * N * P * K * r + 2 * N * K * r + 2 * N * r * d),
-        ]
-        # Naive eq. 4.18 on the full core 𝒜 ×₁ U₁ (d × P × K), one query at a time.
-        A_full = mode_product(A, model.core.pixel_basis, 0)
-        n = min(args.naive, N)
-
-        def naive() -> torch.Tensor:
-            return torch.stack([mode_product(A_full, identity[q], 2) @ psi[q] for q in range(n)])
-
-        t_naive = timed(naive, args.repeats) * N / n
-        rows.append((f"naive per query (x{N / n:.0f} from {n})", t_naive, N * (2 * d * P * K + 2 * d * P)))
-        error = (naive() - model.core.reconstruct(identity[:n], psi[:n])).abs().max().item()
-
-    log.info("K=%d V=Nc=%d P=%d %dx%d d=%d r=%d N=%d threads=%d", K, P - 4, P, args.size, args.size, d, r, N,
-             torch.get_num_threads())
     log.info("dense 2048x2048 float32 matmul: %.1f ms, %.1f GFLOP/s", 1e3 * t_matmul, matmul_rate)
-    log.info("%-34s %10s %9s %9s %8s %9s", "stage", "time ms", "GFLOP", "GFLOP/s", "of mm", "speed-up")
-    for name, seconds, flops in rows:
-        rate = flops / seconds / 1e9
-        log.info("%-34s %10.2f %9.2f %9.1f %7.0f%% %8.1fx", name, 1e3 * seconds, flops / 1e9, rate,
-                 100 * rate / matmul_rate, t_naive / seconds)
-    log.info("max |naive - batched| over %d queries: %.2e", n, error)
+    shipped = GenerativeShapeModel.from_checkpoint(args.checkpoint)
+    bench(shipped, f"checkpoint {args.checkpoint}", args.batch, args.naive, args.repeats, matmul_rate, g)
+    random = random_model(args.vehicles, args.azimuths, args.elevations, args.size, args.rank, g)
+    bench(random, "random model", args.batch, args.naive, args.repeats, matmul_rate, g)
 
 
 if __name__ == "__main__":

@@ -7,7 +7,7 @@ import pytest
 import torch
 from scipy.spatial import cKDTree
 
-from torch_atr.model.rbf import RBFViewMapping, rbf_features, ridge_hat
+from torch_atr.model.rbf import KERNEL_FLOOR, RBFViewMapping, rbf_features, ridge_hat
 from torch_atr.pose import view_vectors
 
 
@@ -28,8 +28,21 @@ def test_rbf_features_match_brute_force():
     for n in range(7):
         for l in range(5):
             r = math.sqrt(sum((un[n, i] - cn[l, i]) ** 2 for i in range(3)))
-            assert psi[n, l] == pytest.approx(math.exp(-r * r / (2 * wn[l] ** 2)), rel=1e-12, abs=1e-14)
+            k = math.exp(-r * r / (2 * wn[l] ** 2))
+            assert psi[n, l] == pytest.approx(k if k >= KERNEL_FLOOR else 0.0, rel=1e-12, abs=1e-14)
         np.testing.assert_allclose(psi[n, 5:], [1.0, *un[n]], rtol=0, atol=0)
+
+
+def test_kernel_tail_is_truncated_not_denormal():
+    """Far centres give exact zeros (no denormals, which slow matmuls 5x), near ones the Gaussian."""
+    u = view_vectors(torch.tensor([0.0]), torch.tensor([0.0]))
+    centres = view_vectors(torch.linspace(0, math.pi, 50), torch.zeros(50))
+    psi = rbf_features(u, centres, torch.full((50,), 0.1))[0, :50]
+    r = (centres - u).norm(dim=1)
+    want = torch.exp(-r ** 2 / 0.02)
+    assert (psi[want < KERNEL_FLOOR] == 0).all() and (want < KERNEL_FLOOR).sum() > 30
+    torch.testing.assert_close(psi[want >= KERNEL_FLOOR], want[want >= KERNEL_FLOOR])
+    assert not ((psi > 0) & (psi < torch.finfo(torch.float32).tiny)).any()
 
 
 def test_rbf_features_rejects_bad_widths():
