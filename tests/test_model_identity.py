@@ -129,6 +129,22 @@ def test_spline_matches_scipy_bspline():
     np.testing.assert_allclose(m(alpha).numpy(), spline(alpha.numpy()), rtol=1e-10, atol=1e-12)
 
 
+def test_local_basis_matches_scipy_basis_elements():
+    """i(α) = Σⱼ wⱼ cⱼ with 4 control points: the weights are scipy's B-spline basis values."""
+    m, _, _, _ = _manifold(E=4, seed=2)
+    alpha = torch.linspace(-7.0, 13.0, 301, dtype=torch.float64)
+    first, weights = m.local_basis(alpha)
+    assert first.dtype == torch.int64 and weights.shape == (301, 4)
+    assert (weights >= -1e-15).all() and torch.allclose(weights.sum(1), torch.ones(301, dtype=torch.float64))
+    n = m.coefficients.shape[0]
+    assert (first >= 0).all() and (first + 3 < n).all()
+    x = np.remainder(alpha.numpy(), TWO_PI)
+    for i in range(0, 301, 15):
+        for j in range(4):
+            b = BSpline.basis_element(m.knots.numpy()[first[i] + j:first[i] + j + 5], extrapolate=False)
+            assert weights[i, j].item() == pytest.approx(np.nan_to_num(b(x[i])), abs=1e-12)
+
+
 def test_spline_is_c2_across_the_seam():
     m, _, _, _ = _manifold(seed=3)
 

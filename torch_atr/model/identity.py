@@ -169,21 +169,22 @@ def shortest_closed_path(D: torch.Tensor, labels: torch.Tensor | None = None, ma
     return torch.tensor(tour, dtype=torch.long, device=D.device)
 
 
-def _de_boor(x: torch.Tensor, knots: torch.Tensor, coefficients: torch.Tensor) -> torch.Tensor:
-    """Evaluate a degree-3 B-spline at x inside its base interval (Cox-de Boor recursion).
+def _local_basis(x: torch.Tensor, knots: torch.Tensor, n: int) -> tuple[torch.Tensor, torch.Tensor]:
+    """The degree-3 B-spline basis at x inside its base interval (Cox-de Boor recursion).
 
-    x: (N,); knots: (n + 4,); coefficients: (n, E). Returns (N, E); differentiable in x.
+    x: (N,); knots: (n + 4,) for n coefficients. Returns first: (N,) int64, the first of the 4
+    coefficients that carry x, and weights: (N, 4) their basis values; differentiable in x.
     """
-    n = coefficients.shape[0]
     span = (torch.searchsorted(knots, x.detach(), right=True) - 1).clamp(DEGREE, n - 1)  # t[ℓ] <= x < t[ℓ+1]
-    d = [coefficients[span + j - DEGREE] for j in range(DEGREE + 1)]  # (N, E) each
+    unit = torch.eye(DEGREE + 1, dtype=knots.dtype, device=knots.device)
+    d = [unit[j].expand(x.shape[0], -1) for j in range(DEGREE + 1)]  # de Boor on the 4 unit vectors
     for r in range(1, DEGREE + 1):
         for j in range(DEGREE, r - 1, -1):
             left = knots[span + j - DEGREE]
             right = knots[span + j + 1 - r]
             w = ((x - left) / (right - left)).unsqueeze(-1)
             d[j] = (1.0 - w) * d[j - 1] + w * d[j]
-    return d[DEGREE]
+    return span - DEGREE, d[DEGREE]
 
 
 class IdentityManifold(nn.Module):
@@ -252,8 +253,21 @@ class IdentityManifold(nn.Module):
 
     def forward(self, alpha: torch.Tensor) -> torch.Tensor:
         """i(α) for alpha: (N,) radians (wrapped mod 2π). Returns (N, E); differentiable in α."""
+        first, weights = self.local_basis(alpha)
+        rows = first.unsqueeze(-1) + torch.arange(DEGREE + 1, device=first.device)  # (N, 4)
+        return torch.einsum("nj,nje->ne", weights, self.coefficients[rows])
+
+    def local_basis(self, alpha: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """The cubic spline's local form: i(α) = Σⱼ weights[:, j] · coefficients[first + j], j < 4.
+
+        Only 4 control points carry each α, so anything linear in i(α) (eq. 4.18) can be
+        contracted with 4 control points instead of K identity dimensions.
+
+        alpha: (N,) radians (wrapped mod 2π). Returns first: (N,) int64 in [0, K) and
+        weights: (N, 4), the B-spline basis values (non-negative, summing to 1).
+        """
         check_shape("alpha", alpha, ("N",))
-        return _de_boor(torch.remainder(alpha, TWO_PI), self.knots, self.coefficients)
+        return _local_basis(torch.remainder(alpha, TWO_PI), self.knots, self.coefficients.shape[0])
 
     def circular_distances(self, alpha: torch.Tensor) -> torch.Tensor:
         """|α − αₖ| on the circle for alpha: (N,). Returns (N, K) in [0, π]."""
