@@ -1,13 +1,18 @@
-"""Measures of the generative model (chapter 6.1) used by ``train.py``, the tests and the README.
+"""Measures of the generative model (chapter 6.1) and of tracking and recognition (chapter 6.2).
 
-All functions take a fitted :class:`~torch_atr.model.GenerativeShapeModel` and use its
-``reconstruct_grid`` (every α at every view), which contracts Ψ once per view.
+The model measures take a fitted :class:`~torch_atr.model.GenerativeShapeModel` and use its
+``reconstruct_grid`` (every α at every view), which contracts Ψ once per view. The tracking
+measures take per-frame arrays (``track.py``'s ``estimates.csv`` columns) and give the thesis's
+figures: mean absolute horizontal, range and aspect errors (Fig. 6.8), the fraction of frames
+recognised (Table 6.1), the two best-matching training vehicles (Fig. 6.10); the overlap ratio ξ
+(eq. 6.1) is :func:`torch_atr.shape.dice`.
 """
 
 from __future__ import annotations
 
 import math
 
+import numpy as np
 import torch
 
 from torch_atr._checks import check_shape
@@ -120,3 +125,76 @@ def fit_alpha(model, signed: torch.Tensor, theta, phi, grid: int = 360) -> tuple
     if res.fun <= losses.min().item():
         return float(res.x) % (2 * math.pi), float(res.fun)
     return start, losses.min().item()
+
+
+# --- tracking and recognition (chapter 6.2) ----------------------------------------------------
+
+def wrapped_abs(a: np.ndarray) -> np.ndarray:
+    """|a| of angle differences wrapped to [−π, π): (...,) radians -> (...,) in [0, π]."""
+    return np.abs(np.remainder(np.asarray(a, dtype=np.float64) + math.pi, 2 * math.pi) - math.pi)
+
+
+def _mean_finite(values: np.ndarray) -> float | None:
+    """Mean over the finite entries; None when there are none (JSON null)."""
+    values = np.asarray(values, dtype=np.float64)
+    finite = values[np.isfinite(values)]
+    return float(finite.mean()) if finite.size else None
+
+
+def tracking_errors(est: dict[str, np.ndarray], truth: dict[str, np.ndarray]) -> dict[str, float | None]:
+    """Mean absolute 3D tracking errors (Fig. 6.8) over frames where both are known.
+
+    est, truth: (T,) arrays ``x`` (horizontal, m), ``z`` (range, m) and ``theta`` (aspect: the
+    view azimuth, radians). Returns ``horizontal_error_m``, ``range_error_m`` and
+    ``aspect_error_rad`` (wrapped), None where no frame has both.
+    """
+    return {"horizontal_error_m": _mean_finite(np.abs(est["x"] - truth["x"])),
+            "range_error_m": _mean_finite(np.abs(est["z"] - truth["z"])),
+            "aspect_error_rad": _mean_finite(wrapped_abs(est["theta"] - truth["theta"]))}
+
+
+def recognition_accuracy(model, alpha: np.ndarray, true_class: list[str]) -> float | None:
+    """Fraction of frames whose α lies in the true class's arc (Table 6.1).
+
+    alpha: (T,) estimated α (NaN where there is no estimate: counted as wrong); true_class: T class
+    names ("" where unknown: left out). None when no frame has a class the model knows.
+    """
+    alpha = np.asarray(alpha, dtype=np.float64)
+    known = np.array([c in model.class_names for c in true_class], dtype=bool)
+    if len(true_class) != alpha.shape[0]:
+        raise ValueError(f"Expected one true class per frame ({alpha.shape[0]}); got {len(true_class)}")
+    if not known.any():
+        return None
+    finite = np.isfinite(alpha)
+    like = model.alphas
+    got = model.classify(torch.as_tensor(np.where(finite, alpha, 0.0)).to(like)).cpu().numpy()
+    want = np.array([model.class_names.index(c) if k else -1 for c, k in zip(true_class, known)])
+    return float(((got == want) & finite)[known].mean())
+
+
+def best_matches(model, alpha: np.ndarray, k: int = 2) -> list[str]:
+    """The k training vehicles nearest the circular mean of the estimated α over a sequence (Fig. 6.10).
+
+    alpha: (T,) radians (NaN entries ignored). Returns k names, nearest first ([] without any α).
+    """
+    alpha = np.asarray(alpha, dtype=np.float64)
+    alpha = alpha[np.isfinite(alpha)]
+    if alpha.size == 0:
+        return []
+    mean = math.atan2(np.sin(alpha).mean(), np.cos(alpha).mean()) % (2 * math.pi)
+    nearest = model.nearest_vehicles(torch.tensor([mean]).to(model.alphas), k)[0].tolist()
+    return [model.vehicle_names[i] for i in nearest]
+
+
+def frames_to_convergence(ok: np.ndarray, window: int = 10) -> int | None:
+    """The first frame from which ``window`` consecutive frames are all ``ok``; None if never.
+
+    ok: (T,) bool, e.g. horizontal error < 1 m, aspect error < 0.3 rad and the right class.
+    """
+    ok = np.asarray(ok, dtype=bool)
+    run = 0
+    for i, good in enumerate(ok):
+        run = run + 1 if good else 0
+        if run == window:
+            return i - window + 1
+    return None

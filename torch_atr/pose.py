@@ -33,6 +33,12 @@ TWO_PI = 2.0 * math.pi
 _BODY_TO_WORLD_H0 = ((0.0, -1.0, 0.0), (0.0, 0.0, 1.0), (1.0, 0.0, 0.0))
 
 
+def wrap_angle(a: torch.Tensor) -> torch.Tensor:
+    """Angles (any shape) wrapped to [0, 2π); never 2π itself, which float remainder can return."""
+    a = torch.remainder(a, TWO_PI)
+    return torch.where(a >= TWO_PI, torch.zeros_like(a), a)
+
+
 def view_vectors(theta: torch.Tensor, phi: torch.Tensor) -> torch.Tensor:
     """Unit view vectors u(θ, φ) = (cos φ cos θ, cos φ sin θ, sin φ) in the vehicle body frame.
 
@@ -135,7 +141,6 @@ def view_of_pose(pose: VehiclePose, camera: Camera) -> tuple[torch.Tensor, torch
     check_sensor_like(camera)
     R, t = body_to_world(pose)
     d = ((camera_centre(camera).to(t) - t).unsqueeze(-1) * R).sum(dim=-2)  # Rᵀ (c − t): (..., 3) in the body frame
-    theta = torch.remainder(torch.atan2(d[..., 1], d[..., 0]), TWO_PI)
-    theta = torch.where(theta >= TWO_PI, torch.zeros_like(theta), theta)
+    theta = wrap_angle(torch.atan2(d[..., 1], d[..., 0]))
     phi = torch.atan2(d[..., 2], torch.hypot(d[..., 0], d[..., 1]))
     return theta, phi

@@ -1,11 +1,23 @@
 """Foreground segmentation by background subtraction (thesis 3.1).
 
 A per-pixel mixture of Gaussians (OpenCV's MOG2, Zivkovic's refinement of Stauffer & Grimson,
-eq. 3.1-3.2) is learned on target-free frames; then, as the thesis does with a fixed camera, the
-background model is frozen (``learning_rate = 0``) and each frame is compared with it. The raw
+eq. 3.1-3.2) is learned on target-free frames; then each frame is compared with it. The raw
 foreground is cleaned by a morphological opening (removes specks) then closing (fills holes),
 and the target blob is kept: the largest connected component, or the one nearest a predicted
 pixel.
+
+By default, as the thesis does with a fixed camera, the background model is frozen after the
+warm-up (``learning_rate = 0``). On real footage that fails: a global brightness change (clouds,
+camera gain) turns the whole scene into foreground (METHOD.md, pitfalls). Two options, which the
+tracker turns on and feeds with its prediction:
+
+- ``learning_rate > 0``: the background keeps learning every ``learning_interval`` frames,
+  except where the target is: inside the ``exclude`` box (the tracker's predicted target region)
+  and on the detected foreground, the frame is replaced by the background image before the
+  update, so a slow or stopped target is not absorbed (selective update);
+- ``compensate_gain``: before the comparison, the frame's global gain and offset against the
+  background image, frame ≈ a·background + b, are fitted by least squares on a fixed grid of
+  pixels outside ``exclude`` (the worst-fitting 20 % dropped and the fit repeated) and undone.
 
 16-bit IR (and float) frames are mapped to uint8 by one fixed linear map chosen on the warm-up
 frames, so the map does not change from frame to frame and MOG2's statistics stay valid: the
@@ -46,6 +58,8 @@ class SegmentationConfig:
     var_threshold: float = 36.0  # MOG2 squared Mahalanobis distance above which a pixel is foreground
     detect_shadows: bool = False  # MOG2 shadow labelling (shadows count as background)
     learning_rate: float = 0.0  # after warm-up; 0 freezes the background (thesis 3.1), -1 = OpenCV's automatic
+    learning_interval: int = 1  # learn on every k-th frame (when learning_rate != 0)
+    compensate_gain: bool = False  # fit and undo frame ≈ a·background + b before comparing
     warmup_frames: int = 50  # at most this many frames are taken from warm_up's iterable
     open_px: int = 1  # diameter of the elliptic opening kernel; 0 or 1 = no opening
     close_px: int = 3  # diameter of the elliptic closing kernel; 0 or 1 = no closing
@@ -59,6 +73,7 @@ class SegmentationConfig:
             "history": self.history >= 1,
             "var_threshold": self.var_threshold > 0,
             "learning_rate": self.learning_rate == -1 or 0 <= self.learning_rate <= 1,
+            "learning_interval": self.learning_interval >= 1,
             "warmup_frames": self.warmup_frames >= 1,
             "open_px": self.open_px >= 0,
             "close_px": self.close_px >= 0,
@@ -70,7 +85,7 @@ class SegmentationConfig:
         bad = [k for k, ok in checks.items() if not ok]
         if bad:
             raise ConfigError("segmentation: bad value(s) " + ", ".join(f"{k}={getattr(self, k)!r}" for k in bad)
-                              + " (history, warmup_frames >= 1; var_threshold > 0; learning_rate in [0, 1] or -1; "
+                              + " (history, warmup_frames, learning_interval >= 1; var_threshold > 0; learning_rate in [0, 1] or -1; "
                               "open_px, close_px, min_area_px, headroom >= 0; 0 <= low < high <= 100 percentiles)")
 
 
@@ -83,12 +98,16 @@ def normalise_ir(frame: np.ndarray, lo: float, hi: float) -> np.ndarray:
     Returns:
         (H, W) uint8, round((frame - lo) · 255 / (hi - lo)) clipped to [0, 255].
     """
-    if not hi > lo:
-        raise ValueError(f"Expected lo < hi; got lo={lo}, hi={hi}")
     if not isinstance(frame, np.ndarray) or frame.ndim != 2:
         raise ValueError(f"Expected frame to have shape (H, W); got {getattr(frame, 'shape', type(frame).__name__)}")
-    scaled = (frame.astype(np.float32) - np.float32(lo)) * np.float32(255.0 / (hi - lo))
-    return np.clip(np.rint(scaled), 0, 255).astype(np.uint8)
+    return _to_uint8(_scale_ir(frame, lo, hi))
+
+
+def _scale_ir(frame: np.ndarray, lo: float, hi: float) -> np.ndarray:
+    """(frame − lo) · 255 / (hi − lo) as float32: the uint8 scale before rounding."""
+    if not hi > lo:
+        raise ValueError(f"Expected lo < hi; got lo={lo}, hi={hi}")
+    return (frame.astype(np.float32) - np.float32(lo)) * np.float32(255.0 / (hi - lo))
 
 
 def _check_mask(mask) -> np.ndarray:
@@ -150,8 +169,57 @@ def select_blob(mask: np.ndarray, near: tuple[float, float] | None = None, min_a
     return labels == keep
 
 
+Box = tuple[float, float, float, float]  # (u0, v0, u1, v1) pixels, inclusive corners
+
+_GAIN_STRIDE = 7  # the gain fit samples every 7th pixel in each direction
+_GAIN_TRIM = 0.2  # ... and refits without the worst-fitting fifth
+_FOREGROUND_MARGIN_PX = 7  # the detected foreground is grown by this before a selective update
+
+
+def _box_mask(shape: tuple[int, int], box: Box | None) -> np.ndarray:
+    """(H, W) bool: True inside the box (clipped to the image); all False for None or an empty box."""
+    out = np.zeros(shape, dtype=bool)
+    if box is None:
+        return out
+    try:
+        u0, v0, u1, v1 = (float(c) for c in box)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"Expected a box (u0, v0, u1, v1); got {box!r}") from exc
+    if not all(np.isfinite([u0, v0, u1, v1])):
+        return out
+    H, W = shape
+    c0, c1 = int(np.clip(np.floor(u0), 0, W)), int(np.clip(np.ceil(u1) + 1, 0, W))
+    r0, r1 = int(np.clip(np.floor(v0), 0, H)), int(np.clip(np.ceil(v1) + 1, 0, H))
+    out[r0:r1, c0:c1] = True
+    return out
+
+
+def fit_gain(frame: np.ndarray, background: np.ndarray, valid: np.ndarray) -> tuple[float, float]:
+    """Least-squares gain and offset with frame ≈ a·background + b over the valid pixels.
+
+    The worst-fitting 20 % of the valid pixels are dropped and the fit repeated, so a target or a
+    second vehicle does not bias it. Returns (1, 0) when the background has no contrast there.
+
+    Args:
+        frame, background: (H, W) any real dtype; valid: (H, W) bool.
+    """
+    x = background[valid].astype(np.float64)
+    y = frame[valid].astype(np.float64)
+    a, b = 1.0, 0.0
+    for _ in range(2):
+        if x.size < 3 or x.std() < 1e-6:
+            return 1.0, 0.0
+        a, b = np.polyfit(x, y, 1)
+        residual = np.abs(y - (a * x + b))
+        keep = residual <= np.quantile(residual, 1 - _GAIN_TRIM)
+        x, y = x[keep], y[keep]
+    if not (np.isfinite(a) and np.isfinite(b) and a > 1e-3):
+        return 1.0, 0.0
+    return float(a), float(b)
+
+
 class ForegroundSegmenter:
-    """MOG2 background subtraction with a frozen background and a cleaned target mask.
+    """MOG2 background subtraction with a cleaned target mask (module docstring).
 
     Usage: ``seg = ForegroundSegmenter(cfg); seg.warm_up(target_free_frames); mask = seg(frame)``.
     Frames must keep the warm-up frames' size and dtype. An empty or all-foreground mask (e.g.
@@ -161,16 +229,28 @@ class ForegroundSegmenter:
     def __init__(self, cfg: SegmentationConfig | None = None):
         self.cfg = cfg or SegmentationConfig()
         self.levels: tuple[float, float] | None = None  # (lo, hi) of the IR map; None for uint8 frames
+        self.gain: tuple[float, float] = (1.0, 0.0)  # the last (a, b) of frame ≈ a·background + b
         self._mog: cv2.BackgroundSubtractorMOG2 | None = None
         self._kind: tuple[tuple[int, int], np.dtype] | None = None
+        self._background: np.ndarray | None = None  # MOG2's background image, refreshed when it learns
+        self._frames = 0
 
     def _prepare(self, frame) -> np.ndarray:
-        """(H, W) or (H, W, 3) frame -> (H, W) uint8, checked against the warm-up frames."""
+        """(H, W) or (H, W, 3) frame -> (H, W) float32 grey on the uint8 scale, checked against
+        the warm-up frames; non-finite pixels become 0."""
         grey = to_grey("frame", frame, _DTYPES)
         if (grey.shape, grey.dtype) != self._kind:
             raise ValueError(f"Expected a frame of size {self._kind[0]} and dtype {self._kind[1]} like the "
                              f"warm-up frames; got shape {frame.shape}, dtype {frame.dtype}")
-        return grey if self.levels is None else normalise_ir(grey, *self.levels)
+        grey = np.nan_to_num(grey.astype(np.float32), nan=0.0, posinf=0.0, neginf=0.0)
+        return grey if self.levels is None else _scale_ir(grey, *self.levels)
+
+    def display(self, frame: np.ndarray) -> np.ndarray:
+        """The frame as the segmenter compares it: (H, W) uint8 grey (IR mapped by the warm-up
+        levels, before gain compensation)."""
+        if self._kind is None:
+            raise RuntimeError("ForegroundSegmenter: call warm_up(frames) first")
+        return _to_uint8(self._prepare(frame))
 
     def warm_up(self, frames: Iterable[np.ndarray]) -> None:
         """Learn the background from target-free frames (a fresh model each call).
@@ -195,31 +275,61 @@ class ForegroundSegmenter:
         if greys[0].dtype == np.uint8:
             self.levels = None
         else:
-            lo, hi = np.percentile(np.stack(greys), [cfg.low_percentile, cfg.high_percentile])
+            finite = np.stack(greys).astype(np.float64)
+            lo, hi = np.percentile(finite[np.isfinite(finite)], [cfg.low_percentile, cfg.high_percentile])
             span = float(hi - lo) or 1.0  # a flat background still gets a valid map
             self.levels = (float(lo) - cfg.headroom * span, float(lo) + (1 + cfg.headroom) * span)
             logger.debug("IR normalisation: [%.1f, %.1f] -> [0, 255]", *self.levels)
         self._mog = cv2.createBackgroundSubtractorMOG2(history=cfg.history, varThreshold=cfg.var_threshold,
                                                        detectShadows=cfg.detect_shadows)
         for grey in greys:
-            self._mog.apply(grey if self.levels is None else normalise_ir(grey, *self.levels), learningRate=-1)
+            self._mog.apply(_to_uint8(self._prepare(grey)), learningRate=-1)
+        self._background = self._mog.getBackgroundImage()
+        self.gain, self._frames = (1.0, 0.0), 0
 
-    def __call__(self, frame: np.ndarray, near: tuple[float, float] | None = None) -> np.ndarray:
+    def __call__(self, frame: np.ndarray, near: tuple[float, float] | None = None,
+                 exclude: Box | None = None) -> np.ndarray:
         """The cleaned target mask of one frame.
 
         Args:
             frame: (H, W) or (H, W, 3) of the warm-up frames' size and dtype.
             near: optional predicted target pixel (u, v); keep the blob nearest to it.
+            exclude: optional predicted target box (u0, v0, u1, v1) in pixels: left out of the
+                gain fit and of the background update.
         Returns:
             (H, W) bool.
         """
         if self._mog is None:
             raise RuntimeError("ForegroundSegmenter: call warm_up(frames) before segmenting frames")
-        raw = self._mog.apply(self._prepare(frame), learningRate=self.cfg.learning_rate) == 255  # 127 = shadow
-        mask = select_blob(clean_mask(raw, self.cfg.open_px, self.cfg.close_px), near, self.cfg.min_area_px)
+        cfg = self.cfg
+        grey = self._prepare(frame)
+        target = _box_mask(grey.shape, exclude)
+        if cfg.compensate_gain:
+            grid = np.zeros(grey.shape, dtype=bool)
+            grid[::_GAIN_STRIDE, ::_GAIN_STRIDE] = True
+            self.gain = fit_gain(grey, self._background, grid & ~target)
+            grey = (grey - np.float32(self.gain[1])) / np.float32(self.gain[0])
+        image = _to_uint8(grey)
+        # A positive rate learns only in the selective update below; −1 is OpenCV's automatic
+        # rate on every whole frame.
+        learn = cfg.learning_rate > 0 and self._frames % cfg.learning_interval == 0
+        raw = self._mog.apply(image, learningRate=min(cfg.learning_rate, 0.0)) == 255  # 127 = shadow
+        self._frames += 1
+        mask = select_blob(clean_mask(raw, cfg.open_px, cfg.close_px), near, cfg.min_area_px)
+        if learn:  # selective update: the background image stands in where the target may be
+            grown = cv2.dilate(raw.astype(np.uint8), cv2.getStructuringElement(
+                cv2.MORPH_ELLIPSE, (2 * _FOREGROUND_MARGIN_PX + 1,) * 2)).astype(bool)
+            image = np.where(target | grown, self._background, image)
+            self._mog.apply(image, learningRate=cfg.learning_rate)
+            self._background = self._mog.getBackgroundImage()
         fraction = mask.mean()
         if fraction == 0:
             logger.debug("empty foreground mask")
         elif fraction > 0.5:
             logger.debug("foreground covers %.0f %% of the frame (a global change?)", 100 * fraction)
         return mask
+
+
+def _to_uint8(grey: np.ndarray) -> np.ndarray:
+    """Float grey on the uint8 scale -> uint8, rounded and clipped to [0, 255]."""
+    return np.clip(np.rint(grey), 0, 255).astype(np.uint8)

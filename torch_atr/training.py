@@ -92,3 +92,22 @@ def render_set(vehicles: Sequence, theta: torch.Tensor, phi: torch.Tensor, cfg: 
     masks = torch.stack([render_templates(v, theta, phi, cfg) for v in tqdm(vehicles, desc=desc, unit="vehicle")])
     signed = signed_distance(masks.reshape(-1, cfg.size_px, cfg.size_px), cfg.tau_px).reshape(masks.shape)
     return masks, signed
+
+
+def training_templates(model) -> torch.Tensor:
+    """The training templates of a model re-rendered from the catalog (Method IV of the tracker).
+
+    Renders the model's vehicles (by name, from the train split) at its RBF centres (the training
+    views of every model ``train.py`` fits) with its template geometry. Returns (K, V, S, S)
+    float32 signed distances in [−1, 1]. Raises ValueError naming the vehicles the catalog lacks.
+    """
+    from torch_atr.vehicles import load_catalog
+
+    catalog = {v.name: v for v in load_catalog("train")}
+    missing = [name for name in model.vehicle_names if name not in catalog]
+    if missing:
+        raise ValueError(f"Method IV re-renders the training vehicles, but the catalog lacks {missing}")
+    theta, phi = model.rbf.centres_theta.detach().cpu(), model.rbf.centres_phi.detach().cpu()
+    _, signed = render_set([catalog[name] for name in model.vehicle_names], theta, phi, model.template,
+                           "Method IV templates")
+    return signed

@@ -204,3 +204,178 @@ def save_figures(figures: dict, folder: str | Path) -> None:
             with atomic_path(folder / f"{name}.png") as tmp:
                 image.savefig(tmp, format="png", dpi=110)
 
+
+
+# --- tracking figures (chapter 6.2) -------------------------------------------------------------
+
+def _pyplot():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def _rows_column(rows: list[dict], name: str) -> np.ndarray:
+    return np.array([float(r.get(name, math.nan)) for r in rows], dtype=np.float64)
+
+
+def alpha_figure(rows: list[dict], model, title: str):
+    """α over time with the class arcs as coloured bands and the two nearest training vehicles
+    of the sequence as dashed lines (Fig. 6.10). rows: estimate rows. Returns a Figure."""
+    from torch_atr.evaluation import best_matches
+
+    plt = _pyplot()
+    colours = plt.get_cmap("tab10")
+    t, alpha = _rows_column(rows, "time_s"), _rows_column(rows, "alpha")
+    fig, ax = plt.subplots(figsize=(9, 4.5))
+    for c, start, end in model.identity.class_arcs():
+        for lo, hi in ((start, min(end, 2 * math.pi)), (0.0, end - 2 * math.pi)):
+            if hi > lo:
+                ax.axhspan(lo, hi, color=colours(c % 10), alpha=0.18, lw=0)
+    for c, name in enumerate(model.class_names):
+        ax.plot([], [], lw=8, color=colours(c % 10), alpha=0.35, label=f"{name} arc")
+    for k, name in enumerate(best_matches(model, alpha)):
+        a = float(model.alphas[model.vehicle_names.index(name)])
+        ax.axhline(a, ls="--", lw=1.2, color="0.25" if k == 0 else "0.55", label=f"best match {k + 1}: {name}")
+    ax.plot(t, alpha, ".", ms=3, color="k", label="estimated α")
+    true_class = next((r.get("true_class") for r in rows if r.get("true_class")), "")
+    ax.set(xlabel="time (s)", ylabel="identity α (rad)", ylim=(0, 2 * math.pi),
+           title=f"{title}: identity over time" + (f" (true class: {true_class})" if true_class else ""))
+    ax.legend(loc="center left", bbox_to_anchor=(1.01, 0.5), fontsize=8)
+    fig.tight_layout()
+    return fig
+
+
+def error_figure(rows: list[dict], title: str):
+    """Horizontal, range and aspect errors over time (Fig. 6.8), with their means. Returns a Figure
+    (None when the rows carry no truth)."""
+    from torch_atr.evaluation import wrapped_abs
+
+    t = _rows_column(rows, "time_s")
+    errors = [("horizontal |x̂ − x|", "m", np.abs(_rows_column(rows, "x") - _rows_column(rows, "true_x"))),
+              ("range |ẑ − z|", "m", np.abs(_rows_column(rows, "z") - _rows_column(rows, "true_z"))),
+              ("aspect |θ̂ − θ|", "rad", wrapped_abs(_rows_column(rows, "theta") - _rows_column(rows, "true_theta")))]
+    if not any(np.isfinite(e).any() for _, _, e in errors):
+        return None
+    plt = _pyplot()
+    fig, axes = plt.subplots(3, 1, figsize=(9, 7), sharex=True)
+    for ax, (name, unit, e) in zip(axes, errors):
+        ax.plot(t, e, lw=1.0, label=f"{name}: mean {np.nanmean(e):.2f} {unit}")
+        ax.set(ylabel=f"error ({unit})")
+        ax.legend(loc="upper right", fontsize=8)
+        ax.grid(alpha=0.3)
+    axes[-1].set(xlabel="time (s)")
+    axes[0].set_title(f"{title}: 3D tracking errors over time")
+    fig.tight_layout()
+    return fig
+
+
+def view_figure(rows: list[dict], title: str):
+    """The view Θ = (θ, φ) over time on the hemisphere seen from above (Fig. 6.15): azimuth θ as
+    the polar angle, elevation as the distance from the rim (the pole at the centre). Returns a Figure."""
+    plt = _pyplot()
+    fig = plt.figure(figsize=(6.5, 6))
+    ax = fig.add_subplot(projection="polar")
+    t = _rows_column(rows, "time_s")
+    radius = 90.0 - np.degrees(_rows_column(rows, "phi"))  # the truth's φ differs by < 0.1°
+    sc = ax.scatter(_rows_column(rows, "theta"), radius, c=t, s=6, cmap="viridis", label="estimate")
+    true_theta = _rows_column(rows, "true_theta")
+    if np.isfinite(true_theta).any():
+        ax.plot(true_theta, radius, "-", color="crimson", lw=1, label="truth")
+    ax.set_rlim(0, 90)
+    ax.set_rticks([30, 60, 90], labels=["φ = 60°", "30°", "0°"])
+    ax.set_title(f"{title}: view on the hemisphere\n(angle: azimuth θ from the front; radius: 90° − elevation φ)")
+    fig.colorbar(sc, ax=ax, pad=0.1, shrink=0.7, label="time (s)")
+    ax.legend(loc="lower left", bbox_to_anchor=(-0.15, -0.12), fontsize=8)
+    fig.tight_layout()
+    return fig
+
+
+def frame_strip_figure(snapshots: list[dict], rows: list[dict], title: str, crop: int = 80):
+    """Frames with the segmented target (cyan) and the estimate's reconstructed silhouette (red
+    contour) overlaid, cropped around the estimate (Fig. 6.9). Returns a Figure."""
+    import cv2
+
+    plt = _pyplot()
+    fig, axes = plt.subplots(1, len(snapshots), figsize=(2.6 * len(snapshots), 3.2), squeeze=False)
+    for ax, shot in zip(axes[0], snapshots):
+        image = np.repeat(shot["image"][..., None], 3, axis=2)
+        for mask, colour in ((shot["mask"], (0, 255, 255)), (shot["silhouette"], (255, 40, 40))):
+            contours, _ = cv2.findContours(mask.astype(np.uint8), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+            cv2.drawContours(image, contours, -1, colour, 1)
+        where = np.argwhere(shot["silhouette"] | shot["mask"])
+        v, u = where.mean(0).astype(int) if len(where) else (image.shape[0] // 2, image.shape[1] // 2)
+        r0, c0 = max(v - crop, 0), max(u - crop, 0)
+        ax.imshow(image[r0:v + crop, c0:u + crop], extent=(c0, c0 + image[r0:v + crop, c0:u + crop].shape[1],
+                                                           r0 + image[r0:v + crop, c0:u + crop].shape[0], r0))
+        row = rows[shot["frame"]]
+        ax.set_title(f"frame {shot['frame']}: {row.get('class', '—')}\nα = {row.get('alpha', math.nan):.2f}",
+                     fontsize=8)
+        ax.set_xlabel("u (px)", fontsize=7)
+        ax.set_ylabel("v (px)", fontsize=7)
+        ax.tick_params(labelsize=6)
+    axes[0, 0].plot([], [], color="cyan", label="segmented target")
+    axes[0, 0].plot([], [], color=(1.0, 0.16, 0.16), label="reconstruction at the estimate")
+    fig.legend(loc="lower center", ncol=2, fontsize=8)
+    fig.suptitle(f"{title}: frames with the estimated shape")
+    fig.tight_layout(rect=(0, 0.08, 1, 1))
+    return fig
+
+
+def track_figures(result, model, title: str) -> dict:
+    """The figures of a tracking run: ``alpha_over_time``, ``errors_over_time`` (with truth only),
+    ``view_trajectory`` and ``frames``. Returns name -> Figure."""
+    figures = {"alpha_over_time": alpha_figure(result.rows, model, title),
+               "errors_over_time": error_figure(result.rows, title),
+               "view_trajectory": view_figure(result.rows, title),
+               "frames": frame_strip_figure(result.snapshots, result.rows, title) if result.snapshots else None}
+    return {name: fig for name, fig in figures.items() if fig is not None}
+
+
+def log_track_tensorboard(folder: str | Path, result, figures: dict) -> None:
+    """Per-frame scalars (position, heading, α, ESS, errors where known) and the figures, to
+    TensorBoard event files in ``folder``."""
+    from torch.utils.tensorboard import SummaryWriter
+
+    from torch_atr.evaluation import wrapped_abs
+
+    with SummaryWriter(str(folder)) as writer:
+        for row in result.rows:
+            step = row["frame"]
+            for name in ("x", "z", "heading", "speed", "alpha", "ess", "overlap"):
+                if name in row:
+                    writer.add_scalar(f"estimate/{name}", row[name], step)
+            if "alpha" in row and "true_x" in row:
+                writer.add_scalar("error/horizontal_m", abs(row["x"] - row["true_x"]), step)
+                writer.add_scalar("error/range_m", abs(row["z"] - row["true_z"]), step)
+                writer.add_scalar("error/aspect_rad", float(wrapped_abs(row["theta"] - row["true_theta"])), step)
+        for name, fig in figures.items():
+            writer.add_figure(name, fig)
+
+
+def write_overlay_video(path: str | Path, tracker, sequence, result, frames: int | None = None) -> None:
+    """Every tracked frame with the segmented target (cyan) and the estimate's silhouette (red)
+    contours, as an MP4 (OpenCV's mp4v codec), written atomically."""
+    import cv2
+
+    fps = sequence.fps if math.isfinite(sequence.fps) else 1.0 / tracker.dt
+    with atomic_path(path) as tmp:
+        writer = None
+        for row in result.rows:
+            frame = sequence.frame(row["frame"])
+            image = cv2.cvtColor(tracker.segmenter.display(frame), cv2.COLOR_GRAY2BGR)
+            if writer is None:
+                writer = cv2.VideoWriter(str(tmp.with_suffix(".mp4")), cv2.VideoWriter_fourcc(*"mp4v"), fps,
+                                         (image.shape[1], image.shape[0]))
+            if "alpha" in row:
+                placed = tracker.silhouette_at(row, image.shape[:2]).cpu().numpy().astype(np.uint8)
+                contours, _ = cv2.findContours(placed, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+                cv2.drawContours(image, contours, -1, (40, 40, 255), 1)
+                cv2.putText(image, f"{row['frame']}: {row['class']} a={row['alpha']:.2f}", (8, 20),
+                            cv2.FONT_HERSHEY_SIMPLEX, 0.5, (255, 255, 255), 1)
+            writer.write(image)
+        if writer is not None:
+            writer.release()
+            tmp.with_suffix(".mp4").replace(tmp)

@@ -123,12 +123,16 @@ class Sequence(abc.ABC):
         name: a short name (file or folder stem).
         fps: frames per second; NaN when the source does not say.
         camera: the calibrated camera, or None for an uncalibrated sequence.
+        camera_height_m: the camera centre's height above flat ground, metres, where the source
+            knows it (the simulator does); NaN otherwise. With it the tracker's blind
+            initialisation takes the range from the ground plane rather than the blob's size.
         meta: source-specific facts (paths found, layouts detected, ...), JSON-ready.
     """
 
     name: str
     fps: float
     camera: Camera | None
+    camera_height_m: float = math.nan
     meta: dict
 
     @abc.abstractmethod

@@ -436,6 +436,7 @@ class SyntheticSequence(Sequence):
         self.cfg = cfg
         self.vehicle = resolve_vehicle(vehicle)
         self.camera = scene_camera(cfg)
+        self.camera_height_m = cfg.camera_height_m
         self.fps = cfg.fps
         self.name = f"synthetic_{self.vehicle.name}_{cfg.range_m:g}m_seed{cfg.seed}"
         self.meta = {"simulator": __name__, "vehicle": self.vehicle.name, "vehicle_class": self.vehicle.cls,

@@ -1,0 +1,122 @@
+"""Motion model, resampling schemes and weighted estimates against closed forms, their
+definitions and brute force."""
+
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from torch_atr.config import ConfigError
+from torch_atr.tracking.estimates import circular_mean, class_posterior, weighted_mean_cov
+from torch_atr.tracking.motion import ALPHA, HEADING, SPEED, X, Y, Z, MotionConfig, predict
+from torch_atr.tracking.resampling import SCHEMES, effective_sample_size, resample
+
+TWO_PI = 2 * math.pi
+
+
+def test_predict_is_eq_5_1_and_5_3_particle_by_particle():
+    """The batched step equals eq. 5.1 / 5.3 written out for each particle with the same draws."""
+    cfg = MotionConfig(sigma2_x=0.2, sigma2_y=0.5, sigma2_z=0.3, sigma2_heading=0.05, sigma2_speed=2.0, sigma2_alpha=0.4)
+    g = torch.Generator().manual_seed(0)
+    p = torch.rand(7, 6, generator=g, dtype=torch.float64) * torch.tensor([10, 2, 1000, TWO_PI, 8, TWO_PI])
+    p[0, HEADING], p[0, ALPHA] = TWO_PI - 1e-3, 1e-3  # near the wrap
+    dt = 1 / 30
+    out = predict(p, dt, cfg, torch.Generator().manual_seed(5))
+    w = torch.randn(7, 6, generator=torch.Generator().manual_seed(5), dtype=torch.float64)  # the same draws
+    std = [math.sqrt(v * dt) for v in (0.2, 0.5, 0.3, 0.05, 2.0, 0.4)]
+    for j in range(7):
+        x, y, z, h, v, a = p[j].tolist()
+        want = [x + v * math.sin(h) * dt + std[0] * w[j, 0], y + std[1] * w[j, 1],
+                z + v * math.cos(h) * dt + std[2] * w[j, 2], (h + std[3] * w[j, 3]) % TWO_PI,
+                v + std[4] * w[j, 4], (a + std[5] * w[j, 5]) % TWO_PI]
+        np.testing.assert_allclose(out[j].numpy(), np.array(want, dtype=np.float64), rtol=1e-12, atol=1e-12)
+    assert ((out[:, [HEADING, ALPHA]] >= 0) & (out[:, [HEADING, ALPHA]] < TWO_PI)).all()
+
+
+def test_predict_noise_has_the_per_second_variance():
+    cfg = MotionConfig()
+    p = torch.zeros(200_000, 6, dtype=torch.float64)
+    p[:, HEADING], p[:, ALPHA] = math.pi, math.pi
+    dt = 0.5
+    out = predict(p, dt, cfg, torch.Generator().manual_seed(1))
+    var = out.var(dim=0)
+    want = torch.tensor([0.1, 1.0, 0.1, cfg.sigma2_heading, 1.0, cfg.sigma2_alpha], dtype=torch.float64) * dt
+    torch.testing.assert_close(var, want, rtol=0.02, atol=0)
+    with pytest.raises(ValueError, match="dt"):
+        predict(p[:3], 0.0, cfg)
+    with pytest.raises(ConfigError, match="sigma2_x"):
+        MotionConfig(sigma2_x=float("inf"))
+
+
+def test_predict_is_deterministic_under_a_seed():
+    p = torch.rand(50, 6)
+    a = predict(p, 0.1, MotionConfig(), torch.Generator().manual_seed(3))
+    b = predict(p, 0.1, MotionConfig(), torch.Generator().manual_seed(3))
+    assert torch.equal(a, b) and not torch.equal(a, predict(p, 0.1, MotionConfig(), torch.Generator().manual_seed(4)))
+
+
+@pytest.mark.parametrize("scheme", SCHEMES)
+def test_resampling_expected_counts_are_n_w(scheme):
+    """Unbiasedness, the definition: E[count_j] = N w_j, over many seeded draws."""
+    w = torch.tensor([0.5, 0.0, 0.05, 0.3, 0.15], dtype=torch.float64)
+    n, trials = w.shape[0], 4000
+    g = torch.Generator().manual_seed(0)
+    counts = torch.stack([torch.bincount(resample(w, scheme, g), minlength=n) for _ in range(trials)]).double()
+    assert (counts.sum(1) == n).all() and (counts[:, 1] == 0).all()
+    np.testing.assert_allclose(counts.mean(0).numpy(), (n * w).numpy(), atol=0.05)
+    if scheme == "systematic":  # particle j gets ⌊N wⱼ⌋ or ⌈N wⱼ⌉ copies
+        assert ((counts - n * w).abs() < 1).all()
+    if scheme == "residual":  # at least ⌊N wⱼ⌋ copies
+        assert (counts >= (n * w).floor()).all()
+
+
+def test_residual_keeps_the_integer_parts_and_schemes_are_seeded():
+    w = torch.tensor([0.42, 0.38, 0.2], dtype=torch.float64)
+    idx = resample(w, "residual", torch.Generator().manual_seed(0))
+    counts = torch.bincount(idx, minlength=3)
+    assert counts.sum() == 3 and (counts >= torch.tensor([1, 1, 0])).all()  # ⌊N w⌋ = 1, 1, 0 kept
+    w10 = torch.full((10,), 0.1, dtype=torch.float64)
+    assert torch.equal(resample(w10, "residual"), torch.arange(10))  # N w_j = 1: exactly one copy each
+    for scheme in SCHEMES:
+        a = resample(w, scheme, torch.Generator().manual_seed(9))
+        assert torch.equal(a, resample(w, scheme, torch.Generator().manual_seed(9)))
+    with pytest.raises(ValueError, match="Unknown resampling scheme 'bootstrap'"):
+        resample(w, "bootstrap")
+
+
+def test_effective_sample_size():
+    assert effective_sample_size(torch.full((8,), 1 / 8)).item() == pytest.approx(8)
+    assert effective_sample_size(torch.tensor([1.0, 0.0, 0.0])).item() == pytest.approx(1)
+    assert effective_sample_size(torch.tensor([0.5, 0.5, 0.0, 0.0])).item() == pytest.approx(2)
+
+
+def test_circular_mean_against_brute_force():
+    """The circular mean minimises Σ w (1 − cos(a − m)); check on a fine grid, across the seam."""
+    g = torch.Generator().manual_seed(2)
+    for centre in (0.05, math.pi, TWO_PI - 0.05):
+        a = (centre + torch.randn(40, generator=g, dtype=torch.float64) * 0.3) % TWO_PI
+        w = torch.rand(40, generator=g, dtype=torch.float64)
+        w /= w.sum()
+        mean, r = circular_mean(a, w)
+        grid = torch.linspace(0, TWO_PI, 20001, dtype=torch.float64)
+        cost = (w[None, :] * (1 - torch.cos(a[None, :] - grid[:, None]))).sum(1)
+        best = grid[cost.argmin()]
+        assert abs(math.remainder(mean.item() - best.item(), TWO_PI)) < 1e-3
+        assert 0.8 < r.item() <= 1 and 0 <= mean.item() < TWO_PI
+    # The plain mean of 0.1 and 2π − 0.1 is π; the circular mean is 0.
+    m, _ = circular_mean(torch.tensor([0.1, TWO_PI - 0.1], dtype=torch.float64), torch.tensor([0.5, 0.5]).double())
+    assert min(m.item(), TWO_PI - m.item()) < 1e-12
+
+
+def test_weighted_mean_cov_and_class_posterior_against_numpy():
+    g = torch.Generator().manual_seed(4)
+    x = torch.randn(30, 4, generator=g, dtype=torch.float64)
+    w = torch.rand(30, generator=g, dtype=torch.float64)
+    w /= w.sum()
+    mean, cov = weighted_mean_cov(x, w)
+    np.testing.assert_allclose(mean.numpy(), np.average(x.numpy(), axis=0, weights=w.numpy()))
+    np.testing.assert_allclose(cov.numpy(), np.cov(x.numpy().T, aweights=w.numpy(), bias=True), atol=1e-12)
+    classes = torch.tensor([0, 2, 2, 1, 0, 2])
+    ww = torch.tensor([0.1, 0.2, 0.3, 0.05, 0.15, 0.2], dtype=torch.float64)
+    np.testing.assert_allclose(class_posterior(classes, ww, 4).numpy(), [0.25, 0.05, 0.7, 0.0])

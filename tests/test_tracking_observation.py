@@ -1,0 +1,118 @@
+"""The observation model against rendered ground truth and a per-particle reference of Table 5.1."""
+
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from torch_atr.camera import Camera
+from torch_atr.config import TemplateConfig
+from torch_atr.data.synthetic import SceneConfig, SyntheticSequence
+from torch_atr.pose import VehiclePose, view_of_pose
+from torch_atr.render import render_mask, render_templates
+from torch_atr.shape import iou, signed_distance, signed_distance_px
+from torch_atr.tracking.observation import (log_likelihood, observe, place_silhouette, project_windows,
+                                            sample_windows)
+
+CFG = TemplateConfig()
+
+
+@pytest.fixture(scope="module")
+def scene():
+    """The held-out BTR-70 at 1000 m: frames 0 and 40 of the simulator, with their truth."""
+    return SyntheticSequence("btr_70", SceneConfig(frames=60))
+
+
+@pytest.mark.parametrize("i", [0, 40])
+def test_window_at_the_true_state_lands_on_the_rendered_silhouette(scene, i):
+    """A particle at the true centre samples the rendered mask where the template at the true view
+    has its silhouette, and the template placed back by the window covers the rendered mask."""
+    t = scene.truth(i)
+    mask = render_mask(scene.vehicle, scene.camera, scene.pose(i))
+    centre = torch.tensor([[t.x, t.y, t.z]], dtype=torch.float64)
+    z = observe(signed_distance_px(mask), scene.camera, centre, CFG, CFG.size_px)[0]
+    template = render_templates(scene.vehicle, [t.theta], [t.phi], CFG)[0]
+    assert template.sum() > 300
+    assert iou(z > 0, template).item() >= 0.9
+    uv, side = project_windows(scene.camera, centre, CFG.window_m)
+    placed = place_silhouette(signed_distance(template, CFG.tau_px).double(), uv[0], side[0], mask.shape)
+    assert iou(placed, mask).item() >= 0.9
+    # Off by one vehicle length, the window misses.
+    off = centre + torch.tensor([[7.0, 0.0, 0.0]], dtype=torch.float64)
+    assert iou(observe(signed_distance_px(mask), scene.camera, off, CFG, CFG.size_px)[0] > 0, template) < 0.3
+
+
+def test_window_size_is_f_w_over_depth():
+    cam = Camera(2000.0, 1800.0, 320.0, 240.0, 640, 480)
+    uv, side = project_windows(cam, torch.tensor([[1.0, -2.0, 100.0], [0.0, 0.0, -5.0]], dtype=torch.float64), 12.0)
+    torch.testing.assert_close(side[0], torch.tensor([240.0, 216.0], dtype=torch.float64))
+    torch.testing.assert_close(uv[0], torch.tensor([340.0, 276.0], dtype=torch.float64))
+    assert side[1].isnan().all() and uv[1].isnan().all()  # behind the camera
+
+
+def _bilinear_reference(image: np.ndarray, u: float, v: float) -> float:
+    """Bilinear interpolation at (u, v), pixel centres at integers, border values outside."""
+    H, W = image.shape
+    u, v = min(max(u, 0.0), W - 1.0), min(max(v, 0.0), H - 1.0)
+    u0, v0 = min(int(math.floor(u)), W - 2), min(int(math.floor(v)), H - 2)
+    a, b = u - u0, v - v0
+    return ((1 - a) * (1 - b) * image[v0, u0] + a * (1 - b) * image[v0, u0 + 1]
+            + (1 - a) * b * image[v0 + 1, u0] + a * b * image[v0 + 1, u0 + 1])
+
+
+def test_sample_windows_matches_bilinear_reference():
+    g = torch.Generator().manual_seed(0)
+    image = torch.rand(30, 40, generator=g, dtype=torch.float64)
+    uv = torch.tensor([[20.0, 15.0], [3.2, 27.9], [39.5, -2.0], [math.nan, 3.0]], dtype=torch.float64)
+    side = torch.tensor([[10.0, 6.0], [7.3, 7.3], [12.0, 12.0], [5.0, 5.0]], dtype=torch.float64)
+    L = 5
+    got = sample_windows(image, uv, side, L)
+    for n in range(3):
+        for a in range(L):
+            for b in range(L):
+                u = uv[n, 0].item() + ((b + 0.5) / L - 0.5) * side[n, 0].item()
+                v = uv[n, 1].item() + ((a + 0.5) / L - 0.5) * side[n, 1].item()
+                assert got[n, a, b].item() == pytest.approx(_bilinear_reference(image.numpy(), u, v), abs=1e-9)
+    assert (got[3] == 0).all()  # a non-finite window samples nothing
+
+
+def test_log_likelihood_is_eq_5_2():
+    z = torch.zeros(2, 4, 4)
+    y = torch.stack([torch.zeros(4, 4), torch.full((4, 4), 0.5)])
+    torch.testing.assert_close(log_likelihood(z, y, 0.1), torch.tensor([0.0, -0.25 / 0.02]))
+    with pytest.raises(ValueError, match="sigma"):
+        log_likelihood(z, y, 0.0)
+    with pytest.raises(ValueError, match=r"y to have shape \(2, 4, 4\)"):
+        log_likelihood(z, y[:, :3], 0.1)
+
+
+def test_observation_matches_a_per_particle_loop(scene):
+    """observe() for N particles equals the recipe done one particle at a time: project, size the
+    window f·W/z, sample bilinearly at the L × L cell centres, convert to template pixels, clip."""
+    t = scene.truth(10)
+    D = signed_distance_px(render_mask(scene.vehicle, scene.camera, scene.pose(10)))
+    g = torch.Generator().manual_seed(1)
+    centres = torch.tensor([t.x, t.y, t.z], dtype=torch.float64) + torch.randn(6, 3, generator=g,
+                                                                                dtype=torch.float64) * 0.7
+    L = 8
+    got = observe(D, scene.camera, centres, CFG, L)
+    f, Dn = scene.camera.fx, D.numpy()
+    for n in range(6):
+        x, y, z = centres[n].tolist()
+        # A tilted camera: depth along its optical axis, pixel from its own projection.
+        uv, depth = scene.camera.project(centres[n])
+        s = f * CFG.window_m / depth.item()
+        for a in range(L):
+            for b in range(L):
+                u = uv[0].item() + ((b + 0.5) / L - 0.5) * s
+                v = uv[1].item() + ((a + 0.5) / L - 0.5) * s
+                d = _bilinear_reference(Dn, u, v) * CFG.size_px / s
+                want = min(max(d, -CFG.tau_px), CFG.tau_px) / CFG.tau_px
+                assert got[n, a, b].item() == pytest.approx(want, abs=1e-5)
+
+
+def test_view_of_a_particle_at_the_truth_is_the_true_view(scene):
+    t = scene.truth(25)
+    theta, phi = view_of_pose(VehiclePose(t.x, t.y, t.z, t.heading), scene.camera)
+    assert theta.item() == pytest.approx(t.theta, abs=1e-12) and phi.item() == pytest.approx(t.phi, abs=1e-12)

@@ -1,0 +1,126 @@
+"""The predicted shape yⱼ of each particle: Methods I–IV of chapter 6 (METHOD.md "Methods").
+
+All four share the filter and its noises; only the appearance differs:
+
+    I    α and Θ continuous: y(α, Θ) = 𝒜 ×₃ i(α) ×₂ Ψ(Θ) (eq. 4.18)
+    II   Θ continuous, α snapped to the nearest training vehicle's αₖ
+    III  α continuous, Θ snapped to the nearest training view
+    IV   the nearest training vehicle's rendered template at the nearest training view
+
+The training views are the RBF centres (``train.py`` puts one at each training view).
+
+Speed. The identity manifold is a cubic B-spline, so i(α) = Σⱼ bⱼ(α) c_{s+j} mixes only 4 of its
+K + 3 control points (:meth:`~torch_atr.model.IdentityManifold.local_basis`). Contracting the
+core with the control points once, 𝒜' = 𝒜 ×₃ Cᵀ, a particle's pixel-basis coordinates are
+Σⱼ bⱼ 𝒜'_{s+j} Ψ(Θ): 4·r·P multiply-adds instead of K·r·P (9× fewer for K = 36). Particles are
+grouped by their spline span s (at most K groups, never a loop over particles): one
+(nₛ × P) @ (P × 4r) matmul per group. The coordinates are expanded on the pixel basis pooled to
+the likelihood resolution L (exact: pooling is linear).
+"""
+
+from __future__ import annotations
+
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+from torch_atr.model import GenerativeShapeModel
+from torch_atr.pose import view_vectors
+
+METHODS = ("I", "II", "III", "IV")
+SPLINE_POINTS = 4  # control points carrying each α (cubic spline)
+
+
+def pool_images(images: torch.Tensor, size: int) -> torch.Tensor:
+    """Average-pool square images (..., S, S) to (..., L, L), L = ``size`` dividing S."""
+    S = images.shape[-1]
+    if images.shape[-2] != S or size < 1 or S % size:
+        raise ValueError(f"Expected square images whose size {tuple(images.shape[-2:])} is a multiple of {size}")
+    flat = images.reshape(-1, 1, S, S)
+    return F.avg_pool2d(flat, S // size).reshape(*images.shape[:-2], size, size)
+
+
+class ShapeAppearance(nn.Module):
+    """Predicted signed-distance templates y (N, L, L) of particles, for one of Methods I–IV.
+
+    Args:
+        model: the generative model (kept as a submodule; its buffers move with ``.to()``).
+        method: "I", "II", "III" or "IV".
+        size: L, the likelihood resolution (divides the template size S).
+        templates: (K, V, S, S) signed-distance templates of the K training vehicles at the V
+            training views (the RBF centres), needed by Method IV only
+            (:func:`~torch_atr.training.render_set` renders them).
+
+    Buffers: ``windows`` (K, P, 4r), for each spline span s the control-point core
+    [𝒜'_s … 𝒜'_{s+3}] arranged for one matmul; ``basis`` (L², r) the pixel basis pooled to L;
+    ``templates`` (K, V, L²) pooled (Method IV) or None.
+    """
+
+    def __init__(self, model: GenerativeShapeModel, method: str = "I", size: int = 32,
+                 templates: torch.Tensor | None = None):
+        super().__init__()
+        if method not in METHODS:
+            raise ValueError(f"Unknown method {method!r}; expected one of {', '.join(METHODS)}")
+        if model.core.pixel_basis is None:
+            raise ValueError("The tracker needs a model with a pixel basis (model.pixel_rank set)")
+        S, K, V = model.template.size_px, model.core.num_vehicles, model.rbf.num_centres
+        self.model, self.method, self.size = model, method, int(size)
+        with torch.no_grad():
+            A, C = model.core.core, model.identity.coefficients.to(model.core.core)  # (r, P, K), (K + 3, K)
+            control = torch.einsum("rpk,ck->cpr", A, C)  # 𝒜' = 𝒜 ×₃ Cᵀ: (K + 3, P, r)
+            spans = torch.arange(K, device=A.device)[:, None] + torch.arange(SPLINE_POINTS, device=A.device)
+            windows = control[spans].permute(0, 2, 1, 3).reshape(K, A.shape[1], -1)  # (K, P, 4r)
+            r = model.core.pixel_rank
+            basis = pool_images(model.core.pixel_basis.T.reshape(r, S, S), self.size).reshape(r, -1).T
+        self.register_buffer("windows", windows.contiguous())
+        self.register_buffer("basis", basis.contiguous())  # (L², r)
+        if method == "IV":
+            if templates is None:
+                raise ValueError("Method IV needs the training templates (K, V, S, S); see training.render_set")
+            if tuple(templates.shape) != (K, V, S, S):
+                raise ValueError(f"Expected templates of shape {(K, V, S, S)} (vehicles, RBF-centre views, pixels); "
+                                 f"got {tuple(templates.shape)}")
+            pooled = pool_images(templates.to(A), self.size).reshape(K, V, -1)
+            self.register_buffer("templates", pooled)
+        else:
+            self.register_buffer("templates", None)
+
+    def snap(self, alpha: torch.Tensor, theta: torch.Tensor, phi: torch.Tensor
+             ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor | None, torch.Tensor | None]:
+        """The method's (α, θ, φ) for (N,) queries, and the snapped vehicle and view indices (N,)
+        (None where the method keeps that variable continuous)."""
+        model = self.model
+        vehicle = view = None
+        if self.method in ("II", "IV"):
+            vehicle = model.identity.nearest_vehicles(alpha, 1)[:, 0]
+            alpha = model.alphas[vehicle]
+        if self.method in ("III", "IV"):
+            centres = model.rbf.centres_u.to(theta)  # (V, 3)
+            view = torch.cdist(view_vectors(theta, phi), centres).argmin(dim=1)
+            theta, phi = model.rbf.centres_theta[view].to(theta), model.rbf.centres_phi[view].to(theta)
+        return alpha, theta, phi, vehicle, view
+
+    def coords(self, alpha: torch.Tensor, theta: torch.Tensor, phi: torch.Tensor) -> torch.Tensor:
+        """Pixel-basis coordinates c = 𝒜 ×₃ i(α) ×₂ Ψ(Θ) for (N,) queries in the model's dtype,
+        grouped by spline span. Returns (N, r)."""
+        psi = self.model.rbf(theta, phi)  # (N, P)
+        first, weights = self.model.identity.local_basis(alpha)
+        r = self.basis.shape[1]
+        out = torch.empty(alpha.shape[0], r, dtype=self.windows.dtype, device=self.windows.device)
+        order = torch.argsort(first)
+        spans, counts = torch.unique_consecutive(first[order], return_counts=True)
+        for s, members in zip(spans.tolist(), order.split(counts.tolist())):  # ≤ K groups
+            local = (psi[members] @ self.windows[s]).view(-1, SPLINE_POINTS, r)  # (n, 4, r)
+            out[members] = torch.einsum("nj,njr->nr", weights[members], local)
+        return out
+
+    def forward(self, alpha: torch.Tensor, theta: torch.Tensor, phi: torch.Tensor) -> torch.Tensor:
+        """Predicted templates y for alpha, theta, phi: (N,) radians (any float dtype). Returns
+        (N, L, L) in the model's dtype."""
+        alpha, theta, phi = (q.to(self.windows) for q in (alpha, theta, phi))
+        alpha, theta, phi, vehicle, view = self.snap(alpha, theta, phi)
+        if self.method == "IV":
+            y = self.templates[vehicle, view]  # (N, L²)
+        else:
+            y = self.coords(alpha, theta, phi) @ self.basis.T  # (N, L²)
+        return y.view(-1, self.size, self.size)

@@ -1,0 +1,46 @@
+"""Per-frame estimates from weighted particles (Table 5.1 step 3, METHOD.md "Estimate").
+
+Linear quantities (x, y, z, v) take the weighted mean and covariance; angles (heading h and
+identity α) the circular weighted mean atan2(Σ w sin a, Σ w cos a), since a plain mean of angles
+is wrong across 0 / 2π (the mean of 0.1 and 2π − 0.1 is 0, not π).
+"""
+
+from __future__ import annotations
+
+import torch
+
+from torch_atr._checks import check_shape
+from torch_atr.pose import wrap_angle
+
+
+def _check(values: torch.Tensor, weights: torch.Tensor, dims: tuple) -> None:
+    check_shape("weights", weights, ("N",))
+    check_shape("values", values, (weights.shape[0], *dims))
+
+
+def weighted_mean_cov(values: torch.Tensor, weights: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """Weighted mean (D,) and covariance (D, D) Σ wⱼ (xⱼ − μ)(xⱼ − μ)ᵀ of values (N, D), weights (N,) summing to 1."""
+    _check(values, weights, (None,))
+    mean = weights @ values
+    centred = values - mean
+    return mean, (centred * weights[:, None]).T @ centred
+
+
+def circular_mean(angles: torch.Tensor, weights: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """Weighted circular mean of angles (N,) radians with weights (N,) summing to 1.
+
+    Returns the mean in [0, 2π) and the mean resultant length R = |Σ w e^{ia}| in [0, 1]
+    (1: all equal; 0: no preferred direction, where the mean is arbitrary).
+    """
+    _check(angles, weights, ())
+    s, c = weights @ torch.sin(angles), weights @ torch.cos(angles)
+    return wrap_angle(torch.atan2(s, c)), torch.hypot(s, c)
+
+
+def class_posterior(classes: torch.Tensor, weights: torch.Tensor, num_classes: int) -> torch.Tensor:
+    """Posterior weight per class: Σ of the weights of the particles in each class.
+
+    classes: (N,) int64 in [0, C); weights: (N,); num_classes: C. Returns (C,).
+    """
+    _check(classes, weights, ())
+    return torch.zeros(num_classes, dtype=weights.dtype, device=weights.device).index_add_(0, classes, weights)

@@ -1,0 +1,404 @@
+"""Joint tracking and recognition: the particle filter of Table 5.1 on tensors.
+
+Per frame (Table 5.1, with the segmentation of chapter 3.1 in front):
+
+1. predict every particle with the motion model (eq. 5.1) and the identity random walk (eq. 5.3);
+2. segment the frame: the background model skips the predicted target box, the global gain is
+   compensated, and the blob nearest the predicted centre is kept;
+3. weigh: the blob's signed distance in image pixels, sampled in each particle's window and
+   compared with its predicted shape (Methods I–IV), eq. 5.2 in log space, normalised by
+   log-sum-exp;
+4. estimate (Table 5.1 step 3): weighted means, circular means of h and α, the maximum-weight
+   particle, the class posterior, the two nearest training vehicles, the ESS and the view Θ;
+5. resample (step 4) when the ESS falls below ``resample_ess`` · N (1.0: every frame, the
+   thesis's SIR filter).
+
+A frame gives no observation when its mask is empty or covers more than ``max_foreground`` of the
+image, and is lost when every particle's likelihood underflows (max log w below log of the
+smallest normal float): the filter then keeps its prediction, leaves the weights as they are and
+flags the frame ``lost``. Estimates are never NaN once the filter is initialised.
+
+Everything per particle is a tensor operation on the particles' device; the only Python loops
+run over frames and over the ≤ K spline spans of the appearance model.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+import torch
+
+from torch_atr.camera import Camera
+from torch_atr.config import ConfigError
+from torch_atr.data.sequence import FrameTruth, Sequence
+from torch_atr.model import GenerativeShapeModel
+from torch_atr.pose import VehiclePose, view_of_pose, wrap_angle
+from torch_atr.segmentation import ForegroundSegmenter, SegmentationConfig
+from torch_atr.shape import dice, signed_distance_px
+from torch_atr.tracking.appearance import METHODS, ShapeAppearance
+from torch_atr.tracking.estimates import circular_mean, class_posterior, weighted_mean_cov
+from torch_atr.tracking.initialise import (InitConfig, blind_hypotheses, blind_particles, truth_alpha,
+                                           truth_particles)
+from torch_atr.tracking.motion import ALPHA, HEADING, SPEED, STATE_DIM, X, Y, Z, MotionConfig, predict
+from torch_atr.tracking.observation import log_likelihood, observe, place_silhouette, project_windows
+from torch_atr.tracking.resampling import SCHEMES, effective_sample_size, resample
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class FilterConfig:
+    """The particle filter's own settings (module docstring)."""
+
+    particles: int = 1000  # N
+    method: str = "I"  # appearance: I, II, III or IV (METHOD.md "Methods")
+    sigma: float = 0.02  # σ of the likelihood eq. 5.2, in template units (signed distances in [−1, 1])
+    likelihood_px: int = 32  # L: the L x L grid compared per particle (divides the template size)
+    resample: str = "systematic"  # systematic, stratified, residual or multinomial
+    resample_ess: float = 1.0  # resample when ESS < resample_ess · N; 1.0: every frame (the thesis's SIR)
+    max_foreground: float = 0.5  # a mask covering more of the frame is no observation (a global change)
+    fps: float = 30.0  # frame rate for a sequence that states none
+
+    def __post_init__(self) -> None:
+        checks = {
+            "particles": 1 <= self.particles <= 10_000_000,
+            "method": self.method in METHODS,
+            "sigma": math.isfinite(self.sigma) and 1e-4 <= self.sigma <= 1e3,
+            "likelihood_px": 1 <= self.likelihood_px <= 512,
+            "resample": self.resample in SCHEMES,
+            "resample_ess": 0 <= self.resample_ess <= 1,
+            "max_foreground": 0 < self.max_foreground <= 1,
+            "fps": math.isfinite(self.fps) and 0 < self.fps <= 10_000,
+        }
+        bad = [f"{k}={getattr(self, k)!r}" for k, ok in checks.items() if not ok]
+        if bad:
+            raise ConfigError("filter: bad value(s) " + ", ".join(bad) + f" (particles in [1, 1e7]; method in "
+                              f"{METHODS}; sigma in [1e-4, 1e3]; likelihood_px in [1, 512]; resample in {SCHEMES}; "
+                              "resample_ess in [0, 1]; max_foreground in (0, 1]; fps in (0, 1e4])")
+
+
+@dataclass(frozen=True)
+class AdaptConfig:
+    """Online kernel-width adaptation (the design card's "fine-tune kernel widths by gradient
+    descent on reconstruction loss"): every ``every`` frames, ``steps`` Adam steps at ``lr`` on
+    log(width) reduce the squared error between the predicted shape at the estimate and the
+    observation there. 0 turns it off (the default: measured, it did not help; README)."""
+
+    every: int = 0
+    steps: int = 3
+    lr: float = 0.01
+
+    def __post_init__(self) -> None:
+        if not (0 <= self.every and 1 <= self.steps <= 1000 and math.isfinite(self.lr) and 0 < self.lr <= 1):
+            raise ConfigError(f"adapt: expected every >= 0, steps in [1, 1000], lr in (0, 1]; got {self}")
+
+
+def tracker_segmentation() -> SegmentationConfig:
+    """The segmentation the tracker defaults to: the frozen thesis model plus feedback (the
+    background keeps learning away from the predicted target every 5th frame, gain compensated)."""
+    return SegmentationConfig(learning_rate=0.01, learning_interval=5, compensate_gain=True)
+
+
+@dataclass(frozen=True)
+class TrackerConfig:
+    """Everything :class:`Tracker` needs besides the model and the camera."""
+
+    filter: FilterConfig = field(default_factory=FilterConfig)
+    motion: MotionConfig = field(default_factory=MotionConfig)
+    init: InitConfig = field(default_factory=InitConfig)
+    segmentation: SegmentationConfig = field(default_factory=tracker_segmentation)
+    adapt: AdaptConfig = field(default_factory=AdaptConfig)
+
+
+@dataclass
+class TrackResult:
+    """What :meth:`Tracker.run` returns.
+
+    Attributes:
+        rows: one dict per frame (the columns of ``estimates.csv``; README, "Outputs").
+        snapshots: a few frames for figures: dicts with ``frame`` (index), ``image`` (H, W) uint8,
+            ``mask`` (H, W) bool segmented and ``silhouette`` (H, W) bool the placed estimate.
+        seconds: wall time of the tracking loop (segmentation included, reading frames excluded).
+    """
+
+    rows: list[dict]
+    snapshots: list[dict]
+    seconds: float
+
+    def column(self, name: str) -> np.ndarray:
+        """One numeric column over the frames, (T,) float64 (NaN where a row lacks it)."""
+        return column(self.rows, name)
+
+    @property
+    def frames_per_second(self) -> float:
+        return len(self.rows) / self.seconds if self.seconds > 0 else math.nan
+
+
+class Tracker:
+    """The joint tracker and recogniser (module docstring).
+
+    Args:
+        model: the generative shape model (moved to ``device``).
+        camera: the scene's calibrated camera, with a sensor-like, ground-levelled world frame.
+        config: the settings; ``TrackerConfig()`` if None.
+        device: where the particles live (``"cpu"``, ``"cuda"``, a ``torch.device``); default
+            the model's device.
+        seed: seeds the tracker's generator: the same seed and frames give the same run.
+        templates: (K, V, S, S) training templates for Method IV (see ``ShapeAppearance``).
+
+    Use :meth:`run` on a whole sequence, or :meth:`warm_up`, optionally :meth:`initialise`, and
+    :meth:`step` per frame for live use.
+    """
+
+    def __init__(self, model: GenerativeShapeModel, camera: Camera, config: TrackerConfig | None = None, *,
+                 device: str | torch.device | None = None, seed: int = 0, templates: torch.Tensor | None = None):
+        self.cfg = TrackerConfig() if config is None else config
+        self.device = torch.device(device) if device is not None else model.alphas.device
+        self.model = model.to(self.device)
+        self.camera = camera
+        fc = self.cfg.filter
+        self.appearance = ShapeAppearance(self.model, fc.method, fc.likelihood_px, templates).to(self.device)
+        self.segmenter = ForegroundSegmenter(self.cfg.segmentation)
+        self.generator = torch.Generator(self.device).manual_seed(seed)
+        self.dtype = self.model.alphas.dtype
+        self.particles: torch.Tensor | None = None  # (N, 6)
+        self.log_weights: torch.Tensor | None = None  # (N,), normalised
+        self.dt = 1.0 / fc.fps
+        self.last_mask: np.ndarray | None = None  # the segmented target mask of the last frame
+        height = self.cfg.init.camera_height_m
+        self.camera_height_m = math.nan if height is None else height  # above the ground (blind start)
+        self._frames = 0
+        self._optimiser = (torch.optim.Adam([self.model.rbf.log_width], lr=self.cfg.adapt.lr)
+                           if self.cfg.adapt.every else None)
+
+    # --- set-up -----------------------------------------------------------------------------
+    def warm_up(self, frames) -> None:
+        """Learn the background from target-free frames (thesis 3.1): an iterable of frames."""
+        self.segmenter.warm_up(frames)
+
+    def initialise(self, truth: FrameTruth) -> None:
+        """The thesis's initialisation from one frame's truth (``InitConfig``, mode "truth").
+
+        Needs the truth's position (x, y, z), heading and, for α, its vehicle or class.
+        """
+        needed = (truth.x, truth.y, truth.z, truth.heading)
+        if not all(math.isfinite(v) for v in needed):
+            raise ValueError(f"Truth initialisation needs x, y, z and heading; got {needed}")
+        alpha = truth_alpha(self.model, truth.vehicle, truth.vehicle_class, self.cfg.init.alpha)
+        position = torch.tensor([truth.x, truth.y, truth.z], dtype=self.dtype, device=self.device)
+        self.particles = truth_particles(position, truth.heading, alpha, self.cfg.filter.particles, self.cfg.init,
+                                         self.generator)
+        self.log_weights = torch.full((self.particles.shape[0],), -math.log(self.particles.shape[0]),
+                                      dtype=self.dtype, device=self.device)
+
+    @property
+    def initialised(self) -> bool:
+        return self.particles is not None
+
+    # --- one frame --------------------------------------------------------------------------
+    @torch.no_grad()
+    def step(self, frame: np.ndarray, dt: float | None = None) -> dict:
+        """Track one frame: returns its estimate row (README, "Outputs").
+
+        Args:
+            frame: (H, W) or (H, W, 3), the warm-up frames' size and dtype.
+            dt: seconds since the previous frame; default 1 / fps.
+        """
+        start = time.perf_counter()
+        dt = self.dt if dt is None else dt
+        predicted = self.initialised and self._frames > 0
+        if predicted:
+            self.particles = predict(self.particles, dt, self.cfg.motion, self.generator)
+        near, box = self._predicted_region() if self.initialised else (None, None)
+        mask = self.last_mask = self.segmenter(frame, near=near, exclude=box)
+        area = int(mask.sum())
+        observed = 0 < area <= self.cfg.filter.max_foreground * mask.size
+        distance = signed_distance_px(torch.from_numpy(mask)).to(self.device) if observed else None
+        if not self.initialised and observed:
+            self._initialise_blind(mask, distance)
+        lost = True
+        if self.initialised and observed:
+            log_lik = self._log_likelihood(distance, self.particles)
+            if log_lik.max() >= math.log(torch.finfo(self.dtype).tiny):
+                self.log_weights = torch.log_softmax(self.log_weights + log_lik, dim=0)
+                lost = False
+        row = {"frame": self._frames, "lost": int(lost), "mask_area_px": area}
+        if self.initialised:
+            row.update(self._estimate())
+            if observed:
+                row["overlap"] = self._overlap(mask, row)
+            if not lost and self._optimiser is not None and self._frames % self.cfg.adapt.every == 0:
+                self._adapt(distance, row)
+            threshold = self.cfg.filter.resample_ess
+            row["resampled"] = int(threshold >= 1 or row["ess"] < threshold * self.particles.shape[0])
+            if row["resampled"]:
+                ancestors = resample(self.log_weights.exp(), self.cfg.filter.resample, self.generator)
+                self.particles = self.particles[ancestors]
+                self.log_weights = torch.full_like(self.log_weights, -math.log(self.particles.shape[0]))
+        self._frames += 1
+        row["step_ms"] = 1e3 * (time.perf_counter() - start)
+        return row
+
+    def _predicted_region(self) -> tuple[tuple[float, float], tuple[float, float, float, float]]:
+        """The predicted target centre (u, v) and the box (u0, v0, u1, v1) holding the windows of
+        the central 98 % of the particles, in pixels."""
+        uv, side = project_windows(self.camera, self.particles[:, X:Z + 1], self.model.template.window_m)
+        w = self.log_weights.exp()
+        finite = (uv.isfinite() & side.isfinite()).all(dim=1)
+        if not finite.any():
+            return None, None
+        lo = (uv - side / 2)[finite]
+        hi = (uv + side / 2)[finite]
+        q = torch.tensor([0.01, 0.99], dtype=uv.dtype, device=uv.device)
+        box = (torch.quantile(lo, q[0], dim=0), torch.quantile(hi, q[1], dim=0))
+        centre = (w[finite, None] * uv[finite]).sum(0) / w[finite].sum().clamp_min(1e-30)
+        return tuple(centre.tolist()), (*box[0].tolist(), *box[1].tolist())
+
+    def _views(self, particles: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """View Θ of each particle: from its centre to the camera, in its body frame."""
+        pose = VehiclePose(particles[:, X], particles[:, Y], particles[:, Z], particles[:, HEADING])
+        return view_of_pose(pose, self.camera)
+
+    def _log_likelihood(self, distance: torch.Tensor, particles: torch.Tensor) -> torch.Tensor:
+        """Eq. 5.2 per particle; −inf where it is not finite. Returns (N,)."""
+        theta, phi = self._views(particles)
+        y = self.appearance(particles[:, ALPHA], theta, phi)
+        z = observe(distance, self.camera, particles[:, X:Z + 1], self.model.template, self.appearance.size)
+        log_lik = log_likelihood(z.to(y), y, self.cfg.filter.sigma)
+        return torch.where(log_lik.isfinite(), log_lik, -math.inf).to(self.dtype)
+
+    def _initialise_blind(self, mask: np.ndarray, distance: torch.Tensor) -> None:
+        """Particles from the first blob (``initialise.blind_hypotheses``)."""
+        blob = torch.from_numpy(mask).to(self.device)
+        states, log_lik = blind_hypotheses(blob, distance, self.camera, self.appearance, self.cfg.init,
+                                           self.cfg.filter.sigma, self.camera_height_m)
+        self.particles = blind_particles(states, log_lik, self.cfg.filter.particles, self.cfg.init, self.camera,
+                                         self.generator).to(self.dtype)
+        self.log_weights = torch.full((self.particles.shape[0],), -math.log(self.particles.shape[0]),
+                                      dtype=self.dtype, device=self.device)
+        best = states[log_lik.argmax()]
+        log.info("blind initialisation: best of %d hypotheses at x=%.1f z=%.1f m, α=%.2f (%s)", states.shape[0],
+                 best[X], best[Z], best[ALPHA], self.model.class_names[self.model.classify(best[ALPHA:ALPHA + 1])])
+
+    def _estimate(self) -> dict:
+        """The estimate row of the current weighted particles (module docstring, step 4)."""
+        model, p = self.model, self.particles
+        w = self.log_weights.exp().to(torch.float64)
+        p64 = p.to(torch.float64)
+        linear = p64[:, [X, Y, Z, SPEED]]
+        mean, cov = weighted_mean_cov(linear, w)
+        heading, heading_r = circular_mean(p64[:, HEADING], w)
+        alpha, alpha_r = circular_mean(p64[:, ALPHA], w)
+        alpha_t = alpha.to(self.dtype).reshape(1)
+        theta, phi = view_of_pose(VehiclePose(*mean[:3].tolist(), float(heading)), self.camera)
+        posterior = class_posterior(model.classify(p[:, ALPHA]), w, len(model.class_names))
+        best = p64[int(w.argmax())]
+        nearest = model.nearest_vehicles(alpha_t, 2)[0].tolist()
+        row = {"x": mean[0], "y": mean[1], "z": mean[2], "heading": heading, "speed": mean[3], "alpha": alpha,
+               "std_x": cov[0, 0].sqrt(), "std_y": cov[1, 1].sqrt(), "std_z": cov[2, 2].sqrt(),
+               "std_speed": cov[3, 3].sqrt(), "heading_concentration": heading_r, "alpha_concentration": alpha_r,
+               "theta": theta, "phi": phi, "class": model.class_names[int(model.classify(alpha_t))],
+               "nearest_1": model.vehicle_names[nearest[0]], "nearest_2": model.vehicle_names[nearest[1]],
+               **{f"p_{name}": posterior[c] for c, name in enumerate(model.class_names)},
+               **{f"best_{name}": best[i] for name, i in (("x", X), ("y", Y), ("z", Z), ("heading", HEADING),
+                                                          ("speed", SPEED), ("alpha", ALPHA))},
+               "ess": effective_sample_size(w)}
+        return {k: float(v) if isinstance(v, torch.Tensor) else v for k, v in row.items()}
+
+    def _estimate_particle(self, row: dict) -> torch.Tensor:
+        """(1, 6) the estimate as a particle."""
+        return torch.tensor([[row["x"], row["y"], row["z"], row["heading"], row["speed"], row["alpha"]]],
+                            dtype=self.dtype, device=self.device)
+
+    def silhouette_at(self, row: dict, shape: tuple[int, int]) -> torch.Tensor:
+        """The estimate's reconstructed silhouette y(α̂, Θ̂) > 0 placed in the frame: (H, W) bool."""
+        est = self._estimate_particle(row)
+        theta = torch.tensor([row["theta"]], dtype=self.dtype, device=self.device)
+        phi = torch.tensor([row["phi"]], dtype=self.dtype, device=self.device)
+        y = self.model(est[:, ALPHA], theta, phi)[0]
+        uv, side = project_windows(self.camera, est[:, X:Z + 1], self.model.template.window_m)
+        return place_silhouette(y, uv[0], side[0], shape)
+
+    def _overlap(self, mask: np.ndarray, row: dict) -> float:
+        """Dice ξ (eq. 6.1) of the placed estimate and the segmented target mask."""
+        return float(dice(self.silhouette_at(row, mask.shape).cpu(), torch.from_numpy(mask)))
+
+    def _adapt(self, distance: torch.Tensor, row: dict) -> None:
+        """A few Adam steps on the kernel widths towards the observation at the estimate."""
+        est = self._estimate_particle(row)
+        z = observe(distance, self.camera, est[:, X:Z + 1], self.model.template, self.appearance.size)
+        theta, phi = self._views(est)
+        with torch.enable_grad():
+            for _ in range(self.cfg.adapt.steps):
+                self._optimiser.zero_grad()
+                loss = (self.appearance(est[:, ALPHA], theta, phi) - z).square().mean()
+                loss.backward()
+                self._optimiser.step()
+
+    # --- a whole sequence -------------------------------------------------------------------
+    def run(self, sequence: Sequence, frames: int | None = None, snapshots: int = 6, progress: bool = True
+            ) -> TrackResult:
+        """Track a sequence: warm up the background, initialise (``cfg.init.mode``), step every frame.
+
+        Args:
+            sequence: an opened sequence with a camera (``data.open_sequence``).
+            frames: track the first ``frames`` frames (default all).
+            snapshots: frames kept for figures, evenly spread.
+            progress: show a tqdm bar.
+        Returns:
+            A :class:`TrackResult` whose rows carry the truth (``true_*``) where the sequence has it.
+        """
+        from tqdm import tqdm
+
+        n = len(sequence) if frames is None else min(int(frames), len(sequence))
+        if n < 1:
+            raise ValueError(f"{sequence.name}: nothing to track ({n} frames)")
+        if math.isfinite(sequence.fps) and sequence.fps > 0:
+            self.dt = 1.0 / sequence.fps
+        if self.cfg.init.camera_height_m is None:
+            self.camera_height_m = sequence.camera_height_m
+        warmup = (sequence.warmup_frames(self.cfg.segmentation.warmup_frames) if hasattr(sequence, "warmup_frames")
+                  else (sequence.frame(i) for i in range(min(n, self.cfg.segmentation.warmup_frames))))
+        self.warm_up(warmup)
+        if self.cfg.init.mode == "truth":
+            first = sequence.truth(0)
+            if first is None:
+                raise ValueError(f"{sequence.name}: init.mode=truth needs ground truth for frame 0; it has none "
+                                 f"(use init.mode=blind)")
+            self.initialise(first)
+        keep = set(np.linspace(0, n - 1, snapshots).round().astype(int).tolist()) if snapshots else set()
+        rows, shots, seconds = [], [], 0.0
+        for i in tqdm(range(n), desc=f"tracking {sequence.name}", unit="frame", disable=not progress, leave=False):
+            frame = sequence.frame(i)
+            start = time.perf_counter()
+            row = self.step(frame)
+            seconds += time.perf_counter() - start
+            row["time_s"] = i * self.dt
+            truth = sequence.truth(i)
+            if truth is not None:
+                row.update(truth_columns(truth))
+            rows.append(row)
+            if i in keep:
+                shots.append(self._snapshot(i, frame, row))
+        return TrackResult(rows, shots, seconds)
+
+    def _snapshot(self, i: int, frame: np.ndarray, row: dict) -> dict:
+        """One frame for the figures: the display image, the segmented mask, the placed estimate."""
+        shape = self.last_mask.shape
+        placed = self.silhouette_at(row, shape).cpu().numpy() if "alpha" in row else np.zeros(shape, dtype=bool)
+        return {"frame": i, "image": self.segmenter.display(frame), "mask": self.last_mask, "silhouette": placed}
+
+
+def column(rows: list[dict], name: str) -> np.ndarray:
+    """One numeric column of estimate rows, (T,) float64 (NaN where a row lacks it)."""
+    return np.array([float(row.get(name, math.nan)) for row in rows], dtype=np.float64)
+
+
+def truth_columns(truth: FrameTruth) -> dict:
+    """The ``true_*`` columns of an estimate row."""
+    return {"true_x": truth.x, "true_y": truth.y, "true_z": truth.z, "true_heading": truth.heading,
+            "true_theta": truth.theta, "true_vehicle": truth.vehicle, "true_class": truth.vehicle_class}

@@ -1,0 +1,205 @@
+"""The first particles: from ground truth as the thesis does, or blind from the first blob.
+
+Truth (Table 5.1 and chapter 6.2): X₀ʲ ~ N(X₀, diag(σ₀²)) around the first frame's truth, a small
+positive speed (the thesis has no speed truth), and α₀ʲ at the true vehicle's αₖ when it is a
+training vehicle, else at the centre of its class's arc.
+
+Blind (what a real user has: one segmented blob and the camera). The range comes from the ground
+plane when the camera's height above flat ground is known: the blob's lowest row is where the
+vehicle meets the ground, and its ray meets the plane at the range. Without it, each hypothesis
+takes the range at which its silhouette has the blob's size — which confuses a small vehicle near
+with a big one far (a car at 570 m for a tank at 1000 m, measured), so give the height when you
+know it. For every hypothesis (α, θ) of a coarse grid, at the elevation φ of the line of sight
+through the blob, the model's silhouette y(α, θ, φ) > 0 has a size and an offset from the window
+centre in template pixels; matching its box to the blob's box at the range gives the window
+centre and so the position on that pixel's ray, and the heading follows from θ and the bearing of
+the camera. Every hypothesis is then scored by the observation likelihood, and the particles are
+drawn around the best ones (a mixture: equal shares, jittered by about half a grid step).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import torch
+
+from torch_atr.camera import Camera
+from torch_atr.config import ConfigError
+from torch_atr.pose import camera_centre, wrap_angle
+from torch_atr.tracking.appearance import ShapeAppearance
+from torch_atr.tracking.motion import ALPHA, HEADING, SPEED, STATE_DIM, X, Z
+from torch_atr.tracking.observation import log_likelihood, observe
+
+INIT_MODES = ("blind", "truth")
+
+
+@dataclass(frozen=True)
+class InitConfig:
+    """How the first particles are drawn (module docstring)."""
+
+    mode: str = "blind"  # "blind" (from the first blob and the camera) or "truth" (the thesis's)
+    position_std_m: float = 1.0  # truth: σ of x, y, z around the truth (the thesis's N(X₀, 1))
+    heading_std_rad: float = 0.1  # truth: σ of the heading around the truth
+    speed_mps: float = 1.0  # truth: the initial speed, small and positive (no speed truth in the thesis)
+    speed_std_mps: float = 1.0  # σ of the initial speed (truth), or of the unknown signed speed (blind)
+    alpha: str = "vehicle"  # truth: "vehicle" (its αₖ if a training vehicle, else its class centre) or "class"
+    alpha_steps: int = 72  # blind: α hypotheses evenly over [0, 2π)
+    azimuth_steps: int = 36  # blind: θ hypotheses evenly over [0, 2π)
+    hypotheses: int = 16  # blind: particles are drawn around this many best hypotheses
+    range_std: float = 0.03  # blind: relative σ of the range around a hypothesis's range
+    camera_height_m: float | None = None  # blind: above flat ground; null: the sequence's, if it knows it
+
+    def __post_init__(self) -> None:
+        if self.mode not in INIT_MODES:
+            raise ConfigError(f"init.mode must be one of {', '.join(INIT_MODES)}; got {self.mode!r}")
+        if self.alpha not in ("vehicle", "class"):
+            raise ConfigError(f"init.alpha must be 'vehicle' or 'class'; got {self.alpha!r}")
+        for key in ("position_std_m", "heading_std_rad", "speed_std_mps", "range_std"):
+            value = getattr(self, key)
+            if not (math.isfinite(value) and 0 <= value <= 1e3):
+                raise ConfigError(f"init.{key} must be in [0, 1e3]; got {value!r}")
+        if self.camera_height_m is not None and not (math.isfinite(self.camera_height_m) and self.camera_height_m > 0):
+            raise ConfigError(f"init.camera_height_m must be positive or null; got {self.camera_height_m!r}")
+        if not math.isfinite(self.speed_mps):
+            raise ConfigError(f"init.speed_mps must be finite; got {self.speed_mps!r}")
+        for key in ("alpha_steps", "azimuth_steps", "hypotheses"):
+            if not 1 <= getattr(self, key) <= 10_000:
+                raise ConfigError(f"init.{key} must be in [1, 10000]; got {getattr(self, key)!r}")
+
+
+def truth_alpha(model, vehicle: str, vehicle_class: str, mode: str = "vehicle") -> float:
+    """α₀ of the thesis's initialisation: the vehicle's αₖ (``mode="vehicle"`` and a training
+    vehicle) or the centre of its class's arc. Raises ValueError for a class the model lacks."""
+    if mode == "vehicle" and vehicle in model.vehicle_names:
+        return float(model.alphas[model.vehicle_names.index(vehicle)])
+    if vehicle_class not in model.class_names:
+        raise ValueError(f"Truth initialisation needs the target's class among the model's {model.class_names}; "
+                         f"got vehicle {vehicle!r} of class {vehicle_class!r}")
+    c = model.class_names.index(vehicle_class)
+    arcs = [(start, end) for label, start, end in model.identity.class_arcs() if label == c]
+    start, end = max(arcs, key=lambda arc: arc[1] - arc[0])  # its longest arc (classes are contiguous)
+    return (start + end) / 2 % (2 * math.pi)
+
+
+def truth_particles(position: torch.Tensor, heading: float, alpha: float, n: int, cfg: InitConfig,
+                    generator: torch.Generator | None = None) -> torch.Tensor:
+    """Particles around a known state (module docstring).
+
+    position: (3,) the vehicle's centre in the world frame (float tensor, its dtype and device are
+    the particles'); heading, alpha: radians; n: N. Returns (N, 6).
+    """
+    noise = torch.randn(n, STATE_DIM, generator=generator, dtype=position.dtype, device=position.device)
+    std = torch.tensor([cfg.position_std_m] * 3 + [cfg.heading_std_rad, cfg.speed_std_mps, 0.0]).to(position)
+    mean = torch.cat([position, position.new_tensor([heading, cfg.speed_mps, alpha])])
+    out = mean + noise * std
+    out[:, HEADING] = wrap_angle(out[:, HEADING])
+    out[:, ALPHA] = wrap_angle(out[:, ALPHA])
+    return out
+
+
+def _boxes(silhouettes: torch.Tensor) -> torch.Tensor:
+    """(M, S, S) bool -> (M, 4) float64 [c0, r0, c1, r1] inclusive pixel bounds (NaN when empty)."""
+    idx = torch.arange(silhouettes.shape[-1], device=silhouettes.device, dtype=torch.float64)
+    bounds = []
+    for occupied in (silhouettes.any(dim=1), silhouettes.any(dim=2)):  # columns, rows: (M, S) each
+        bounds.append((torch.where(occupied, idx, math.inf).amin(1), torch.where(occupied, idx, -math.inf).amax(1)))
+    (c0, c1), (r0, r1) = bounds
+    box = torch.stack([c0, r0, c1, r1], dim=1)
+    return torch.where(box.isfinite(), box, math.nan)
+
+
+def ground_depth(camera: Camera, pixel: torch.Tensor, camera_height_m: float) -> float:
+    """Depth (along the optical axis) at which the ray through ``pixel`` (2,) meets flat ground
+    ``camera_height_m`` below the camera centre (world y = c_y − height); NaN if it never does."""
+    R, t = camera.R.to(pixel), camera.t.to(pixel)
+    ray = R.T @ camera.pixel_rays(pixel)  # world direction
+    if not float(ray[1]) < 0:
+        return math.nan
+    point = camera_centre(camera).to(pixel) + ray * (-camera_height_m / ray[1])
+    return float((R @ point + t)[2])
+
+
+def blind_hypotheses(blob: torch.Tensor, distance: torch.Tensor, camera: Camera, appearance: ShapeAppearance,
+                     cfg: InitConfig, sigma: float, camera_height_m: float = math.nan
+                     ) -> tuple[torch.Tensor, torch.Tensor]:
+    """Score a grid of (α, θ) hypotheses against one blob (module docstring).
+
+    Args:
+        blob: (H, W) bool, the target blob (non-empty).
+        distance: (H, W) the frame's signed distance in image pixels.
+        camera: the scene's camera (sensor-like, ground-levelled world frame).
+        appearance: the predicted shapes (its model and method).
+        cfg: the grid sizes; sigma: the likelihood σ.
+        camera_height_m: the camera's height above flat ground (NaN: unknown, ranges from sizes).
+    Returns:
+        states: (M, 6) one particle per hypothesis (speed 0), M = alpha_steps × azimuth_steps,
+        float64 on the appearance's device; log_lik: (M,) their log-likelihoods (−inf for a
+        hypothesis whose silhouette is empty).
+    """
+    model = appearance.model
+    device, dtype = appearance.windows.device, torch.float64
+    rows, cols = torch.nonzero(blob, as_tuple=True)
+    if rows.numel() == 0:
+        raise ValueError("blind initialisation needs a non-empty blob")
+    blob_box = torch.stack([cols.min(), rows.min(), cols.max(), rows.max()]).to(dtype=dtype, device=device)
+    blob_size = blob_box[2:] - blob_box[:2] + 1  # (2,) width, height in image pixels
+    blob_centre = (blob_box[:2] + blob_box[2:]) / 2
+    R, t, K = (camera.R.to(device, dtype), camera.t.to(device, dtype), camera.K.to(device, dtype))
+    ray = R.T @ camera.pixel_rays(blob_centre)  # world direction through the blob centre
+    phi = torch.asin((-ray[1] / ray.norm()).clamp(-1, 1))  # elevation of the camera seen from the target
+    alpha = torch.arange(cfg.alpha_steps, dtype=dtype, device=device) * (2 * math.pi / cfg.alpha_steps)
+    theta = torch.arange(cfg.azimuth_steps, dtype=dtype, device=device) * (2 * math.pi / cfg.azimuth_steps)
+    A, B, S = alpha.shape[0], theta.shape[0], model.template.size_px
+    with torch.no_grad():
+        shapes = model.reconstruct_grid(alpha.to(model.alphas), theta.to(model.alphas), phi.expand(B).to(model.alphas))
+    box = _boxes(shapes.reshape(A * B, S, S) > 0)  # (M, 4) template pixels
+    size_t = box[:, 2:] - box[:, :2] + 1  # (M, 2)
+    offset_t = (box[:, :2] + box[:, 2:]) / 2 - (S - 1) / 2  # silhouette box centre - window centre
+    f = torch.stack([K[0, 0], K[1, 1]])
+    m = model.template.metres_per_px
+    # Range: from the ground under the blob's lowest row, or where the silhouette's size, f m size_t / z
+    # image pixels, is the blob's (geometric mean of width and height).
+    ground = ground_depth(camera, torch.stack([blob_centre[0], blob_box[3] + 0.5]), camera_height_m) \
+        if math.isfinite(camera_height_m) else math.nan
+    depth = (f * m * size_t / blob_size).prod(dim=1).sqrt()  # (M,)
+    if math.isfinite(ground):
+        depth = torch.where(depth.isfinite(), ground, depth)
+    centre_px = blob_centre - offset_t * (f * m / depth[:, None])  # (M, 2) window centre in the image
+    sensor = camera.pixel_rays(centre_px) * depth[:, None]  # (M, 3), z = depth
+    position = (sensor - t) @ R  # world frame: Rᵀ (p_s − t)
+    to_camera = camera_centre(camera).to(position) - position
+    bearing = torch.atan2(to_camera[:, 0], to_camera[:, 2])  # of the camera, seen from the vehicle
+    th = theta.repeat(A)
+    states = torch.zeros(A * B, STATE_DIM, dtype=dtype, device=device)
+    states[:, X:Z + 1] = position
+    states[:, HEADING] = wrap_angle(th + bearing)  # θ = h − bearing
+    states[:, ALPHA] = alpha.repeat_interleave(B)
+    valid = depth.isfinite() & (depth > 0)
+    states = torch.where(valid[:, None], states, 0.0)
+    z = observe(distance, camera, states[:, X:Z + 1], model.template, appearance.size)
+    with torch.no_grad():
+        y = appearance(states[:, ALPHA], th, phi.expand(A * B)).to(z)
+    log_lik = torch.where(valid, log_likelihood(z, y, sigma), -math.inf)
+    return states, log_lik
+
+
+def blind_particles(states: torch.Tensor, log_lik: torch.Tensor, n: int, cfg: InitConfig, camera: Camera,
+                    generator: torch.Generator | None = None) -> torch.Tensor:
+    """N particles around the ``cfg.hypotheses`` best hypotheses, in equal shares.
+
+    states: (M, 6) and log_lik: (M,) from :func:`blind_hypotheses`; camera: the scene's camera.
+    The jitter: α and h by half a grid step, the range by ``range_std`` (relative, along the line
+    of sight from the camera centre), the signed speed by ``speed_std_mps``. Returns (N, 6) on
+    ``states``' device and dtype.
+    """
+    best = log_lik.argsort(descending=True)[:max(1, min(cfg.hypotheses, int(log_lik.isfinite().sum())))]
+    pick = best[torch.arange(n, device=states.device) % best.shape[0]]
+    out = states[pick].clone()
+    noise = torch.randn(n, 4, generator=generator, dtype=states.dtype, device=states.device)
+    origin = camera_centre(camera).to(states)
+    out[:, X:Z + 1] = origin + (out[:, X:Z + 1] - origin) * (1 + cfg.range_std * noise[:, 0:1])
+    out[:, HEADING] = wrap_angle(out[:, HEADING] + noise[:, 1] * math.pi / cfg.azimuth_steps)
+    out[:, ALPHA] = wrap_angle(out[:, ALPHA] + noise[:, 2] * math.pi / cfg.alpha_steps)
+    out[:, SPEED] = noise[:, 3] * cfg.speed_std_mps
+    return out

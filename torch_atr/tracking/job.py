@@ -1,0 +1,85 @@
+"""``track.py``'s job: its typed config, the metrics of a run and the files it writes.
+
+Outputs of a run folder (README, "Outputs"): ``estimates.csv`` (one row per frame),
+``metrics.json``, ``config.yaml`` (the resolved config) and PNG figures, each written atomically.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from torch_atr.config import ConfigError
+from torch_atr.evaluation import (best_matches, frames_to_convergence, recognition_accuracy, tracking_errors,
+                                  wrapped_abs)
+from torch_atr.io import atomic_write_csv, atomic_write_text
+from torch_atr.tracking.filter import TrackerConfig, TrackResult, column
+
+DEFAULT_SEQUENCE = "synthetic:vehicle=t_72,range=1000,frames=300,seed=0"
+
+# A frame is "on target" for frames_to_convergence when all three hold (the tracker issue's bars).
+CONVERGED_HORIZONTAL_M = 1.0
+CONVERGED_ASPECT_RAD = 0.3
+
+
+@dataclass(frozen=True)
+class TrackConfig:
+    """``track.py``'s config: ``configs/track.yaml`` holds the defaults, ``key=value`` overrides them."""
+
+    sequence: str = DEFAULT_SEQUENCE  # any open_sequence spec; the default is a built-in test-split sequence
+    checkpoint: str = "checkpoints/default.pt"
+    out: str = "runs/track"  # the run folder
+    device: str = "cpu"  # cpu, cuda, cuda:1, mps, ...
+    seed: int = 0
+    frames: int | None = None  # track only the first frames; null: all
+    tensorboard: bool = False  # also log scalars and figures to TensorBoard in the run folder
+    video: bool = False  # also write overlay.mp4: every frame with the estimate's contour
+    tracker: TrackerConfig = field(default_factory=TrackerConfig)
+
+    def __post_init__(self) -> None:
+        if self.frames is not None and not 1 <= self.frames <= 10_000_000:
+            raise ConfigError(f"frames must be null or in [1, 1e7]; got {self.frames!r}")
+        if not self.sequence.strip():
+            raise ConfigError("sequence must be a sequence spec; got an empty string")
+
+
+def track_metrics(rows: list[dict], model, first: int = 0) -> dict:
+    """Errors, recognition, best matches and overlap of estimate rows from frame ``first`` on;
+    null where the sequence has no truth."""
+    rows = rows[first:]
+    est = {"x": column(rows, "x"), "z": column(rows, "z"), "theta": column(rows, "theta")}
+    truth = {"x": column(rows, "true_x"), "z": column(rows, "true_z"), "theta": column(rows, "true_theta")}
+    overlap = column(rows, "overlap")
+    return {**tracking_errors(est, truth),
+            "recognition_accuracy": recognition_accuracy(model, column(rows, "alpha"),
+                                                         [r.get("true_class", "") for r in rows]),
+            "best_matches": best_matches(model, column(rows, "alpha")),
+            "overlap_ratio": float(np.nanmean(overlap)) if np.isfinite(overlap).any() else None,
+            "frames": len(rows), "first_frame": first, "lost_frames": int(sum(r["lost"] for r in rows))}
+
+
+def run_summary(result: TrackResult, model, settle_frames: int) -> dict:
+    """``metrics.json``: the metrics over all frames, over the frames after ``settle_frames``
+    (``settled``), the frames to convergence and the speed."""
+    rows = result.rows
+    known = [r.get("true_class", "") in model.class_names for r in rows]
+    ok = ((np.abs(column(rows, "x") - column(rows, "true_x")) < CONVERGED_HORIZONTAL_M)
+          & (wrapped_abs(column(rows, "theta") - column(rows, "true_theta")) < CONVERGED_ASPECT_RAD)
+          & np.array([r.get("class") == r.get("true_class") for r in rows]) & np.array(known))
+    summary = track_metrics(rows, model)
+    summary["settled"] = track_metrics(rows, model, min(settle_frames, max(len(rows) - 1, 0)))
+    summary["frames_to_convergence"] = frames_to_convergence(ok) if any(known) else None
+    summary["frames_per_second"] = result.frames_per_second
+    return summary
+
+
+def write_run(folder: Path, cfg: TrackConfig, result: TrackResult, metrics: dict) -> None:
+    """``estimates.csv``, ``metrics.json`` and ``config.yaml`` in ``folder``, each atomically."""
+    atomic_write_csv(result.rows, folder / "estimates.csv")
+    atomic_write_text(json.dumps(metrics, indent=2) + "\n", folder / "metrics.json")
+    atomic_write_text(yaml.safe_dump(dataclasses.asdict(cfg), sort_keys=False), folder / "config.yaml")

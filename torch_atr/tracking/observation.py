@@ -1,0 +1,141 @@
+"""The observation model (METHOD.md "Tracking"; eq. 5.2): what each particle sees of the frame.
+
+Per frame, the segmented foreground mask is turned once into its signed distance D in IMAGE
+pixels (:func:`~torch_atr.shape.signed_distance_px`). Per particle j with centre pⱼ = (x, y, z):
+
+1. the window: the camera projects pⱼ to (uⱼ, vⱼ) at depth zⱼ; a window of W metres (the
+   template's ``window_m``) spans sᵤ = f_x W / zⱼ by s_v = f_y W / zⱼ image pixels around it;
+2. the samples: D is sampled bilinearly (``grid_sample``) at the centres of an L × L grid over
+   the window (L = the likelihood resolution; the trained templates are H × W = S × S, and L
+   divides S), rows running down the image like template rows;
+3. the units: an image distance is S zⱼ / (√(f_x f_y) W) template pixels, then clipped to τ and
+   divided by τ exactly as the templates were (:func:`~torch_atr.shape.clip_distance`), giving
+   zⱼ of shape (L, L) in [−1, 1];
+4. the likelihood, eq. 5.2: log wⱼ = −mean((zⱼ − yⱼ)²) / (2σ²) against the predicted template yⱼ.
+
+Outside the frame the distance of the nearest border pixel is used (``padding_mode="border"``).
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+import torch.nn.functional as F
+
+from torch_atr._checks import check_shape
+from torch_atr.camera import Camera
+from torch_atr.config import TemplateConfig
+from torch_atr.shape import clip_distance
+
+
+def project_windows(camera: Camera, centres: torch.Tensor, window_m: float) -> tuple[torch.Tensor, torch.Tensor]:
+    """Image placement of the particles' windows.
+
+    Args:
+        camera: the scene's camera (world -> sensor, intrinsics; distortion moves the centre).
+        centres: (N, 3) window centres in the camera's world frame, metres.
+        window_m: W, the window's world size, metres.
+    Returns:
+        uv: (N, 2) pixel position of each window centre (NaN at or behind the camera);
+        side: (N, 2) window size (sᵤ, s_v) in image pixels (NaN at or behind the camera).
+    """
+    check_shape("centres", centres, ("N", 3))
+    uv, depth = camera.project(centres)
+    f = torch.stack([camera.K[0, 0], camera.K[1, 1]]).to(uv)
+    side = torch.where(depth.unsqueeze(-1) > 0, window_m * f / depth.unsqueeze(-1), torch.full_like(uv, math.nan))
+    return uv, side
+
+
+def sample_windows(distance: torch.Tensor, uv: torch.Tensor, side: torch.Tensor, size: int) -> torch.Tensor:
+    """Bilinear samples of an image at the centres of an L × L grid over each window.
+
+    Args:
+        distance: (H, W) image (e.g. the frame's signed distance in pixels).
+        uv: (N, 2) window centres in pixels (u right, v down; pixel (0, 0)'s centre at (0, 0)).
+        side: (N, 2) window width and height in pixels.
+        size: L.
+    Returns:
+        (N, L, L), rows running down the image; beyond the image the border pixel's value, and
+        0 for a window with a non-finite centre or size.
+    """
+    check_shape("distance", distance, ("H", "W"))
+    check_shape("uv", uv, ("N", 2))
+    check_shape("side", side, (uv.shape[0], 2))
+    H, W = distance.shape
+    N, L = uv.shape[0], int(size)
+    steps = (torch.arange(L, dtype=uv.dtype, device=uv.device) + 0.5) / L - 0.5  # (L,) in (−½, ½)
+    valid = (uv.isfinite() & side.isfinite()).all(dim=1)
+    uv, side = torch.where(valid[:, None], uv, 0.0), torch.where(valid[:, None], side, 0.0)
+    u = uv[:, 0:1] + steps * side[:, 0:1]  # (N, L) pixel columns
+    v = uv[:, 1:2] + steps * side[:, 1:2]  # (N, L) pixel rows
+    # grid_sample with align_corners=False: normalised −1 is the left edge of pixel 0.
+    gx = ((u + 0.5) * (2.0 / W) - 1.0).unsqueeze(1).expand(N, L, L)
+    gy = ((v + 0.5) * (2.0 / H) - 1.0).unsqueeze(2).expand(N, L, L)
+    grid = torch.stack([gx, gy], dim=-1).reshape(1, N * L, L, 2).to(distance.dtype)
+    out = F.grid_sample(distance[None, None], grid, mode="bilinear", padding_mode="border", align_corners=False)
+    return torch.where(valid[:, None, None], out.reshape(N, L, L).to(uv.dtype), 0.0)
+
+
+def observe(distance: torch.Tensor, camera: Camera, centres: torch.Tensor, template: TemplateConfig,
+            size: int) -> torch.Tensor:
+    """What particles at ``centres`` see: the frame's distance in template units (module docstring).
+
+    Args:
+        distance: (H, W) the frame's signed distance in image pixels, positive on the foreground.
+        camera: the scene's camera.
+        centres: (N, 3) particle positions (vehicle centres) in the camera's world frame, metres.
+        template: the model's template geometry (S = ``size_px``, W = ``window_m``, τ = ``tau_px``).
+        size: L, the likelihood resolution; S must be a multiple of L.
+    Returns:
+        (N, L, L) in [−1, 1], the dtype and device of ``centres``.
+    """
+    if size < 1 or template.size_px % size:
+        raise ValueError(f"Expected a likelihood size L dividing the template size {template.size_px}; got {size}")
+    uv, side = project_windows(camera, centres, template.window_m)
+    samples = sample_windows(distance.to(centres.device), uv, side, size)  # image pixels
+    to_template = template.size_px / side.prod(dim=1).sqrt()  # (N,) template px per image px
+    to_template = torch.where(to_template.isfinite(), to_template, 0.0)
+    return clip_distance(samples * to_template[:, None, None], template.tau_px)
+
+
+def place_silhouette(y: torch.Tensor, uv: torch.Tensor, side: torch.Tensor, shape: tuple[int, int]) -> torch.Tensor:
+    """A template's silhouette y > 0 placed in the image by its window (the inverse of sampling).
+
+    Args:
+        y: (S, S) signed-distance template (rows down, like the image).
+        uv: (2,) window centre in pixels; side: (2,) window width and height in pixels.
+        shape: (H, W) of the image.
+    Returns:
+        (H, W) bool on ``y``'s device: image pixels whose centre falls on y > 0 (bilinear in y);
+        all False for a non-finite window.
+    """
+    check_shape("y", y, ("S", "S"))
+    H, W = int(shape[0]), int(shape[1])
+    out = torch.zeros(H, W, dtype=torch.bool, device=y.device)
+    if not bool(uv.isfinite().all() and side.isfinite().all() and (side > 0).all()):
+        return out
+    u0, v0 = (uv - side / 2).floor().long().tolist()
+    u1, v1 = (uv + side / 2).ceil().long().tolist()
+    c0, c1, r0, r1 = max(u0, 0), min(u1 + 1, W), max(v0, 0), min(v1 + 1, H)
+    if c0 >= c1 or r0 >= r1:
+        return out
+    # Image pixel centre u lies at template coordinate (u − u_c) / s · 2 in grid_sample's [−1, 1].
+    gu = (torch.arange(c0, c1, dtype=y.dtype, device=y.device) - uv[0].to(y)) * (2.0 / side[0].to(y))
+    gv = (torch.arange(r0, r1, dtype=y.dtype, device=y.device) - uv[1].to(y)) * (2.0 / side[1].to(y))
+    grid = torch.stack(torch.broadcast_tensors(gu[None, :], gv[:, None]), dim=-1)[None]  # (1, h, w, 2)
+    inside = F.grid_sample(y[None, None], grid, mode="bilinear", padding_mode="border", align_corners=False)
+    out[r0:r1, c0:c1] = (inside[0, 0] > 0) & (grid[0].abs() <= 1).all(dim=-1)
+    return out
+
+
+def log_likelihood(z: torch.Tensor, y: torch.Tensor, sigma: float) -> torch.Tensor:
+    """Eq. 5.2 in log space: log wⱼ = −mean((zⱼ − yⱼ)²) / (2σ²).
+
+    z, y: (N, L, L) observed and predicted signed distances; sigma: σ > 0. Returns (N,).
+    """
+    check_shape("z", z, ("N", "L", "L"))
+    check_shape("y", y, tuple(z.shape))
+    if not sigma > 0:
+        raise ValueError(f"Expected sigma > 0; got {sigma}")
+    return -(z - y).square().mean(dim=(1, 2)) / (2.0 * sigma * sigma)
