@@ -124,3 +124,20 @@ def test_bad_poses_raise():
         view_of_pose(VehiclePose(0.0, 0.0, 10.0, 0.0), floor)
     with pytest.raises(ValueError, match=r"\(\) or \(N,\); got \(2, 2\)"):
         body_to_world(VehiclePose(torch.zeros(2, 2), 0.0, 0.0, 0.0))
+
+
+def test_view_of_pose_flat_closed_form_equals_the_rotation_path():
+    """The flat-ground shortcut gives what Rᵀ (c − t) with body_to_world's R gives (pitch = roll = 0
+    given as tensors takes the general path)."""
+    gen = torch.Generator().manual_seed(7)
+    pos = torch.randn(40, 3, generator=gen, dtype=torch.float64) * 50
+    h = torch.rand(40, generator=gen, dtype=torch.float64) * 7
+    a = 0.2
+    R = torch.tensor([[1.0, 0.0, 0.0], [0.0, math.cos(a), math.sin(a)], [0.0, -math.sin(a), math.cos(a)]],
+                     dtype=torch.float64)
+    cam = Camera(500, 500, 320, 240, 640, 480, R=R, t=torch.tensor([1.0, -2.0, 3.0], dtype=torch.float64))
+    flat = view_of_pose(VehiclePose(pos[:, 0], pos[:, 1], pos[:, 2], h), cam)
+    zero = torch.zeros(40, dtype=torch.float64)
+    general = view_of_pose(VehiclePose(pos[:, 0], pos[:, 1], pos[:, 2], h, roll=zero, pitch=zero), cam)
+    torch.testing.assert_close(flat[0], general[0])
+    torch.testing.assert_close(flat[1], general[1])

@@ -120,6 +120,11 @@ def camera_centre(camera: Camera) -> torch.Tensor:
     return -(camera.R.T @ camera.t)
 
 
+def _is_zero(value: float | torch.Tensor) -> bool:
+    """True for a number 0 (not a tensor: a tensor of angles takes the general path)."""
+    return not isinstance(value, torch.Tensor) and value == 0
+
+
 def view_of_pose(pose: VehiclePose, camera: Camera) -> tuple[torch.Tensor, torch.Tensor]:
     """The view Θ = (θ, φ) under which ``camera`` sees a vehicle at ``pose`` (METHOD.md).
 
@@ -139,8 +144,16 @@ def view_of_pose(pose: VehiclePose, camera: Camera) -> tuple[torch.Tensor, torch
     ``view_of_pose(VehiclePose(pos[:, 0], pos[:, 1], pos[:, 2], h), camera)``.
     """
     check_sensor_like(camera)
-    R, t = body_to_world(pose)
-    d = ((camera_centre(camera).to(t) - t).unsqueeze(-1) * R).sum(dim=-2)  # Rᵀ (c − t): (..., 3) in the body frame
+    if _is_zero(pose.roll) and _is_zero(pose.pitch):  # flat ground: Rᵀ (c − t) in closed form
+        p = pose.stacked()
+        w = camera_centre(camera).to(p) - p[..., :3]
+        sin_h, cos_h = torch.sin(p[..., 3]), torch.cos(p[..., 3])
+        d = torch.stack([w[..., 0] * sin_h + w[..., 2] * cos_h,  # forward (sin h, 0, cos h)
+                         w[..., 2] * sin_h - w[..., 0] * cos_h,  # left (−cos h, 0, sin h)
+                         w[..., 1]], dim=-1)  # up
+    else:
+        R, t = body_to_world(pose)
+        d = ((camera_centre(camera).to(t) - t).unsqueeze(-1) * R).sum(dim=-2)  # Rᵀ (c − t): (..., 3) in the body frame
     theta = wrap_angle(torch.atan2(d[..., 1], d[..., 0]))
     phi = torch.atan2(d[..., 2], torch.hypot(d[..., 0], d[..., 1]))
     return theta, phi

@@ -3,6 +3,10 @@
 Linear quantities (x, y, z, v) take the weighted mean and covariance; angles (heading h and
 identity α) the circular weighted mean atan2(Σ w sin a, Σ w cos a), since a plain mean of angles
 is wrong across 0 / 2π (the mean of 0.1 and 2π − 0.1 is 0, not π).
+
+The weighted sums are elementwise products and ``sum``, not BLAS products: a matrix-vector product
+gave last-bit differences between identical runs (the BLAS library's threading is not fixed),
+and the tracker promises the same run for the same seed.
 """
 
 from __future__ import annotations
@@ -21,9 +25,10 @@ def _check(values: torch.Tensor, weights: torch.Tensor, dims: tuple) -> None:
 def weighted_mean_cov(values: torch.Tensor, weights: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     """Weighted mean (D,) and covariance (D, D) Σ wⱼ (xⱼ − μ)(xⱼ − μ)ᵀ of values (N, D), weights (N,) summing to 1."""
     _check(values, weights, (None,))
-    mean = weights @ values
+    w = weights[:, None]
+    mean = (w * values).sum(0)  # sums, not BLAS: bitwise reproducible (module docstring)
     centred = values - mean
-    return mean, (centred * weights[:, None]).T @ centred
+    return mean, (w[:, :, None] * centred[:, :, None] * centred[:, None, :]).sum(0)
 
 
 def circular_mean(angles: torch.Tensor, weights: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
@@ -33,7 +38,7 @@ def circular_mean(angles: torch.Tensor, weights: torch.Tensor) -> tuple[torch.Te
     (1: all equal; 0: no preferred direction, where the mean is arbitrary).
     """
     _check(angles, weights, ())
-    s, c = weights @ torch.sin(angles), weights @ torch.cos(angles)
+    s, c = (weights * torch.sin(angles)).sum(), (weights * torch.cos(angles)).sum()
     return wrap_angle(torch.atan2(s, c)), torch.hypot(s, c)
 
 

@@ -32,19 +32,21 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
+from torch_atr._checks import check_shape
 from torch_atr.camera import Camera
 from torch_atr.config import ConfigError
 from torch_atr.data.sequence import FrameTruth, Sequence
 from torch_atr.model import GenerativeShapeModel
 from torch_atr.pose import VehiclePose, view_of_pose, wrap_angle
 from torch_atr.segmentation import ForegroundSegmenter, SegmentationConfig
-from torch_atr.shape import dice, signed_distance_px
+from torch_atr.shape import dice
 from torch_atr.tracking.appearance import METHODS, ShapeAppearance
 from torch_atr.tracking.estimates import circular_mean, class_posterior, weighted_mean_cov
 from torch_atr.tracking.initialise import (InitConfig, blind_hypotheses, blind_particles, truth_alpha,
                                            truth_particles)
 from torch_atr.tracking.motion import ALPHA, HEADING, SPEED, STATE_DIM, X, Y, Z, MotionConfig, predict
-from torch_atr.tracking.observation import log_likelihood, observe, place_silhouette, project_windows
+from torch_atr.tracking.observation import (frame_distance, log_likelihood, observe, place_silhouette,
+                                            project_windows)
 from torch_atr.tracking.resampling import SCHEMES, effective_sample_size, resample
 
 log = logging.getLogger(__name__)
@@ -172,6 +174,7 @@ class Tracker:
         height = self.cfg.init.camera_height_m
         self.camera_height_m = math.nan if height is None else height  # above the ground (blind start)
         self._frames = 0
+        self._fresh = False  # the particles describe the coming frame (just initialised): no prediction
         self._optimiser = (torch.optim.Adam([self.model.rbf.log_width], lr=self.cfg.adapt.lr)
                            if self.cfg.adapt.every else None)
 
@@ -190,10 +193,19 @@ class Tracker:
             raise ValueError(f"Truth initialisation needs x, y, z and heading; got {needed}")
         alpha = truth_alpha(self.model, truth.vehicle, truth.vehicle_class, self.cfg.init.alpha)
         position = torch.tensor([truth.x, truth.y, truth.z], dtype=self.dtype, device=self.device)
-        self.particles = truth_particles(position, truth.heading, alpha, self.cfg.filter.particles, self.cfg.init,
-                                         self.generator)
+        self.reset(truth_particles(position, truth.heading, alpha, self.cfg.filter.particles, self.cfg.init,
+                                   self.generator))
+
+    def reset(self, particles: torch.Tensor) -> None:
+        """Start from given particles: (N, 6) [x, y, z, h, v, α] describing the coming frame
+        (equal weights; the next :meth:`step` weighs them without a prediction first)."""
+        check_shape("particles", particles, ("N", STATE_DIM))
+        if not bool(particles.isfinite().all()):
+            raise ValueError("Expected finite particles")
+        self.particles = particles.to(self.device, self.dtype)
         self.log_weights = torch.full((self.particles.shape[0],), -math.log(self.particles.shape[0]),
                                       dtype=self.dtype, device=self.device)
+        self._fresh = True
 
     @property
     def initialised(self) -> bool:
@@ -201,23 +213,37 @@ class Tracker:
 
     # --- one frame --------------------------------------------------------------------------
     @torch.no_grad()
-    def step(self, frame: np.ndarray, dt: float | None = None) -> dict:
+    def step(self, frame: np.ndarray | None = None, dt: float | None = None, mask: np.ndarray | None = None
+             ) -> dict:
         """Track one frame: returns its estimate row (README, "Outputs").
 
         Args:
             frame: (H, W) or (H, W, 3), the warm-up frames' size and dtype.
             dt: seconds since the previous frame; default 1 / fps.
+            mask: (H, W) bool, the target's mask from your own segmentation, used instead of
+                segmenting ``frame`` (which may then be None).
         """
         start = time.perf_counter()
         dt = self.dt if dt is None else dt
-        predicted = self.initialised and self._frames > 0
-        if predicted:
+        if self.initialised and not self._fresh:
             self.particles = predict(self.particles, dt, self.cfg.motion, self.generator)
-        near, box = self._predicted_region() if self.initialised else (None, None)
-        mask = self.last_mask = self.segmenter(frame, near=near, exclude=box)
+        self._fresh = False
+        near, box, side = self._predicted_region() if self.initialised else (None, None, math.inf)
+        if mask is None:
+            if frame is None:
+                raise ValueError("step needs a frame or a mask")
+            mask = self.segmenter(frame, near=near, exclude=box)
+        elif not (isinstance(mask, np.ndarray) and mask.ndim == 2 and mask.dtype == bool):
+            raise ValueError(f"Expected mask to be a (H, W) bool array; got {getattr(mask, 'shape', type(mask))} "
+                             f"{getattr(mask, 'dtype', '')}")
+        self.last_mask = mask
         area = int(mask.sum())
         observed = 0 < area <= self.cfg.filter.max_foreground * mask.size
-        distance = signed_distance_px(torch.from_numpy(mask)).to(self.device) if observed else None
+        if observed:  # distances beyond τ in the largest window are clipped: transform only near the blob
+            template = self.model.template
+            margin = min(template.tau_px * side / template.size_px, max(mask.shape))
+            distance, origin = frame_distance(mask, margin)
+            distance = (distance.to(self.device), origin)
         if not self.initialised and observed:
             self._initialise_blind(mask, distance)
         lost = True
@@ -243,43 +269,47 @@ class Tracker:
         row["step_ms"] = 1e3 * (time.perf_counter() - start)
         return row
 
-    def _predicted_region(self) -> tuple[tuple[float, float], tuple[float, float, float, float]]:
-        """The predicted target centre (u, v) and the box (u0, v0, u1, v1) holding the windows of
-        the central 98 % of the particles, in pixels."""
+    def _predicted_region(self) -> tuple[tuple[float, float] | None, tuple[float, float, float, float] | None,
+                                         float]:
+        """The predicted target centre (u, v), the box (u0, v0, u1, v1) holding the windows of the
+        central 98 % of the particles, and the largest window side, in pixels."""
         uv, side = project_windows(self.camera, self.particles[:, X:Z + 1], self.model.template.window_m)
         w = self.log_weights.exp()
         finite = (uv.isfinite() & side.isfinite()).all(dim=1)
         if not finite.any():
-            return None, None
+            return None, None, math.inf
         lo = (uv - side / 2)[finite]
         hi = (uv + side / 2)[finite]
         q = torch.tensor([0.01, 0.99], dtype=uv.dtype, device=uv.device)
         box = (torch.quantile(lo, q[0], dim=0), torch.quantile(hi, q[1], dim=0))
         centre = (w[finite, None] * uv[finite]).sum(0) / w[finite].sum().clamp_min(1e-30)
-        return tuple(centre.tolist()), (*box[0].tolist(), *box[1].tolist())
+        return tuple(centre.tolist()), (*box[0].tolist(), *box[1].tolist()), float(side[finite].max())
 
     def _views(self, particles: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """View Θ of each particle: from its centre to the camera, in its body frame."""
         pose = VehiclePose(particles[:, X], particles[:, Y], particles[:, Z], particles[:, HEADING])
         return view_of_pose(pose, self.camera)
 
-    def _log_likelihood(self, distance: torch.Tensor, particles: torch.Tensor) -> torch.Tensor:
-        """Eq. 5.2 per particle; −inf where it is not finite. Returns (N,)."""
+    def _log_likelihood(self, distance: tuple[torch.Tensor, tuple[int, int]], particles: torch.Tensor
+                        ) -> torch.Tensor:
+        """Eq. 5.2 per particle against the frame's (distance, origin); −inf where it is not finite.
+        Returns (N,)."""
         theta, phi = self._views(particles)
         y = self.appearance(particles[:, ALPHA], theta, phi)
-        z = observe(distance, self.camera, particles[:, X:Z + 1], self.model.template, self.appearance.size)
+        z = observe(distance[0], self.camera, particles[:, X:Z + 1], self.model.template, self.appearance.size,
+                    distance[1])
         log_lik = log_likelihood(z.to(y), y, self.cfg.filter.sigma)
         return torch.where(log_lik.isfinite(), log_lik, -math.inf).to(self.dtype)
 
-    def _initialise_blind(self, mask: np.ndarray, distance: torch.Tensor) -> None:
-        """Particles from the first blob (``initialise.blind_hypotheses``)."""
+    def _initialise_blind(self, mask: np.ndarray, distance: tuple[torch.Tensor, tuple[int, int]]) -> None:
+        """Particles from the first blob (``initialise.blind_hypotheses``); ``distance`` is the
+        whole frame's."""
         blob = torch.from_numpy(mask).to(self.device)
-        states, log_lik = blind_hypotheses(blob, distance, self.camera, self.appearance, self.cfg.init,
+        states, log_lik = blind_hypotheses(blob, distance[0], self.camera, self.appearance, self.cfg.init,
                                            self.cfg.filter.sigma, self.camera_height_m)
-        self.particles = blind_particles(states, log_lik, self.cfg.filter.particles, self.cfg.init, self.camera,
-                                         self.generator).to(self.dtype)
-        self.log_weights = torch.full((self.particles.shape[0],), -math.log(self.particles.shape[0]),
-                                      dtype=self.dtype, device=self.device)
+        self.reset(blind_particles(states, log_lik, self.cfg.filter.particles, self.cfg.init, self.camera,
+                                   self.generator))
+        self._fresh = False  # weighed on this very frame
         best = states[log_lik.argmax()]
         log.info("blind initialisation: best of %d hypotheses at x=%.1f z=%.1f m, α=%.2f (%s)", states.shape[0],
                  best[X], best[Z], best[ALPHA], self.model.class_names[self.model.classify(best[ALPHA:ALPHA + 1])])
@@ -327,10 +357,11 @@ class Tracker:
         """Dice ξ (eq. 6.1) of the placed estimate and the segmented target mask."""
         return float(dice(self.silhouette_at(row, mask.shape).cpu(), torch.from_numpy(mask)))
 
-    def _adapt(self, distance: torch.Tensor, row: dict) -> None:
+    def _adapt(self, distance: tuple[torch.Tensor, tuple[int, int]], row: dict) -> None:
         """A few Adam steps on the kernel widths towards the observation at the estimate."""
         est = self._estimate_particle(row)
-        z = observe(distance, self.camera, est[:, X:Z + 1], self.model.template, self.appearance.size)
+        z = observe(distance[0], self.camera, est[:, X:Z + 1], self.model.template, self.appearance.size,
+                    distance[1])
         theta, phi = self._views(est)
         with torch.enable_grad():
             for _ in range(self.cfg.adapt.steps):

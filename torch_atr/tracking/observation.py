@@ -20,13 +20,14 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 import torch
 import torch.nn.functional as F
 
 from torch_atr._checks import check_shape
 from torch_atr.camera import Camera
 from torch_atr.config import TemplateConfig
-from torch_atr.shape import clip_distance
+from torch_atr.shape import clip_distance, signed_distance_px
 
 
 def project_windows(camera: Camera, centres: torch.Tensor, window_m: float) -> tuple[torch.Tensor, torch.Tensor]:
@@ -47,14 +48,39 @@ def project_windows(camera: Camera, centres: torch.Tensor, window_m: float) -> t
     return uv, side
 
 
-def sample_windows(distance: torch.Tensor, uv: torch.Tensor, side: torch.Tensor, size: int) -> torch.Tensor:
+def frame_distance(mask: np.ndarray, margin: float) -> tuple[torch.Tensor, tuple[int, int]]:
+    """The signed distance of a frame's target mask in image pixels, on the region that matters.
+
+    Only the mask's bounding box grown by ``margin`` pixels is transformed: every distance a
+    window clips at ``margin`` or less is exact there, and beyond it the border's value (at least
+    ``margin`` from the target) stands in, as ``sample_windows`` pads. A full frame costs two
+    640 × 512 distance transforms (~4 ms); a 1000 m target's region a tenth of that.
+
+    Args:
+        mask: (H, W) bool, non-empty.
+        margin: pixels (e.g. τ in image pixels of the largest window, plus a little).
+    Returns:
+        distance: (h, w) float32 tensor; origin: (u0, v0), the frame pixel of its (0, 0).
+    """
+    rows, cols = np.nonzero(mask.any(axis=1))[0], np.nonzero(mask.any(axis=0))[0]
+    if rows.size == 0:
+        raise ValueError("Expected a non-empty mask")
+    pad = int(math.ceil(margin)) + 1
+    r0, r1 = max(rows[0] - pad, 0), min(rows[-1] + pad + 1, mask.shape[0])
+    c0, c1 = max(cols[0] - pad, 0), min(cols[-1] + pad + 1, mask.shape[1])
+    return signed_distance_px(mask[r0:r1, c0:c1]), (int(c0), int(r0))
+
+
+def sample_windows(distance: torch.Tensor, uv: torch.Tensor, side: torch.Tensor, size: int,
+                   origin: tuple[int, int] = (0, 0)) -> torch.Tensor:
     """Bilinear samples of an image at the centres of an L × L grid over each window.
 
     Args:
-        distance: (H, W) image (e.g. the frame's signed distance in pixels).
+        distance: (H, W) image (e.g. the frame's signed distance in pixels), or a region of one.
         uv: (N, 2) window centres in pixels (u right, v down; pixel (0, 0)'s centre at (0, 0)).
         side: (N, 2) window width and height in pixels.
         size: L.
+        origin: (u0, v0) the frame pixel of ``distance[0, 0]`` when it is a region.
     Returns:
         (N, L, L), rows running down the image; beyond the image the border pixel's value, and
         0 for a window with a non-finite centre or size.
@@ -66,7 +92,8 @@ def sample_windows(distance: torch.Tensor, uv: torch.Tensor, side: torch.Tensor,
     N, L = uv.shape[0], int(size)
     steps = (torch.arange(L, dtype=uv.dtype, device=uv.device) + 0.5) / L - 0.5  # (L,) in (−½, ½)
     valid = (uv.isfinite() & side.isfinite()).all(dim=1)
-    uv, side = torch.where(valid[:, None], uv, 0.0), torch.where(valid[:, None], side, 0.0)
+    uv = torch.where(valid[:, None], uv - uv.new_tensor(origin), 0.0)
+    side = torch.where(valid[:, None], side, 0.0)
     u = uv[:, 0:1] + steps * side[:, 0:1]  # (N, L) pixel columns
     v = uv[:, 1:2] + steps * side[:, 1:2]  # (N, L) pixel rows
     # grid_sample with align_corners=False: normalised −1 is the left edge of pixel 0.
@@ -78,11 +105,12 @@ def sample_windows(distance: torch.Tensor, uv: torch.Tensor, side: torch.Tensor,
 
 
 def observe(distance: torch.Tensor, camera: Camera, centres: torch.Tensor, template: TemplateConfig,
-            size: int) -> torch.Tensor:
+            size: int, origin: tuple[int, int] = (0, 0)) -> torch.Tensor:
     """What particles at ``centres`` see: the frame's distance in template units (module docstring).
 
     Args:
-        distance: (H, W) the frame's signed distance in image pixels, positive on the foreground.
+        distance: (H, W) the frame's signed distance in image pixels, positive on the foreground,
+            or a region of it whose (0, 0) is the frame pixel ``origin`` (:func:`frame_distance`).
         camera: the scene's camera.
         centres: (N, 3) particle positions (vehicle centres) in the camera's world frame, metres.
         template: the model's template geometry (S = ``size_px``, W = ``window_m``, τ = ``tau_px``).
@@ -93,7 +121,7 @@ def observe(distance: torch.Tensor, camera: Camera, centres: torch.Tensor, templ
     if size < 1 or template.size_px % size:
         raise ValueError(f"Expected a likelihood size L dividing the template size {template.size_px}; got {size}")
     uv, side = project_windows(camera, centres, template.window_m)
-    samples = sample_windows(distance.to(centres.device), uv, side, size)  # image pixels
+    samples = sample_windows(distance.to(centres.device), uv, side, size, origin)  # image pixels
     to_template = template.size_px / side.prod(dim=1).sqrt()  # (N,) template px per image px
     to_template = torch.where(to_template.isfinite(), to_template, 0.0)
     return clip_distance(samples * to_template[:, None, None], template.tau_px)

@@ -1,0 +1,207 @@
+"""The Tracker: Table 5.1 against a per-particle loop, Methods I-IV against the model and the
+rendered templates, robustness, determinism and seeded end-to-end runs on the simulator."""
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+import torch.nn.functional as F
+
+from torch_atr.config import load_config
+from torch_atr.data.synthetic import SceneConfig, SyntheticSequence
+from torch_atr.model import GenerativeShapeModel
+from torch_atr.pose import VehiclePose, view_of_pose
+from torch_atr.render import render_mask
+from torch_atr.shape import signed_distance_px
+from torch_atr.tracking import METHODS, ShapeAppearance, Tracker, TrackerConfig
+from torch_atr.tracking.job import run_summary
+
+CKPT = Path(__file__).resolve().parents[1] / "checkpoints" / "default.pt"
+TWO_PI = 2 * math.pi
+
+
+@pytest.fixture(scope="module")
+def model():
+    return GenerativeShapeModel.from_checkpoint(CKPT)
+
+
+@pytest.fixture(scope="module")
+def btr():
+    """The held-out BTR-70 at 1000 m, 40 frames."""
+    return SyntheticSequence("btr_70", SceneConfig(frames=40))
+
+
+def _config(*overrides: str) -> TrackerConfig:
+    return load_config(TrackerConfig, None, list(overrides))
+
+
+def _bilinear(image: np.ndarray, u: float, v: float) -> float:
+    H, W = image.shape
+    u, v = min(max(u, 0.0), W - 1.0), min(max(v, 0.0), H - 1.0)
+    u0, v0 = min(int(math.floor(u)), W - 2), min(int(math.floor(v)), H - 2)
+    a, b = u - u0, v - v0
+    return ((1 - a) * (1 - b) * image[v0, u0] + a * (1 - b) * image[v0, u0 + 1]
+            + (1 - a) * b * image[v0 + 1, u0] + a * b * image[v0 + 1, u0 + 1])
+
+
+def _reference_log_lik(model, camera, mask: np.ndarray, particle: torch.Tensor, L: int, sigma: float) -> float:
+    """Eq. 5.2 for ONE particle, done the plain way: its view, the full reconstruction y(α, Θ)
+    average-pooled to L, its window sampled pixel by pixel, the clip, the mean squared error."""
+    x, y, z, h, _, alpha = particle.tolist()
+    theta, phi = view_of_pose(VehiclePose(x, y, z, h), camera)
+    with torch.no_grad():
+        recon = model(torch.tensor([alpha]), theta.reshape(1).float(), phi.reshape(1).float())
+    pred = F.avg_pool2d(recon[None], model.template.size_px // L)[0, 0].double().numpy()
+    D = signed_distance_px(mask).numpy()
+    uv, depth = camera.project(torch.tensor([x, y, z], dtype=torch.float64))
+    s = camera.fx * model.template.window_m / depth.item()
+    obs = np.empty((L, L))
+    for a in range(L):
+        for b in range(L):
+            d = _bilinear(D, uv[0].item() + ((b + 0.5) / L - 0.5) * s, uv[1].item() + ((a + 0.5) / L - 0.5) * s)
+            d *= model.template.size_px / s
+            obs[a, b] = min(max(d, -model.template.tau_px), model.template.tau_px) / model.template.tau_px
+    return -float(((obs - pred) ** 2).mean()) / (2 * sigma ** 2)
+
+
+def test_batched_filter_equals_a_per_particle_loop_of_table_5_1(model, btr):
+    """Two frames of Table 5.1 with 5 particles: weights (step 1.2, 2) and the prediction (1.1)
+    against a loop over particles with the same generator draws."""
+    cfg = _config("filter.particles=5", "filter.resample_ess=0", "filter.likelihood_px=8", "filter.sigma=0.1")
+    tracker = Tracker(model, btr.camera, cfg, seed=3)
+    t = btr.truth(0)
+    g = torch.Generator().manual_seed(0)
+    p0 = torch.tensor([t.x, t.y, t.z, t.heading, 5.0, float(model.alphas[10])]) + torch.randn(5, 6, generator=g) * \
+        torch.tensor([0.5, 0.2, 2.0, 0.2, 0.5, 0.3])
+    masks = [render_mask(btr.vehicle, btr.camera, btr.pose(i)).numpy() for i in (0, 1)]
+    tracker.reset(p0)
+    tracker.step(mask=masks[0])
+    ref = torch.tensor([_reference_log_lik(model, btr.camera, masks[0], p, 8, 0.1) for p in p0.double()],
+                       dtype=torch.float64)
+    torch.testing.assert_close(tracker.log_weights.double(), ref - torch.logsumexp(ref, 0), atol=2e-3, rtol=0)
+    # Frame 2: the prediction with the tracker's generator draws, then the weights multiply.
+    prior = tracker.log_weights.double().clone()
+    tracker.step(mask=masks[1])
+    w = torch.randn(5, 6, generator=torch.Generator().manual_seed(3), dtype=torch.float32)
+    dt, std = tracker.dt, cfg.motion.std_per_step(tracker.dt)
+    p1 = []
+    for j in range(5):
+        x, y, z, h, v, a = p0[j].tolist()
+        p1.append([x + v * math.sin(h) * dt + std[0] * w[j, 0], y + std[1] * w[j, 1],
+                   z + v * math.cos(h) * dt + std[2] * w[j, 2], (h + std[3] * w[j, 3]) % TWO_PI,
+                   v + std[4] * w[j, 4], (a + std[5] * w[j, 5]) % TWO_PI])
+    p1 = torch.tensor(p1, dtype=torch.float64)
+    torch.testing.assert_close(tracker.particles.double(), p1, atol=1e-4, rtol=0)
+    ref = prior + torch.tensor([_reference_log_lik(model, btr.camera, masks[1], p, 8, 0.1) for p in p1],
+                               dtype=torch.float64)
+    torch.testing.assert_close(tracker.log_weights.double(), ref - torch.logsumexp(ref, 0), atol=2e-3, rtol=0)
+
+
+@pytest.mark.parametrize("method", METHODS)
+def test_methods_snap_what_they_should(model, method):
+    """I reconstructs at (α, Θ); II at the nearest αₖ; III at the nearest training view; IV is the
+    training template itself (here a stand-in: the model's own reconstruction at the views)."""
+    g = torch.Generator().manual_seed(1)
+    alpha = torch.rand(6, generator=g) * TWO_PI
+    theta, phi = torch.rand(6, generator=g) * TWO_PI, torch.rand(6, generator=g) * 0.6
+    K, V, S = model.core.num_vehicles, model.rbf.num_centres, model.template.size_px
+    templates = None
+    if method == "IV":
+        with torch.no_grad():
+            templates = model.reconstruct_grid(model.alphas, model.rbf.centres_theta, model.rbf.centres_phi)
+    app = ShapeAppearance(model, method, 16, templates)
+    with torch.no_grad():
+        got = app(alpha, theta, phi)
+    k = torch.stack([((alpha[n] - model.alphas + math.pi) % TWO_PI - math.pi).abs().argmin() for n in range(6)])
+    u = torch.stack([torch.cos(phi) * torch.cos(theta), torch.cos(phi) * torch.sin(theta), torch.sin(phi)], 1)
+    cu = model.rbf.centres_u
+    v = torch.stack([((cu - u[n]) ** 2).sum(1).argmin() for n in range(6)])
+    a_ref = model.alphas[k] if method in ("II", "IV") else alpha
+    t_ref = model.rbf.centres_theta[v] if method in ("III", "IV") else theta
+    p_ref = model.rbf.centres_phi[v] if method in ("III", "IV") else phi
+    with torch.no_grad():
+        want = F.avg_pool2d(model(a_ref, t_ref, p_ref)[:, None], S // 16)[:, 0]
+    assert got.shape == (6, 16, 16) and templates is None or K * V > 0
+    torch.testing.assert_close(got, want, atol=2e-4, rtol=0)
+
+
+def test_method_iv_needs_templates_of_the_right_shape(model):
+    with pytest.raises(ValueError, match="Method IV needs the training templates"):
+        ShapeAppearance(model, "IV")
+    with pytest.raises(ValueError, match=r"templates of shape"):
+        ShapeAppearance(model, "IV", templates=torch.zeros(3, 4, 64, 64))
+    with pytest.raises(ValueError, match="Unknown method 'V'"):
+        ShapeAppearance(model, "V")
+
+
+def test_truth_run_tracks_and_recognises_and_is_deterministic(model, btr):
+    """A seeded 40-frame run with the thesis's start meets loose bounds; the same seed gives the same rows."""
+    cfg = _config("init.mode=truth", "filter.particles=300")
+    runs = [Tracker(model, btr.camera, cfg, seed=7).run(btr, progress=False) for _ in range(2)]
+    for a, b in zip(runs[0].rows, runs[1].rows):
+        assert {k: v for k, v in a.items() if k != "step_ms"} == {k: v for k, v in b.items() if k != "step_ms"}
+    m = run_summary(runs[0], model, 20)
+    assert m["lost_frames"] == 0 and m["frames"] == 40
+    assert m["horizontal_error_m"] < 1.0 and m["aspect_error_rad"] < 0.5 and m["range_error_m"] < 30
+    assert m["recognition_accuracy"] >= 0.8 and m["overlap_ratio"] > 0.7
+    for row in runs[0].rows:
+        numbers = [v for v in row.values() if isinstance(v, float)]
+        assert all(math.isfinite(v) for v in numbers)
+
+
+def test_blind_start_finds_the_vehicle(model, btr):
+    """No truth: the first blob, the camera and the ground plane put the particles on the vehicle."""
+    result = Tracker(model, btr.camera, _config("filter.particles=300"), seed=1).run(btr, progress=False)
+    last = result.rows[-10:]
+    t = btr.truth(39)
+    assert all(r["class"] == "apc" for r in last)
+    assert abs(last[-1]["x"] - t.x) < 1.5 and abs(last[-1]["z"] - t.z) < 100
+
+
+def test_no_observation_keeps_the_prediction_and_flags_the_frame(model, btr):
+    """Empty, all-foreground and NaN-riddled frames never crash and never give NaN estimates."""
+    tracker = Tracker(model, btr.camera, _config("filter.particles=200"), seed=0)
+    tracker.warm_up(btr.warmup_frames(20))
+    tracker.initialise(btr.truth(0))
+    frame = btr.frame(0)
+    full = np.ones(frame.shape, dtype=bool)
+    rows = [tracker.step(frame), tracker.step(mask=np.zeros(frame.shape, dtype=bool)), tracker.step(mask=full)]
+    nan_frame = frame.astype(np.float32)
+    assert rows[0]["lost"] == 0 and rows[1]["lost"] == 1 and rows[2]["lost"] == 1
+    tracker_f = Tracker(model, btr.camera, _config("filter.particles=200"), seed=0)
+    tracker_f.warm_up(f.astype(np.float32) for f in btr.warmup_frames(20))
+    tracker_f.initialise(btr.truth(0))
+    nan_frame[::3] = np.nan
+    nan_frame[1::7] = np.inf
+    rows.append(tracker_f.step(nan_frame))
+    for row in rows:
+        assert all(math.isfinite(v) for v in row.values() if isinstance(v, float)), row
+    # Every likelihood underflows: a blob far from every particle.
+    far = np.zeros(frame.shape, dtype=bool)
+    far[5:15, 5:15] = True
+    before = tracker.particles.clone()
+    row = tracker.step(mask=far)
+    assert row["lost"] == 1 and math.isfinite(row["x"]) and tracker.particles.shape == before.shape
+
+
+def test_target_leaving_the_image_is_lost_not_nan(model):
+    seq = SyntheticSequence("btr_70", SceneConfig(frames=30, start_deg=150.0, speed_mps=20.0, clockwise=False))  # exits right
+    result = Tracker(model, seq.camera, _config("filter.particles=200", "init.mode=truth"), seed=0).run(
+        seq, progress=False)
+    assert result.rows[-1]["lost"] == 1 and result.rows[0]["lost"] == 0
+    for row in result.rows:
+        assert all(math.isfinite(v) for v in row.values() if isinstance(v, float))
+
+
+def test_bad_inputs_raise(model, btr):
+    tracker = Tracker(model, btr.camera, _config("filter.particles=10"))
+    with pytest.raises(ValueError, match="frame or a mask"):
+        tracker.step()
+    with pytest.raises(ValueError, match=r"particles to have shape \(N, 6\)"):
+        tracker.reset(torch.zeros(4, 5))
+    with pytest.raises(ValueError, match="finite particles"):
+        tracker.reset(torch.full((4, 6), math.nan))
+    with pytest.raises(ValueError, match="mask to be a"):
+        tracker.step(mask=np.zeros((4, 4)))
