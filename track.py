@@ -74,9 +74,9 @@ def main(argv: list[str] | None = None) -> dict:
     out = Path(cfg.out)
     write_run(out, cfg, result, metrics)
     figures = viz.track_figures(result, model, sequence.name)
-    viz.save_figures(figures, out)
     if cfg.tensorboard:
         viz.log_track_tensorboard(out, result, figures)
+    viz.save_figures(figures, out)
     if cfg.video:
         viz.write_overlay_video(out / "overlay.mp4", tracker, sequence, result, cfg.frames)
 

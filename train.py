@@ -117,7 +117,6 @@ def main(argv: list[str] | None = None) -> dict:
     figures = viz.model_figures(model, masks, theta, phi, math.radians(cfg.views.azimuth_step_deg),
                                 math.radians(cfg.views.elevation_step_deg))
     out_dir = Path(cfg.log_dir) / cfg.name
-    viz.save_figures(figures, out_dir)
     if cfg.tensorboard:
         from torch.utils.tensorboard import SummaryWriter
 
@@ -127,11 +126,9 @@ def main(argv: list[str] | None = None) -> dict:
             writer.add_histogram("rbf/kernel_widths", model.rbf.widths.detach())
             writer.add_scalar("iou/train", train_iou.mean().item())
             writer.add_scalar("iou/held_out", held_iou.mean().item())
-            for name, image in figures.items():
-                if isinstance(image, torch.Tensor):
-                    writer.add_image(name, image)  # (C, H, W)
-                else:
-                    writer.add_figure(name, image)
+            for name, fig in figures.items():
+                writer.add_figure(name, fig, close=False)
+    viz.save_figures(figures, out_dir)
     lap("figures")
 
     # 5. The checkpoint, self-describing: resolved config and report travel with the weights.

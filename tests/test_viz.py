@@ -1,6 +1,7 @@
 import math
 from pathlib import Path
 
+import pytest
 import torch
 
 from torch_atr import viz
@@ -9,14 +10,17 @@ from torch_atr.model import GenerativeShapeModel
 CKPT = Path(__file__).resolve().parents[1] / "checkpoints" / "default.pt"
 
 
-def test_tile_places_images_row_major_with_padding():
-    images = torch.arange(5 * 2 * 3, dtype=torch.float32).reshape(5, 2, 3) / 30
-    out = viz.tile(images, ncol=2, pad=1, pad_value=-1.0)
-    assert out.shape == (3 * 3 + 1, 2 * 4 + 1)
-    for idx in range(5):
-        r, c = divmod(idx, 2)
-        assert torch.equal(out[1 + 3 * r:3 + 3 * r, 1 + 4 * c:4 + 4 * c], images[idx])
-    assert (out[7:9, 5:8] == -1).all()  # the empty sixth cell
+def test_image_grid_figure_labels_every_row_and_column():
+    images = torch.rand(2, 3, 8, 8).numpy()
+    fig = viz.image_grid_figure(images, ["first", "second"], ["a", "b", "c"], "A title",
+                                [("white", (1.0, 1.0, 1.0))], "views")
+    axes = fig.axes
+    assert len(axes) == 6 and "A title" in fig._suptitle.get_text() and "views" in fig._suptitle.get_text()
+    assert [axes[0].get_ylabel(), axes[3].get_ylabel()] == ["first", "second"]
+    assert [ax.get_title() for ax in axes[:3]] == ["a", "b", "c"]
+    assert [t.get_text() for t in fig.legends[0].get_texts()] == ["white"]
+    with pytest.raises(ValueError, match="2 row and 3 column labels"):
+        viz.image_grid_figure(images, ["one"], ["a", "b", "c"], "t")
 
 
 def test_sweeps_start_and_end_at_their_anchors():

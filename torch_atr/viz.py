@@ -1,7 +1,9 @@
-"""Pictures for TensorBoard and reports: template grids and the identity circle.
+"""Figures for people, TensorBoard and reports: the trained model's reconstructions and sweeps,
+the identity circle, and a tracking run's identity, errors, views and frames.
 
-Everything returns arrays or matplotlib figures; writing them is the caller's business
-(``SummaryWriter.add_image`` / ``add_figure``, or ``save_png``).
+Every figure is a matplotlib Figure with a title, labelled axes with units or labelled rows and
+columns, and a legend or colour key, so it reads without this docstring. Writing them is the
+caller's business (:func:`save_figures`, or ``SummaryWriter.add_figure``).
 """
 
 from __future__ import annotations
@@ -17,34 +19,14 @@ from torch_atr._checks import check_shape
 from torch_atr.io import atomic_path
 
 
-def to_display(images: torch.Tensor) -> torch.Tensor:
-    """Map templates to [0, 1] grey for display.
+def _pyplot():
+    """matplotlib.pyplot on the non-interactive Agg backend."""
+    import matplotlib
 
-    images: (N, H, W) bool silhouettes (white inside) or float signed distances in [-1, 1]
-    (mapped linearly, 0.5 at the boundary). Returns (N, H, W) float32 on the CPU.
-    """
-    if images.dim() != 3:
-        raise ValueError(f"Expected images to have shape (N, H, W); got {tuple(images.shape)}")
-    images = images.detach().cpu()
-    if images.dtype == torch.bool:
-        return images.float()
-    return ((images.float().clamp(-1, 1) + 1) / 2)
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
 
-
-def tile(images: torch.Tensor, ncol: int, pad: int = 1, pad_value: float = 0.3) -> torch.Tensor:
-    """Tile (N, H, W) display images in [0, 1] into one (H', W') image, row-major, ``ncol`` per row."""
-    if images.dim() != 3:
-        raise ValueError(f"Expected images to have shape (N, H, W); got {tuple(images.shape)}")
-    if ncol < 1:
-        raise ValueError(f"Expected ncol >= 1; got {ncol}")
-    n, h, w = images.shape
-    nrow = max(1, math.ceil(n / ncol))
-    out = torch.full((nrow * (h + pad) + pad, ncol * (w + pad) + pad), pad_value, dtype=images.dtype)
-    for idx in range(n):
-        r, c = divmod(idx, ncol)
-        y, x = pad + r * (h + pad), pad + c * (w + pad)
-        out[y:y + h, x:x + w] = images[idx]
-    return out
+    return plt
 
 
 def overlay_pairs(truth: torch.Tensor, recon: torch.Tensor) -> torch.Tensor:
@@ -67,11 +49,9 @@ def identity_circle_figure(alphas: Sequence[float], vehicle_names: Sequence[str]
     arcs: (class index, start, end) radians, counter-clockwise from start to end.
     Returns a matplotlib Figure.
     """
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
     from matplotlib.patches import Wedge
+
+    plt = _pyplot()
 
     if not (len(alphas) == len(vehicle_names) == len(vehicle_classes)):
         raise ValueError(f"Expected alphas, names and classes of one length; got {len(alphas)}, "
@@ -100,21 +80,6 @@ def identity_circle_figure(alphas: Sequence[float], vehicle_names: Sequence[str]
     ax.set_title("identity manifold: α ∈ [0, 2π), class arcs and training vehicles")
     fig.tight_layout()
     return fig
-
-
-def save_png(image: np.ndarray | torch.Tensor, path: str | Path) -> None:
-    """Write a (H, W) or (3, H, W) float image in [0, 1] as an 8-bit PNG, atomically."""
-    import cv2
-
-    arr = image.detach().cpu().numpy() if isinstance(image, torch.Tensor) else np.asarray(image)
-    if arr.ndim == 3:
-        arr = arr.transpose(1, 2, 0)[..., ::-1]  # RGB -> OpenCV's BGR
-    arr = (np.clip(arr, 0, 1) * 255).round().astype(np.uint8)
-    ok, buf = cv2.imencode(".png", np.ascontiguousarray(arr))
-    if not ok:
-        raise OSError(f"could not encode {path} as PNG")
-    with atomic_path(path) as tmp:
-        tmp.write_bytes(buf.tobytes())
 
 
 @torch.no_grad()
@@ -152,70 +117,135 @@ def identity_sweep(model, alphas: Sequence[float], theta: float, phi: float, bet
     return model.silhouette(a, torch.full_like(a, theta), torch.full_like(a, phi)).cpu()
 
 
+def image_grid_figure(images: np.ndarray, row_labels: Sequence[str], col_labels: Sequence[str], title: str,
+                      legend: Sequence[tuple[str, tuple[float, float, float]]] = (), col_title: str = ""):
+    """A grid of small images with labelled rows and columns.
+
+    Args:
+        images: (R, C, H, W) grey in [0, 1] or (R, C, H, W, 3) RGB in [0, 1].
+        row_labels: R labels (left of each row); col_labels: C labels (above the first row).
+        title: the figure's title; col_title: what the column labels are (e.g. "view (θ, φ)").
+        legend: (label, RGB colour) entries of a colour key.
+    Returns:
+        A matplotlib Figure.
+    """
+    images = np.asarray(images, dtype=np.float64)
+    R, C = images.shape[:2]
+    if len(row_labels) != R or len(col_labels) != C:
+        raise ValueError(f"Expected {R} row and {C} column labels; got {len(row_labels)} and {len(col_labels)}")
+    plt = _pyplot()
+    label_in = 0.065 * max((len(label) for label in row_labels), default=0)  # room for the row labels
+    top_in, bottom_in = 0.75, 0.45 if legend else 0.15  # title above, colour key below
+    width, height = 0.9 * C + label_in + 0.4, 0.9 * R + top_in + bottom_in
+    fig, axes = plt.subplots(R, C, figsize=(width, height), squeeze=False)
+    fig.subplots_adjust(left=(label_in + 0.2) / width, right=1 - 0.1 / width, top=1 - top_in / height,
+                        bottom=bottom_in / height, wspace=0.08, hspace=0.12)
+    for r in range(R):
+        for c in range(C):
+            ax = axes[r, c]
+            ax.imshow(images[r, c], cmap="gray", vmin=0, vmax=1, interpolation="nearest")
+            ax.set_xticks([])
+            ax.set_yticks([])
+            if c == 0:
+                ax.set_ylabel(row_labels[r], rotation=0, ha="right", va="center", fontsize=7)
+            if r == 0:
+                ax.set_title(col_labels[c], fontsize=6)
+    if legend:
+        from matplotlib.patches import Patch
+
+        fig.legend(handles=[Patch(facecolor=colour, edgecolor="0.5", label=label) for label, colour in legend],
+                   loc="lower center", ncol=len(legend), fontsize=7, frameon=False)
+    fig.suptitle(title + (f"\n(columns: {col_title})" if col_title else ""), fontsize=9, y=1 - 0.1 / height,
+                 va="top")
+    return fig
+
+
+_SILHOUETTE_KEY = (("silhouette (y > 0)", (1.0, 1.0, 1.0)), ("background", (0.0, 0.0, 0.0)))
+_OVERLAY_KEY = (("template and reconstruction", (1.0, 1.0, 1.0)), ("template only (missed)", (1.0, 0.0, 0.0)),
+                ("reconstruction only (extra)", (0.0, 1.0, 1.0)), ("neither", (0.0, 0.0, 0.0)))
+
+
+def _degrees(theta: float, phi: float) -> str:
+    return f"{math.degrees(theta) % 360:.0f}°, {math.degrees(phi):.0f}°"
+
+
 @torch.no_grad()
 def model_figures(model, masks: torch.Tensor, theta: torch.Tensor, phi: torch.Tensor, step_theta: float,
                   step_phi: float) -> dict:
-    """The pictures of a trained model (what ``train.py`` logs).
+    """The figures of a trained model (what ``train.py`` logs): name -> matplotlib Figure.
 
     masks: (K, V, H, W) bool training templates at theta, phi (V,) radians; step_theta, step_phi:
-    the view grid's steps, radians. Returns name -> (C, H', W') image in [0, 1] or a Figure:
-    ``reconstructions`` (10 views per vehicle, :func:`overlay_pairs` colours), ``view_sweeps``
-    (Fig. 6.3, one vehicle per class), ``identity_sweeps_within_class`` (Fig. 6.4),
-    ``identity_sweeps_between_classes`` (Fig. 6.5) and ``identity_manifold``.
+    the view grid's steps, radians. ``reconstructions``: 10 views per vehicle, template against
+    the reconstruction at αₖ (:func:`overlay_pairs` colours); ``view_sweeps`` (Fig. 6.3, one
+    vehicle per class); ``identity_sweeps_within_class`` (Fig. 6.4);
+    ``identity_sweeps_between_classes`` (Fig. 6.5); ``identity_manifold``.
     """
     check_shape("masks", masks, ("K", "V", None, None))
     V = masks.shape[1]
     like = model.alphas
+    names, classes, class_names = model.vehicle_names, model.vehicle_classes, model.class_names
     pick = torch.linspace(0, V - 1, 10).round().long()  # 10 views spread over the grid
     recon = torch.cat([model.reconstruct_grid(model.alphas[k:k + 1], theta[pick].to(like), phi[pick].to(like))[0]
                        for k in range(masks.shape[0])]).cpu() > 0
-    pairs = overlay_pairs(masks[:, pick].reshape(recon.shape), recon)
-    figures: dict = {"reconstructions": torch.stack([tile(pairs[:, c], ncol=len(pick)) for c in range(3)])}
+    pairs = overlay_pairs(masks[:, pick].reshape(recon.shape), recon)  # (K·10, 3, H, W)
+    pairs = pairs.reshape(masks.shape[0], len(pick), 3, *masks.shape[2:]).permute(0, 1, 3, 4, 2).numpy()
+    views = [_degrees(theta[v].item(), phi[v].item()) for v in pick]
+    figures: dict = {"reconstructions": image_grid_figure(
+        pairs, [f"{n} ({class_names[c]})" for n, c in zip(names, classes)], views,
+        "Training templates against the model's reconstruction at each vehicle's αₖ", _OVERLAY_KEY,
+        "view (θ, φ)")}
     order = model.identity.order.tolist()
-    classes = model.vehicle_classes
-    view_rows, within_rows = [], []
-    for c in range(len(model.class_names)):
+    view_rows, view_labels, within_rows, within_labels = [], [], [], []
+    for c, cls in enumerate(class_names):
         members = [k for k in order if classes[k] == c]
         if members:
             view_rows.append(view_sweep(model, model.alphas[members[0]].item(), math.radians(36), math.radians(10),
                                         step_theta, step_phi))
+            view_labels.append(f"{names[members[0]]} ({cls})")
         if len(members) >= 3:
             within_rows.append(identity_sweep(model, [model.alphas[m].item() for m in members[:3]],
                                               math.radians(60), math.radians(10)))
-    between = [identity_sweep(model, [model.alphas[a].item(), model.alphas[b].item()], math.radians(60),
-                              math.radians(10), between=5)
-               for a, b in zip([order[-1]] + order[:-1], order) if classes[a] != classes[b]]
-    for name, rows in (("view_sweeps", view_rows), ("identity_sweeps_within_class", within_rows),
-                       ("identity_sweeps_between_classes", between)):
+            within_labels.append(f"{cls}: " + " → ".join(names[m] for m in members[:3]))
+    between, between_labels = [], []
+    for a, b in zip([order[-1]] + order[:-1], order):
+        if classes[a] != classes[b]:
+            between.append(identity_sweep(model, [model.alphas[a].item(), model.alphas[b].item()], math.radians(60),
+                                          math.radians(10), between=5))
+            between_labels.append(f"{names[a]} → {names[b]}")
+    if view_rows:
+        n = view_rows[0].shape[0] // 2
+        steps = [f"θ₀ + {i}/{n}·Δθ" for i in range(n + 1)] + [f"φ₀ + {i}/{n}·Δφ" for i in range(1, n + 1)]
+        figures["view_sweeps"] = image_grid_figure(
+            torch.stack(view_rows).float().numpy(), view_labels, steps,
+            f"Along the view manifold from (θ₀, φ₀) = (36°, 10°): one azimuth step Δθ = "
+            f"{math.degrees(step_theta):.0f}°, then one elevation step Δφ = {math.degrees(step_phi):.0f}° (Fig. 6.3)",
+            _SILHOUETTE_KEY, "interpolated views")
+    for name, rows, labels, what in (
+            ("identity_sweeps_within_class", within_rows, within_labels,
+             "Along the identity manifold through three neighbouring vehicles of each class (Fig. 6.4)"),
+            ("identity_sweeps_between_classes", between, between_labels,
+             "Along the identity manifold across each class border (Fig. 6.5)")):
         if rows:
-            figures[name] = tile(to_display(torch.cat(rows)), ncol=len(rows[0])).unsqueeze(0)
-    figures["identity_manifold"] = identity_circle_figure(model.alphas.tolist(), model.vehicle_names, classes,
-                                                          model.class_names, model.identity.class_arcs())
+            steps = [f"{i}/{rows[0].shape[0] - 1}" for i in range(rows[0].shape[0])]
+            figures[name] = image_grid_figure(torch.stack(rows).float().numpy(), labels, steps,
+                                              f"{what}, view (60°, 10°)", _SILHOUETTE_KEY,
+                                              "position along the path, first to last named vehicle")
+    figures["identity_manifold"] = identity_circle_figure(model.alphas.tolist(), names, classes, class_names,
+                                                          model.identity.class_arcs())
     return figures
 
 
 def save_figures(figures: dict, folder: str | Path) -> None:
-    """Write each (C, H, W) image or matplotlib Figure of ``figures`` as ``folder/<name>.png``, atomically."""
+    """Write each matplotlib Figure of ``figures`` as ``folder/<name>.png``, atomically, and close it."""
+    plt = _pyplot()
     folder = Path(folder)
-    for name, image in figures.items():
-        if isinstance(image, torch.Tensor):
-            save_png(image, folder / f"{name}.png")
-        else:
-            with atomic_path(folder / f"{name}.png") as tmp:
-                image.savefig(tmp, format="png", dpi=110)
-
+    for name, fig in figures.items():
+        with atomic_path(folder / f"{name}.png") as tmp:
+            fig.savefig(tmp, format="png", dpi=110)
+        plt.close(fig)
 
 
 # --- tracking figures (chapter 6.2) -------------------------------------------------------------
-
-def _pyplot():
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
-
 
 def _rows_column(rows: list[dict], name: str) -> np.ndarray:
     return np.array([float(r.get(name, math.nan)) for r in rows], dtype=np.float64)
@@ -352,7 +382,7 @@ def log_track_tensorboard(folder: str | Path, result, figures: dict) -> None:
                 writer.add_scalar("error/range_m", abs(row["z"] - row["true_z"]), step)
                 writer.add_scalar("error/aspect_rad", float(wrapped_abs(row["theta"] - row["true_theta"])), step)
         for name, fig in figures.items():
-            writer.add_figure(name, fig)
+            writer.add_figure(name, fig, close=False)
 
 
 def write_overlay_video(path: str | Path, tracker, sequence, result, frames: int | None = None) -> None:
