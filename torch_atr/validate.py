@@ -21,8 +21,11 @@ import json
 import math
 import numbers
 import os
+import warnings
 from pathlib import Path
 from typing import Any
+
+from PIL import Image
 
 MAX_IMAGE_SIDE = 16384
 MAX_IMAGE_PIXELS = 2 ** 26
@@ -103,6 +106,23 @@ def image_size(where: str, width: Any, height: Any) -> tuple[int, int]:
     if w * h > MAX_IMAGE_PIXELS:
         raise InputError(f"{where}: {w} x {h} = {w * h} pixels; expected at most {MAX_IMAGE_PIXELS}")
     return w, h
+
+
+def image_file_size(path: str | os.PathLike) -> tuple[int, int]:
+    """(width, height) of an image file read from its header, without decoding the pixels (Pillow
+    identifies the format), checked as :func:`image_size`; InputError naming the file for a file
+    that is not an image or too large. Call it before decoding a file from outside."""
+    path = Path(path)
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", Image.DecompressionBombWarning)  # our bound is tighter
+            with Image.open(path) as img:
+                width, height = img.size
+    except Image.DecompressionBombError as exc:
+        raise InputError(f"{path}: image too large ({exc}); expected at most {MAX_IMAGE_PIXELS} pixels") from None
+    except Exception as exc:  # Pillow's parsers raise many kinds on corrupt headers
+        raise InputError(f"{path}: cannot be read as an image ({type(exc).__name__}: {show(str(exc))})") from None
+    return image_size(str(path), width, height)
 
 
 def rotation(where: str, value: Any, atol: float = 1e-6) -> list[list[float]]:
