@@ -8,7 +8,7 @@ optional per-frame ground truth (:class:`FrameTruth`).
 
     path/to/folder                      our folder format (``folder.py``)
     folder:path/to/folder               the same, spelled out
-    sensiac:FILE.arf[,calib=..,fps=..]  a SENSIAC ARF with its AGT / bbox_met (``sensiac.py``)
+    sensiac:FILE.arf[,calib=..,fps=..,layout=..]  a SENSIAC ARF with its AGT / bbox_met (``sensiac.py``)
     video:FILE[,calib=..,color=..,fps=..]  a video, image folder or glob (``video.py``)
     synthetic:...                       the scene simulator, once it registers itself
 
