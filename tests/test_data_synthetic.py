@@ -312,8 +312,8 @@ def test_config_errors_name_the_field():
 
 
 @pytest.mark.parametrize("option, words", [
-    ("width=100000", r"width=100000 \(expected in \[1, 16384\]\)"),
-    ("height=16384,width=16384", r"width x height at most 67108864"),
+    ("width=100000", r"width=100000 \(expected in \[1, 4096\]\)"),
+    ("height=4096,width=4096", r"width x height at most 4194304"),
     ("psf_sigma_px=1e6", r"psf_sigma_px=1000000.0 \(expected in \[0, 100\]\)"),
     ("psf_sigma_per_km=1000", r"psf_sigma_per_km=1000.0 \(expected >= 0, with psf_sigma_px \+ psf_sigma_per_km"),
     ("clutter_stretch=1000", r"clutter_scale_px x clutter_stretch at most 100 px"),
@@ -332,8 +332,8 @@ def test_spec_values_are_bounded(option, words):
 
 def test_a_vehicle_too_large_in_the_image_is_refused_before_rendering():
     with pytest.raises(ConfigError, match=r"t_72 \(\d+.\d m across\) would span \d+ px at the circle's nearest point, "
-                                          r"40 m away; expected at most 2048"):
-        SyntheticSequence("t_72", SceneConfig(range_m=90.0))
+                                          r"150 m away; expected at most 512"):
+        SyntheticSequence("t_72", SceneConfig(range_m=200.0))
 
 
 def test_save_sequence_round_trip(tmp_path):

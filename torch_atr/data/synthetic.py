@@ -100,7 +100,7 @@ from torch_atr.camera import Camera
 from torch_atr.config import ConfigError, load_config
 from torch_atr.data.sequence import FrameTruth, Sequence, parse_spec_options, register_scheme
 from torch_atr.render import VehiclePose, body_to_world, render_mask, view_of_pose
-from torch_atr.validate import MAX_IMAGE_PIXELS, MAX_IMAGE_SIDE, InputError, show
+from torch_atr.validate import InputError, show
 from torch_atr.vehicles import Vehicle, load_vehicle
 from torch_atr.vehicles import load_catalog_vehicle
 
@@ -126,7 +126,11 @@ _OCCLUDER_BUMPS_M = 1.5  # spacing of the occluder's top profile samples
 _PSF_TRUNCATE = 4.0  # Gaussian kernels reach 4 σ
 _SUPERSAMPLE = 3  # the target's radiance is averaged over 3 x 3 sub-samples per pixel
 _MAX_BLUR_PX = 100.0  # Gaussian σ of the PSF and the clutter: kernels of at most 801 taps
-MAX_TARGET_PX = 2048  # the vehicle's 3D diagonal at the circle's nearest point, in pixels (rendered x 3 x 3)
+# Memory bounds of one rendered frame (measured: a 512 px target in a 2048 x 2048 frame peaks ~0.6 GB above the
+# process's baseline, a 1024 px one in a 2048 x 2048 frame 2 GB).
+MAX_TARGET_PX = 512  # the vehicle's 3D diagonal at the circle's nearest point, in pixels (rendered x 3 x 3)
+MAX_FRAME_SIDE = 4096
+MAX_FRAME_PIXELS = 2 ** 22  # 4 Mpx: e.g. 2048 x 2048; SENSIAC's 640 x 512 is 0.33 Mpx
 
 # Resolved defaults of the temperature fields (kelvin) at night and by day.
 _NIGHT = {"ground_k": 285.0, "sky_k": 262.0, "body_k": 291.0, "running_gear_k": 295.0, "engine_deck_k": 305.0,
@@ -189,9 +193,9 @@ class SceneConfig:
             "fps": (0 < self.fps <= 1e4, "in (0, 10000]"),
             "speed_mps": (0 <= self.speed_mps <= 1e3, "in [0, 1000]"),
             "start_deg": (self.start_deg is None or math.isfinite(self.start_deg), "finite or null"),
-            "width": (1 <= self.width <= MAX_IMAGE_SIDE, f"in [1, {MAX_IMAGE_SIDE}]"),
-            "height": (1 <= self.height <= MAX_IMAGE_SIDE and self.width * self.height <= MAX_IMAGE_PIXELS,
-                       f"in [1, {MAX_IMAGE_SIDE}], width x height at most {MAX_IMAGE_PIXELS}"),
+            "width": (1 <= self.width <= MAX_FRAME_SIDE, f"in [1, {MAX_FRAME_SIDE}]"),
+            "height": (1 <= self.height <= MAX_FRAME_SIDE and self.width * self.height <= MAX_FRAME_PIXELS,
+                       f"in [1, {MAX_FRAME_SIDE}], width x height at most {MAX_FRAME_PIXELS}"),
             "focal_px": (0 < self.focal_px <= 1e6, "in (0, 1e6]"),
             "camera_height_m": (0 < self.camera_height_m <= 1e4, "in (0, 10000]"),
             "tilt_deg": (self.tilt_deg is None or -45 <= self.tilt_deg <= 45, "in [-45, 45] or null"),
