@@ -118,6 +118,12 @@ def _edit_state(raw, key, value):
      r"identity.knots'\] has dtype torch.float64; expected the model's one float dtype, float32 or float64 "
      r"\(torch.float32 here\)"),
     (lambda r: _edit_state(r, "rbf.log_width", [1.0] * 6), r"rbf.log_width'\] is a list; expected a dense tensor"),
+    (lambda r: _edit_state(r, "rbf.log_width", torch.full((6,), -200.0)),
+     r"rbf.log_width'\] holds values in \[-200, -200\]; expected them within \[-20, 20\]"),
+    (lambda r: _edit_state(r, "core.core", r["state_dict"]["core.core"] * 1e30),
+     r"core.core'\] holds values in .*; expected them within \[-1e\+06, 1e\+06\]"),
+    (lambda r: _edit_state(r, "identity.knots", r["state_dict"]["identity.knots"].flip(0)),
+     r"identity.knots'\] is not strictly increasing"),
     (lambda r: _edit_state(r, "extra_buffer", torch.zeros(2)), "state_dict does not match model_args: unexpected "
                                                                "'extra_buffer'"),
     (lambda r: {**r, "model_args": {**r["model_args"], "template": {"size_px": 100000}}},

@@ -36,6 +36,8 @@ _MODEL_ARG_KEYS = ("num_centres", "num_vehicles", "pixel_rank", "vehicle_names",
                    "template")
 _CHECKPOINT_KEYS = {"format", "format_version", "torch_atr_version", "model_args", "state_dict", "extra", "sha256"}
 _FLOAT_DTYPES = (torch.float32, torch.float64)
+MAX_ABS_VALUE = 1e6  # |x| of any stored float (the shipped model's largest is 262): reconstructions stay finite
+LOG_WIDTH_RANGE = (-20.0, 20.0)  # kernel widths exp(log_width) stay positive and finite in float32
 _INDEX_KEYS = ("identity.order", "identity.labels")  # int64; every other tensor is floating
 
 
@@ -388,8 +390,10 @@ def state_shapes(model_args: dict) -> dict[str, tuple[int, ...]]:
 
 def _check_state(state, model_args: dict, where: str) -> None:
     """Check a loaded state_dict against checked ``model_args``: the keys, shapes and dtypes they
-    call for (one float dtype, float32 or float64; int64 order and labels), dense finite tensors,
-    ``identity.order`` a permutation and ``identity.labels`` equal to ``vehicle_classes``."""
+    call for (one float dtype, float32 or float64; int64 order and labels), dense finite tensors
+    within MAX_ABS_VALUE (log widths within LOG_WIDTH_RANGE), strictly increasing knots,
+    ``identity.order`` a permutation and ``identity.labels`` equal to ``vehicle_classes``: what
+    keeps every reconstruction finite."""
     if not isinstance(state, dict):
         raise InputError(f"{where}: state_dict is a {type(state).__name__}; expected a dict of tensors")
     shapes = state_shapes(model_args)
@@ -418,6 +422,13 @@ def _check_state(state, model_args: dict, where: str) -> None:
         if not bool(torch.isfinite(t).all()):
             raise InputError(f"{where}: state_dict[{name!r}] holds {int((~torch.isfinite(t)).sum())} NaN or "
                              f"infinite value(s)")
+        lo, hi = LOG_WIDTH_RANGE if name == "rbf.log_width" else (-MAX_ABS_VALUE, MAX_ABS_VALUE)
+        if t.numel() and not lo <= t.min().item() <= t.max().item() <= hi:
+            raise InputError(f"{where}: state_dict[{name!r}] holds values in [{t.min().item():.3g}, "
+                             f"{t.max().item():.3g}]; expected them within [{lo:g}, {hi:g}]")
+    knots = state["identity.knots"]
+    if not bool((knots[1:] > knots[:-1]).all()):
+        raise InputError(f"{where}: state_dict['identity.knots'] is not strictly increasing")
     K = model_args["num_vehicles"]
     order = state["identity.order"]
     if not torch.equal(order.sort().values.cpu(), torch.arange(K)):
