@@ -31,7 +31,7 @@ MAX_IMAGE_SIDE = 16384
 MAX_IMAGE_PIXELS = 2 ** 26
 MAX_TEXT_BYTES = 64 * 2 ** 20
 MAX_JSON_BYTES = 16 * 2 ** 20
-_SHOW = 60  # characters of a bad value quoted in a message
+_SHOW = 200  # characters of a bad value quoted in a message
 
 
 class InputError(ValueError):
@@ -42,7 +42,7 @@ class InputError(ValueError):
 
 
 def show(value: Any) -> str:
-    """``repr(value)``, shortened to about 60 characters for an error message."""
+    """``repr(value)``, shortened to about 200 characters for an error message."""
     text = repr(value)
     return text if len(text) <= _SHOW else f"{text[:_SHOW - 15]}...{text[-10:]} ({len(text)} characters)"
 
