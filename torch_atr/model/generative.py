@@ -7,6 +7,7 @@ import hashlib
 import logging
 import os
 import pickle
+import warnings
 import zipfile
 from collections.abc import Sequence
 from pathlib import Path
@@ -488,7 +489,9 @@ def load_checkpoint(path: str | os.PathLike, map_location=None) -> tuple[Generat
         raise InputError(f"{path}: expected a checkpoint file; it is a folder or a device")
     _check_archive(path)
     try:
-        ckpt = torch.load(path, map_location=map_location, weights_only=True)
+        with warnings.catch_warnings():  # a corrupt pickle header's protocol warning: our checks decide
+            warnings.filterwarnings("ignore", message="Detected pickle protocol", category=UserWarning)
+            ckpt = torch.load(path, map_location=map_location, weights_only=True)
     except Exception as exc:  # torch.load raises many kinds on corrupt bytes
         raise _load_error(path, exc) from None
     if not isinstance(ckpt, dict) or ckpt.get("format") != FORMAT:
