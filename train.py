@@ -34,7 +34,7 @@ from torch_atr.io import atomic_write_text, check_output_dir, check_output_file
 from torch_atr.model import GenerativeShapeModel
 from torch_atr.model.generative import is_checkpoint
 from torch_atr.model.rbf import RBFViewMapping
-from torch_atr.training import REPORT_FORMAT, TrainConfig, is_train_report, render_set
+from torch_atr.training import REPORT_FORMAT, TrainConfig, is_train_report, non_finite_keys, render_set
 from torch_atr.vehicles import CLASS_NAMES, load_catalog
 
 log = logging.getLogger("train")
@@ -149,8 +149,13 @@ def main(argv: list[str] | None = None) -> dict:
     history = model.width_history
     report["width_tuning_mse"] = {"first": history[0], "last": history[-1]} if history else None
     report["timings_s"] = timings
+    bad = non_finite_keys(report)
+    if bad:  # a NaN or infinite measure means the run failed: write nothing
+        raise ValueError(f"the run failed: {', '.join(bad)} not finite; neither {checkpoint} nor the report was "
+                         f"written")
+    text = json.dumps(report, indent=2, allow_nan=False)
     model.save(checkpoint, extra={"config": dataclasses.asdict(cfg), "report": report})
-    atomic_write_text(json.dumps(report, indent=2), out_dir / "report.json")
+    atomic_write_text(text, out_dir / "report.json")
     log.info("wrote %s (%.1f MB); train IoU %.3f, held-out IoU %.3f, identity self-match %s",
              checkpoint, checkpoint.stat().st_size / 1e6, report["train_iou"]["all"],
              report["held_out_iou"]["all"], report["identity_self_match"]["all"])

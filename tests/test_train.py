@@ -95,3 +95,13 @@ def test_default_training_meets_the_quality_bars(tmp_path):
     assert report["train_iou"]["all"] >= 0.95 and min(report["train_iou"].values()) >= 0.9
     assert report["held_out_iou"]["all"] >= 0.85
     assert report["identity_self_match"]["all"]
+
+
+def test_non_finite_measures_are_named():
+    from torch_atr.training import non_finite_keys
+
+    report = {"views": 150, "train_iou": {"tank": 0.9, "car": math.nan}, "test_split": [{"mse": 0.1},
+                                                                                        {"mse": math.inf}],
+              "note": "nan", "ok": True}
+    assert non_finite_keys(report) == ["train_iou.car", "test_split[1].mse"]
+    assert non_finite_keys({"a": [1.0, 2]}) == []

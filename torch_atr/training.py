@@ -116,6 +116,20 @@ def is_train_report(path: Path) -> bool:
         return False
 
 
+def non_finite_keys(data, prefix: str = "") -> list[str]:
+    """Dotted keys (``train_iou.tank``, ``test_split[2].mse``) of the NaN or infinite floats in nested
+    dicts and lists of plain data, in order."""
+    if isinstance(data, float):
+        return [] if math.isfinite(data) else [prefix or "value"]
+    if isinstance(data, dict):
+        items = ((f"{prefix}.{k}" if prefix else str(k), v) for k, v in data.items())
+    elif isinstance(data, (list, tuple)):
+        items = ((f"{prefix}[{i}]", v) for i, v in enumerate(data))
+    else:
+        return []
+    return [key for name, value in items for key in non_finite_keys(value, name)]
+
+
 def render_set(vehicles: Sequence, theta: torch.Tensor, phi: torch.Tensor, cfg: TemplateConfig,
                desc: str = "rendering") -> tuple[torch.Tensor, torch.Tensor]:
     """Render and encode every vehicle at every view.
