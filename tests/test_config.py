@@ -93,3 +93,17 @@ def test_yaml_merge_keys_may_repeat_a_merged_key():
 
     text = "base: &b\n  size_px: 32\n  tau_px: 3.0\ntemplate:\n  <<: *b\n  size_px: 16\n"
     assert _parse_yaml(text)["template"] == {"size_px": 16, "tau_px": 3.0}
+
+
+def test_view_grid_matches_chapter_6_1():
+    theta, phi = ViewGridConfig().grid()
+    assert len(theta) == 150  # 30 azimuths x 5 elevations
+    assert sorted(set(round(float(t) * 180 / 3.141592653589793) for t in theta)) == list(range(0, 360, 12))
+    assert sorted(set(round(float(p) * 180 / 3.141592653589793) for p in phi)) == [0, 10, 20, 30, 40]
+    th, ph = ViewGridConfig().held_out()
+    assert set(round(float(t) * 180 / 3.141592653589793) for t in th) == set(range(6, 360, 12))
+    assert set(round(float(p) * 180 / 3.141592653589793) for p in ph) == {5, 15, 25, 35, 45}
+    vt, vp = ViewGridConfig().validation()
+    assert len(vt) == 300
+    seen = {(round(float(a), 6), round(float(b), 6)) for a, b in zip(vt, vp)}
+    assert not seen & {(round(float(a), 6), round(float(b), 6)) for a, b in zip(th, ph)}

@@ -20,7 +20,6 @@ import io
 import json
 import math
 import os
-import re
 import resource
 import signal
 import struct
@@ -31,7 +30,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-import yaml
 from hypothesis import event, given, settings
 from hypothesis import strategies as st
 from PIL import Image
