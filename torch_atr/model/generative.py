@@ -465,8 +465,8 @@ def _load_error(path: Path, exc: Exception) -> InputError:
     """An InputError for an exception of ``torch.load``, without PyTorch's advice to retry with
     ``weights_only=False`` (which would run whatever the file holds)."""
     boilerplate = ("Weights only load failed", "Please file an issue", "Check the documentation")
-    detail = " ".join(line.strip() for line in str(exc).splitlines()
-                      if line.strip() and not line.startswith(boilerplate))[:200] or type(exc).__name__
+    detail = " ".join(line.strip() for line in str(exc).splitlines() if line.strip()
+                      and not line.startswith(boilerplate) and "weights_only" not in line)[:200] or type(exc).__name__
     if isinstance(exc, pickle.UnpicklingError):
         return InputError(f"{path}: refused to load: it holds something other than tensors and plain data, which "
                           f"torch_atr checkpoints never do ({detail})")
