@@ -1,12 +1,16 @@
 """Train the shape-based generative model (thesis chapter 4 and 6.1).
 
-    python train.py [--config configs/default.yaml] [key=value ...]
+    python train.py [--config configs/default.yaml] [--overwrite] [key=value ...]
 
 Steps: render the training split at the configured views and encode the silhouettes by the
 clipped signed distance; fit the RBF view mappings, tune the kernel widths on held-out views
 (optional), decompose the mapping tensor (HOSVD) and build the identity manifold; measure the
 reconstructions; log pictures to TensorBoard; write the checkpoint (atomically) with the
 resolved config and the report.
+
+An existing checkpoint or run folder (<log_dir>/<name> with its report.json) is replaced only
+with --overwrite; a file or folder that is not ours is never replaced. User errors print one
+line, ``train.py: error: ...``, and exit with status 2.
 """
 
 from __future__ import annotations
@@ -22,13 +26,15 @@ from pathlib import Path
 import torch
 
 from torch_atr import viz
+from torch_atr.cli import run_main
 from torch_atr.config import load_config
 from torch_atr.evaluation import (fit_alpha, identity_distances, per_class_mean, rbf_mapping_iou,
                                   reconstruction_iou)
-from torch_atr.io import atomic_write_text
+from torch_atr.io import atomic_write_text, check_output_dir, check_output_file
 from torch_atr.model import GenerativeShapeModel
+from torch_atr.model.generative import is_checkpoint
 from torch_atr.model.rbf import RBFViewMapping
-from torch_atr.training import TrainConfig, render_set
+from torch_atr.training import REPORT_FORMAT, TrainConfig, is_train_report, non_finite_keys, render_set
 from torch_atr.vehicles import CLASS_NAMES, load_catalog
 
 log = logging.getLogger("train")
@@ -38,10 +44,15 @@ def main(argv: list[str] | None = None) -> dict:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--config", default=str(Path(__file__).resolve().parent / "configs" / "default.yaml"),
                         help="YAML config (default: the repository's configs/default.yaml)")
+    parser.add_argument("--overwrite", action="store_true",
+                        help="replace an existing checkpoint and run folder of ours (never anything else)")
     parser.add_argument("overrides", nargs="*", help="key=value overrides, dotted for sections (model.ridge=1e-3)")
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s: %(message)s", datefmt="%H:%M:%S")
     cfg = load_config(TrainConfig, args.config, args.overrides)
+    # Refuse to replace outputs before spending minutes on training.
+    out_dir = check_output_dir(Path(cfg.log_dir) / cfg.name, args.overwrite, "report.json", is_train_report, "run")
+    checkpoint = check_output_file(cfg.checkpoint, args.overwrite, is_checkpoint, "checkpoint")
     torch.manual_seed(cfg.seed)
     timings: dict[str, float] = {}
     clock = time.perf_counter()
@@ -81,6 +92,7 @@ def main(argv: list[str] | None = None) -> dict:
     dist = identity_distances(model, signed, theta, phi)
     identity_ok = (dist.argmin(dim=1) == torch.arange(len(vehicles))).tolist()
     report = {
+        "format": REPORT_FORMAT,
         "vehicles": len(vehicles), "views": len(theta), "pixel_rank": model.core.pixel_rank,
         # Relative error the truncated pixel basis adds: on the templates, and on the mappings 𝒞 (the
         # RBF weights, dominated by detail that changes fast with the view).
@@ -116,7 +128,6 @@ def main(argv: list[str] | None = None) -> dict:
     # 4. Pictures: TensorBoard (scalars, histograms, images, figures) and the same images as PNGs.
     figures = viz.model_figures(model, masks, theta, phi, math.radians(cfg.views.azimuth_step_deg),
                                 math.radians(cfg.views.elevation_step_deg))
-    out_dir = Path(cfg.log_dir) / cfg.name
     if cfg.tensorboard:
         from torch.utils.tensorboard import SummaryWriter
 
@@ -135,13 +146,18 @@ def main(argv: list[str] | None = None) -> dict:
     history = model.width_history
     report["width_tuning_mse"] = {"first": history[0], "last": history[-1]} if history else None
     report["timings_s"] = timings
-    model.save(cfg.checkpoint, extra={"config": dataclasses.asdict(cfg), "report": report})
-    atomic_write_text(json.dumps(report, indent=2), Path(cfg.log_dir) / cfg.name / "report.json")
+    bad = non_finite_keys(report)
+    if bad:  # a NaN or infinite measure means the run failed: write nothing
+        raise ValueError(f"the run failed: {', '.join(bad)} not finite; neither {checkpoint} nor the report was "
+                         f"written")
+    text = json.dumps(report, indent=2, allow_nan=False)
+    model.save(checkpoint, extra={"config": dataclasses.asdict(cfg), "report": report})
+    atomic_write_text(text, out_dir / "report.json")
     log.info("wrote %s (%.1f MB); train IoU %.3f, held-out IoU %.3f, identity self-match %s",
-             cfg.checkpoint, Path(cfg.checkpoint).stat().st_size / 1e6, report["train_iou"]["all"],
+             checkpoint, checkpoint.stat().st_size / 1e6, report["train_iou"]["all"],
              report["held_out_iou"]["all"], report["identity_self_match"]["all"])
     return report
 
 
 if __name__ == "__main__":
-    main()
+    run_main(main)

@@ -8,6 +8,7 @@ import pytest
 import torch
 
 from torch_atr.camera import Camera
+from torch_atr.validate import InputError
 
 K_CV = np.array([[820.0, 0.0, 322.5], [0.0, 790.0, 251.25], [0.0, 0.0, 1.0]])
 DIST_CV = np.array([-0.21, 0.08, 0.0012, -0.0007, -0.015])
@@ -116,7 +117,29 @@ def test_dict_round_trip_and_errors():
     with pytest.raises(ValueError, match=r"unknown key\(s\) focal"):
         Camera.from_dict({**cam.to_dict(), "focal": 1.0})
     with pytest.raises(ValueError, match="focal lengths"):
-        Camera.from_dict({**cam.to_dict(), "fx": -1.0})
+        Camera(-1.0, 500.0, 320.0, 240.0, 640, 480)
+    with pytest.raises(ValueError, match="principal point"):
+        Camera(500.0, 500.0, math.nan, 240.0, 640, 480)
+
+
+@pytest.mark.parametrize("key, value, message", [
+    ("fx", -1.0, "key 'fx': expected a finite number > 0; got -1.0"),
+    ("fx", math.inf, "key 'fx': expected a finite number > 0; got inf"),
+    ("cx", math.nan, "key 'cx': expected a finite number; got nan"),
+    ("cy", True, "key 'cy': expected a finite number; got True"),
+    ("fy", "500", "key 'fy': expected a finite number > 0; got '500'"),
+    ("width", 640.5, "key 'width': expected an integer; got 640.5"),
+    ("width", math.inf, "key 'width': expected an integer; got inf"),
+    ("height", 10 ** 9, r"height: expected an integer in \[1, 16384\]; got 1000000000"),
+    ("dist", [0.1, 0, 0, 0], r"key 'dist': expected a list of 5 numbers"),
+    ("t", [0, 0, math.inf], r"key 't'\[2\]: expected a finite number; got inf"),
+    ("R", [[1, 0, 0], [0, 1, 0], [0, 0, 2]], r"key 'R': expected a rotation .*differs from I by 3"),
+    ("R", [[1, 0, 0], [0, 1, 0]], r"key 'R': expected a 3 x 3 matrix"),
+])
+def test_from_dict_refuses_what_a_camera_file_must_not_hold(key, value, message):
+    d = {**_camera().to_dict(), key: value}
+    with pytest.raises(InputError, match=f"^calib.json, {message}" if message.startswith("key") else message):
+        Camera.from_dict(d, source="calib.json")
 
 
 def test_rotated_camera_sees_rotated_world():

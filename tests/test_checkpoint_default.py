@@ -16,7 +16,7 @@ CKPT = Path(__file__).resolve().parents[1] / "checkpoints" / "default.pt"
 def test_shipped_checkpoint_is_small_and_self_describing():
     assert CKPT.stat().st_size < 10 * 2 ** 20
     raw = torch.load(CKPT, weights_only=True)
-    assert raw["format"] == "torch_atr.generative"
+    assert raw["format"] == "torch_atr.generative" and raw["format_version"] == 2 and len(raw["sha256"]) == 64
     assert raw["extra"]["config"]["template"] == {"size_px": 64, "window_m": 12.0, "tau_px": 6.0}
     assert raw["model_args"]["class_names"] == list(CLASS_NAMES)
 

@@ -21,7 +21,22 @@ def test_yaml_then_overrides_then_types(tmp_path):
     ("template: 5\n", "template: expected a mapping"),
     ("- a\n", "top level must be a mapping"),
     ("a: [\n", "not valid YAML"),
-    ("template:\n  size_px: 4\n", "size_px must be >= 8"),
+    ("template:\n  size_px: 4\n", r"size_px must be in \[8, 512\]; got 4"),
+    ("template:\n  size_px: 100000\n", r"size_px must be in \[8, 512\]; got 100000"),
+    ("template:\n  tau_px: .inf\n", "template.tau_px: expected a finite number; got inf"),
+    ("template:\n  tau_px: .nan\n", "template.tau_px: expected a finite number; got nan"),
+    ("template:\n  tau_px: 1e400\n", "template.tau_px: expected a finite number; got '1e400'"),
+    ("template:\n  window_m: 1e-300\n", r"window_m must be in \[0.1, 1000\] metres; got 1e-300"),
+    ("model:\n  ridge: 1e300\n", r"model.ridge must be in \[0, 1000\]; got 1e\+300"),
+    ("model:\n  init_width: 100\n", r"model.init_width must be in \[0.001, 4\]"),
+    ("views:\n  azimuth_step_deg: 1e-9\n", "give 360000000000 x 5 = 1800000000000 views; expected at most 10000"),
+    ("seed: 1\nname: a\nseed: 2\n", r"key 'seed' repeated \(first on line 1\).*line 3"),
+    ("template:\n  size_px: 32\n  size_px: 64\n", "key 'size_px' repeated"),
+    ("name: ../../..\n", "name must be a plain folder name.*got '../../..'"),
+    ("name: /abs\n", "name must be a plain folder name"),
+    ("name: a/b\n", "name must be a plain folder name"),
+    ("name: ''\n", "name must be a plain folder name"),
+    ("checkpoint: ''\n", "checkpoint must be a path"),
 ])
 def test_bad_files_name_file_and_key(tmp_path, text, match):
     path = tmp_path / "bad.yaml"
@@ -38,6 +53,46 @@ def test_bad_override_and_missing_file(tmp_path):
         load_config(TrainConfig, None, ["model.pixel_rank=0"])
     with pytest.raises(ConfigError, match="not found.*nope.yaml"):
         load_config(TrainConfig, tmp_path / "nope.yaml")
+
+
+def test_a_bad_override_is_reported_as_an_override_not_against_the_file(tmp_path):
+    path = tmp_path / "good.yaml"
+    path.write_text("name: a\n")
+    cases = {
+        "template.tau_px=.inf": "override template.tau_px=.inf: template.tau_px: expected a finite number; got inf",
+        "model.ridg=1": r"override model.ridg=1: unknown config key\(s\) model.ridg",
+        "name=../x": "override name=../x: name must be a plain folder name",
+        "template.size_px={a: 1, a: 2}": "override 'template.size_px={a: 1, a: 2}': not a YAML value: .*repeated",
+        "name.x=1": "override 'name.x=1': name is not a section",
+    }
+    for item, message in cases.items():
+        with pytest.raises(ConfigError, match=message) as info:
+            load_config(TrainConfig, path, ["seed=3", item])
+        assert str(path) not in str(info.value)
+    # Of several overrides, the one whose key the message names is blamed.
+    with pytest.raises(ConfigError, match=r"^override model.ridge=1e9: model.ridge must be in"):
+        load_config(TrainConfig, path, ["seed=3", "model.ridge=1e9", "name=b"])
+    # A file that is bad on its own is blamed even when overrides follow.
+    path.write_text("seed: x\n")
+    with pytest.raises(ConfigError, match=rf"^{path}: seed: expected an integer"):
+        load_config(TrainConfig, path, ["name=b"])
+
+
+def test_config_text_must_be_utf8_and_small(tmp_path):
+    path = tmp_path / "latin1.yaml"
+    path.write_bytes("name: caf\xe9\n".encode("latin-1"))
+    with pytest.raises(ConfigError, match=rf"{path}, line 1: not UTF-8 text \(byte 0xe9 at byte offset 9\)"):
+        load_config(TrainConfig, path)
+    path.write_bytes(b"# " + b"x" * 2 ** 20 + b"\n")
+    with pytest.raises(ConfigError, match=rf"{path}: larger than 1048576 bytes"):
+        load_config(TrainConfig, path)
+
+
+def test_yaml_merge_keys_may_repeat_a_merged_key():
+    from torch_atr.config import _parse_yaml
+
+    text = "base: &b\n  size_px: 32\n  tau_px: 3.0\ntemplate:\n  <<: *b\n  size_px: 16\n"
+    assert _parse_yaml(text)["template"] == {"size_px": 16, "tau_px": 3.0}
 
 
 def test_view_grid_matches_chapter_6_1():

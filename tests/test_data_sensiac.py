@@ -28,6 +28,7 @@ from torch_atr.data import (
 )
 from torch_atr.data import sensiac as sensiac_module
 from torch_atr.data.sensiac import parse_agt
+from torch_atr.validate import InputError
 
 
 def arf_bytes(frames, gap=0, offset=32, magic=0xBBBBBAAD, version=2, image_type=5, flags=0, fill=b"\x5a"):
@@ -50,7 +51,7 @@ def _frames(n=5, rows=6, cols=7, seed=0):
 def test_arf_reader_pixel_exact(tmp_path, gap, layout, offset):
     frames = _frames()
     path = tmp_path / "clip.arf"
-    path.write_bytes(arf_bytes(frames, gap=gap, offset=offset))
+    path.write_bytes(arf_bytes(frames, gap=gap, offset=offset, flags=0x10 if gap else 0))
     seq = SensiacSequence(path)
     assert seq.meta["arf_layout"] == layout and seq.meta["agt"] is None and seq.meta["bbox_met"] is None
     assert len(seq) == 5 and seq.name == "clip" and seq.fps == 30.0 and seq.camera is None
@@ -66,7 +67,7 @@ def test_write_arf_matches_reference_bytes(tmp_path, gap):
     frames = _frames(n=3, rows=4, cols=9, seed=3)
     path = tmp_path / "w.arf"
     assert write_arf(path, frames, gap=gap) == 3
-    assert path.read_bytes() == arf_bytes(frames, gap=40 if gap else 0, fill=b"\0")
+    assert path.read_bytes() == arf_bytes(frames, gap=40 if gap else 0, fill=b"\0", flags=0x10 if gap else 0)
     header, layout = read_arf_header(path)
     assert (header.rows, header.cols, header.frames, header.offset) == (4, 9, 3, 32)
     assert layout == ("trailer40" if gap else "contiguous")
@@ -123,6 +124,77 @@ def test_arf_size_matches_neither_layout(tmp_path):
     with pytest.raises(ValueError, match=re.escape(
             f"{path}: ARF size {size} bytes matches neither layout: {plain} bytes without per-frame "
             f"trailers, {trailed} bytes with 40-byte trailers")):
+        SensiacSequence(path)
+
+
+def test_contiguous_arf_with_40_junk_bytes_a_frame_is_not_read_shifted(tmp_path, caplog):
+    """A contiguous ARF followed by exactly 40 x frames bytes fits the trailer layout by size; read
+    as such, frames 1... came back shifted. Neither the header nor the content says trailers."""
+    frames = _frames(n=4, rows=6, cols=7)
+    path = tmp_path / "junk.arf"
+    path.write_bytes(arf_bytes(frames) + b"\x5a" * 160)
+    with pytest.raises(InputError, match=re.escape(
+            f"{path}: ARF size {32 + 4 * 84 + 160} bytes fits two layouts: 4 frames each followed by a 40-byte "
+            f"trailer, or 4 contiguous frames followed by 160 other bytes; the header's flags 0x0 do not declare "
+            f"per-frame data (bit 0x10) and the would-be trailers hold no valid time stamps; open it with "
+            f"layout=contiguous or layout=trailer40")):
+        SensiacSequence(path)
+    with caplog.at_level(logging.WARNING):
+        seq = open_sequence(f"sensiac:{path},layout=contiguous")
+    assert "ignoring the 160 bytes after frame 3" in caplog.text
+    for i in range(4):
+        np.testing.assert_array_equal(seq.frame(i), frames[i])
+    with pytest.raises(InputError, match="layout must be one of contiguous, trailer40; got 'gap'"):
+        open_sequence(f"sensiac:{path},layout=gap")
+
+
+def _trailer(year=2004, day=100, hour=12, minute=30, sec=15, ms=250):
+    return struct.pack(">10I", 320, 256, 0, 0, year, day, hour, minute, sec, ms)
+
+
+def test_undeclared_trailers_are_recognised_by_their_time_stamps(tmp_path):
+    frames = _frames(n=3, rows=5, cols=6)
+    head = struct.pack(">8I", 0xBBBBBAAD, 2, 5, 6, 5, 3, 32, 0)  # flags 0: trailers not declared
+    path = tmp_path / "stamped.arf"
+    path.write_bytes(head + b"".join(f.astype(">u2").tobytes() + _trailer(sec=k) for k, f in enumerate(frames)))
+    seq = SensiacSequence(path)
+    assert seq.meta["arf_layout"] == "trailer40"
+    for i in range(3):
+        np.testing.assert_array_equal(seq.frame(i), frames[i])
+    # One implausible stamp (hour 25) makes the file ambiguous again.
+    path.write_bytes(head + b"".join(f.astype(">u2").tobytes() + _trailer(hour=25 if k == 1 else 1)
+                                     for k, f in enumerate(frames)))
+    with pytest.raises(InputError, match="fits two layouts"):
+        SensiacSequence(path)
+    assert SensiacSequence(path, layout="trailer40").meta["arf_layout"] == "trailer40"
+
+
+def test_declared_trailers_without_room_for_them_are_refused(tmp_path):
+    frames = _frames(n=3, rows=5, cols=6)
+    path = tmp_path / "declared.arf"
+    path.write_bytes(arf_bytes(frames, flags=0x10))
+    with pytest.raises(InputError, match=re.escape(
+            f"{path}: the header's flags 0x10 (byte offset 28) declare per-frame data (bit 0x10), but the size, "
+            f"{32 + 3 * 60} bytes, has room for 3 contiguous frames only")):
+        SensiacSequence(path)
+    np.testing.assert_array_equal(SensiacSequence(path, layout="contiguous").frame(2), frames[2])
+    with pytest.raises(InputError, match=re.escape(f"{path}: truncated ARF: frame 1 of 3 starts at byte offset "
+                                                   f"{32 + 100} and needs 100 bytes with its trailer, but the file "
+                                                   f"ends at byte offset {32 + 3 * 60}")):
+        SensiacSequence(path, layout="trailer40")
+
+
+def test_arf_header_with_huge_frames_is_refused_before_mapping(tmp_path):
+    path = tmp_path / "huge.arf"
+    with open(path, "wb") as fh:  # 65535 x 65535 x 2 bytes = 8 GiB, sparse on disk
+        fh.write(struct.pack(">8I", 0xBBBBBAAD, 2, 65535, 65535, 5, 1, 32, 0))
+        fh.truncate(32 + 65535 * 65535 * 2)
+    with pytest.raises(InputError, match=re.escape(
+            f"{path}: ARF header (rows, cols at byte offsets 8, 12): width: expected an integer in [1, 16384]; "
+            f"got 65535")):
+        SensiacSequence(path)
+    path.write_bytes(struct.pack(">8I", 0xBBBBBAAD, 2, 16384, 16384, 5, 1, 32, 0))
+    with pytest.raises(InputError, match="16384 x 16384 = 268435456 pixels; expected at most 67108864"):
         SensiacSequence(path)
 
 
@@ -262,7 +334,7 @@ def test_agt_malformed_names_file_and_line(tmp_path, text, line, what):
     with pytest.raises(ValueError, match=re.escape(f"{path}, line {line}: ") + re.escape(what or "")) as err:
         agt_frame_truths(read_agt(path), str(path))
     if what is None:
-        assert "Range expects a number; got 'abc'" in str(err.value)
+        assert "Range: expected a number; got 'abc'" in str(err.value)
 
 
 def test_agt_other_errors():
@@ -309,6 +381,25 @@ def test_bbox_met_malformed(tmp_path):
     path.write_text(",".join(_met_row(1, "left", 4)) + "\n")
     with pytest.raises(ValueError, match=re.escape(f"{path}, line 1, column 'upper_left_u': expected a number")):
         read_bbox_met(path)
+    for bad in ("inf", "-inf", "1e400", "nan"):
+        path.write_text(good + "\n" + ",".join(_met_row(2, 3, bad)) + "\n")
+        with pytest.raises(InputError, match=re.escape(f"{path}, line 2, column 'upper_left_v': expected a finite "
+                                                       f"number; got '{bad}'")):
+            read_bbox_met(path)
+    path.write_text(good + "\n" + '"' + "x" * 200_000 + '"\n')
+    with pytest.raises(InputError, match=re.escape(f"{path}, line 2: not a CSV file we can read (field larger than "
+                                                   f"field limit")):
+        read_bbox_met(path)
+    path.write_bytes(good.encode() + b"\n\xfe\n")
+    with pytest.raises(InputError, match=re.escape(f"{path}, line 2: not UTF-8 text (byte 0xfe")):
+        read_bbox_met(path)
+
+
+def test_agt_must_be_utf8(tmp_path):
+    path = tmp_path / "latin.agt"
+    path.write_bytes(b'Agt {\n TgtSect { TgtUpd { Tgt {\nTgtType "Gr\xfcn"\n} } } }\n')
+    with pytest.raises(InputError, match=re.escape(f"{path}, line 3: not UTF-8 text (byte 0xfc at byte offset")):
+        read_agt(path)
 
 
 def test_sensiac_sequence_merges_companions(tmp_path):
@@ -390,7 +481,7 @@ def test_no_memory_map_is_left_open_on_error(tmp_path, monkeypatch):
     with pytest.raises(ValueError, match="camera is 12 x 8 px; frames are 10 x 8"):
         SensiacSequence(tmp_path / "a.arf", camera=Camera(800.0, 800.0, 4.5, 3.5, 12, 8))
     (tmp_path / "a.agt").write_text("Agt {\n TgtSect { TgtUpd { Tgt {\nRange far\n} } } }\n")
-    with pytest.raises(ValueError, match="Range expects a number; got 'far'"):
+    with pytest.raises(ValueError, match="Range: expected a number; got 'far'"):
         SensiacSequence(tmp_path / "a.arf")
     assert mapped == []
     (tmp_path / "a.agt").unlink()
@@ -401,7 +492,7 @@ def test_no_memory_map_is_left_open_on_error(tmp_path, monkeypatch):
 def test_sensiac_spec_errors(tmp_path):
     with pytest.raises(FileNotFoundError, match=re.escape(f"ARF file not found: {tmp_path / 'gone.arf'}")):
         open_sequence(f"sensiac:{tmp_path / 'gone.arf'}")
-    with pytest.raises(ValueError, match=r"unknown option 'color'; allowed: calib, fps"):
+    with pytest.raises(ValueError, match=r"unknown option 'color'; allowed: calib, fps, layout"):
         open_sequence(f"sensiac:{tmp_path / 'gone.arf'},color=1")
     with pytest.raises(ValueError, match=r"fps must be a positive number; got '-3'"):
         open_sequence(f"sensiac:{tmp_path / 'gone.arf'},fps=-3")

@@ -5,6 +5,8 @@ import math
 import os
 import re
 import stat
+import struct
+import time
 import types
 
 import numpy as np
@@ -22,6 +24,7 @@ from torch_atr.data import (
 )
 from torch_atr.data import sequence as sequence_module
 from torch_atr.data.sequence import parse_spec_options
+from torch_atr.validate import InputError
 
 
 class ListSequence(Sequence):
@@ -235,11 +238,86 @@ def test_bad_meta(saved):
     with pytest.raises(ValueError, match=r"meta.json: shape \[3, 4\] with dtype 'float32'"):
         FolderSequence(saved)
     (saved / "meta.json").write_text(json.dumps({**meta, "frames": 0}))
-    with pytest.raises(ValueError, match="frames must be a positive integer; got 0"):
+    with pytest.raises(ValueError, match="meta.json, key 'frames': expected an integer >= 1; got 0"):
         FolderSequence(saved)
     (saved / "meta.json").unlink()
     with pytest.raises(FileNotFoundError, match="meta.json is missing"):
         open_sequence(str(saved))
+
+
+def test_a_huge_frame_count_fails_fast_without_listing_expected_names(saved):
+    """meta.json claiming 10⁹ frames once built 10⁹ names before checking (minutes, GBs)."""
+    meta = json.loads((saved / "meta.json").read_text())
+    (saved / "meta.json").write_text(json.dumps({**meta, "frames": 10 ** 9}))
+    start = time.perf_counter()
+    with pytest.raises(InputError, match=r"frames: 999999996 of the 1000000000 frames in meta.json are missing, "
+                                         r"e.g. 000004.png, 000005.png, 000006.png"):
+        FolderSequence(saved)
+    assert time.perf_counter() - start < 1.0
+    (saved / "meta.json").write_text(json.dumps({**meta, "frames": 1e9}))
+    with pytest.raises(InputError, match="key 'frames': expected an integer >= 1; got 1000000000.0"):
+        FolderSequence(saved)
+
+
+@pytest.mark.parametrize("edit, message", [
+    (lambda m: {**m, "fps": True}, r"key 'fps' \(or null\): expected a finite number > 0; got True"),
+    (lambda m: {**m, "format_version": True}, "key 'format_version'"),
+    (lambda m: {**m, "shape": [3, 100000]}, r"key 'shape': width: expected an integer in \[1, 16384\]"),
+    (lambda m: {**m, "shape": [3.0, 4]}, r"shape \[3.0, 4\] with dtype 'uint8' is not a frame we store"),
+    (lambda m: {**m, "name": 5}, "key 'name': expected a string; got 5"),
+])
+def test_bad_meta_values_name_the_key(saved, edit, message):
+    meta = json.loads((saved / "meta.json").read_text())
+    (saved / "meta.json").write_text(json.dumps(edit(meta)))
+    with pytest.raises(InputError, match=rf"^{saved / 'meta.json'}.*{message}"):
+        FolderSequence(saved)
+
+
+def test_meta_and_truth_must_be_utf8_and_finite(saved):
+    meta = saved / "meta.json"
+    meta.write_bytes(meta.read_bytes().replace(b'"name": "', b'"name": "\xff'))
+    with pytest.raises(InputError, match=rf"^{meta}, line \d+: not UTF-8 text \(byte 0xff"):
+        FolderSequence(saved)
+    meta.write_bytes(meta.read_bytes().replace(b"\xff", b""))
+    truth = saved / "truth.csv"
+    header, first, *rest = truth.read_text().splitlines()
+    for bad in ("inf", "-inf", "1e400", "nan"):
+        cells = first.split(",")
+        cells[header.split(",").index("x")] = bad
+        truth.write_text("\n".join([header, ",".join(cells), *rest]) + "\n")
+        with pytest.raises(InputError, match=rf"^{truth}, line 2 \(frame 0\), column 'x': expected a finite number; "
+                                             rf"got '{bad}'"):
+            FolderSequence(saved)
+    truth.write_text(header + "\n" + '"' + "x" * 200_000 + '"\n')
+    with pytest.raises(InputError, match=rf"^{truth}, line 2: not a CSV file we can read \(field larger than field "
+                                         r"limit"):
+        FolderSequence(saved)
+    truth.write_text("\n".join([header, first, *rest, first]) + "\n")
+    with pytest.raises(InputError, match=rf"^{truth}, line 6 \(frame 4\): more rows than the 4 frames"):
+        FolderSequence(saved)
+
+
+def test_a_png_header_claiming_a_huge_image_is_refused_before_decoding(saved):
+    import zlib
+
+    def chunk(kind: bytes, data: bytes) -> bytes:
+        return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data))
+
+    def png(width, height):
+        return (b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", width, height, 8, 0, 0, 0, 0))
+                + chunk(b"IDAT", zlib.compress(b"\0" * 64)) + chunk(b"IEND", b""))
+
+    frame = saved / "frames" / "000002.png"
+    seq = FolderSequence(saved)
+    frame.write_bytes(png(60000, 60000))
+    with pytest.raises(InputError, match=rf"^{frame}: image too large .*3600000000 pixels.*expected at most 67108864"):
+        seq.frame(2)
+    frame.write_bytes(png(5000, 5000))
+    with pytest.raises(InputError, match=rf"^{frame}: image is 5000 x 5000 px; meta.json says 4 x 3"):
+        seq.frame(2)
+    frame.write_bytes(b"not a png at all")
+    with pytest.raises(InputError, match=rf"^{frame}: cannot be read as an image"):
+        seq.frame(2)
 
 
 def test_index_errors_name_index_and_length(saved):
@@ -365,7 +443,7 @@ def test_load_camera_json_errors(tmp_path):
     with pytest.raises(ValueError, match=re.escape(f"{path}: missing key(s) fy")):
         load_camera_json(path)
     path.write_text("{not json")
-    with pytest.raises(ValueError, match=re.escape(f"{path}: not valid JSON")):
+    with pytest.raises(ValueError, match=re.escape(f"{path}, line 1, column 2: not valid JSON")):
         load_camera_json(path)
     with pytest.raises(FileNotFoundError, match="nope.json"):
         load_camera_json(tmp_path / "nope.json")

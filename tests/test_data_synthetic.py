@@ -2,6 +2,7 @@
 
 import dataclasses
 import math
+import re
 
 import cv2
 import numpy as np
@@ -14,7 +15,7 @@ from torch_atr.camera import Camera
 from torch_atr.config import ConfigError
 from torch_atr.data import FolderSequence, open_sequence, save_sequence
 from torch_atr.data.synthetic import (BODY, ENGINE_DECK, EXHAUST, RUNNING_GEAR, SceneConfig, SyntheticSequence,
-                                      demo_sequence, surface_parts, visible_faces)
+                                      demo_sequence, parse_synthetic_spec, surface_parts, visible_faces)
 from torch_atr.pose import VehiclePose, body_to_world
 from torch_atr.render import render_mask
 from torch_atr.segmentation import ForegroundSegmenter
@@ -312,6 +313,31 @@ def test_config_errors_name_the_field():
         SceneConfig(occluder_range_m=990.0)
     with pytest.raises(ValueError, match="SceneConfig"):
         SyntheticSequence("t_72", {"frames": 3})
+
+
+@pytest.mark.parametrize("option, words", [
+    ("width=100000", r"width=100000 \(expected in \[1, 4096\]\)"),
+    ("height=4096,width=4096", r"width x height at most 4194304"),
+    ("psf_sigma_px=1e6", r"psf_sigma_px=1000000.0 \(expected in \[0, 100\]\)"),
+    ("psf_sigma_per_km=1000", r"psf_sigma_per_km=1000.0 \(expected >= 0, with psf_sigma_px \+ psf_sigma_per_km"),
+    ("clutter_stretch=1000", r"clutter_scale_px x clutter_stretch at most 100 px"),
+    ("frames=100000000", r"frames=100000000 \(expected in \[1, 10\*\*7\]\)"),
+    ("occluder_width_m=1e15", r"occluder_width_m=1000000000000000.0 \(expected in \[0, 10000\]\)"),
+    ("fps=.inf", "option fps=.inf: fps: expected a finite number; got inf"),
+    ("range=1e400", "option range_m=1e400: range_m: expected a finite number; got '1e400'"),
+    ("seed=true", "seed: expected an integer; got True"),
+    ("night=1", "night: expected true/false; got 1"),
+])
+def test_spec_values_are_bounded(option, words):
+    spec = f"vehicle=t_72,{option}"
+    with pytest.raises(ConfigError, match=rf"^synthetic spec {re.escape(repr(spec))}: .*{words}"):
+        parse_synthetic_spec(spec)
+
+
+def test_a_vehicle_too_large_in_the_image_is_refused_before_rendering():
+    with pytest.raises(ConfigError, match=r"t_72 \(\d+.\d m across\) would span \d+ px at the circle's nearest point, "
+                                          r"150 m away; expected at most 512"):
+        SyntheticSequence("t_72", SceneConfig(range_m=200.0))
 
 
 def test_save_sequence_round_trip(tmp_path):

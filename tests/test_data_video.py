@@ -10,6 +10,7 @@ import pytest
 
 from torch_atr.camera import Camera
 from torch_atr.data import VideoSequence, open_sequence, save_sequence
+from torch_atr.validate import InputError
 
 H, W, N = 48, 64, 12
 
@@ -173,3 +174,24 @@ def test_video_errors(tmp_path):
     for bad in (0.0, -1.0, math.inf, math.nan, True, "15"):
         with pytest.raises(ValueError, match=re.escape(f"junk.avi: fps must be a positive number; got {bad!r}")):
             VideoSequence(tmp_path / "junk.avi", fps=bad)
+
+
+def test_image_headers_are_checked_before_decoding(tmp_path):
+    import struct
+    import zlib
+
+    def chunk(kind: bytes, data: bytes) -> bytes:
+        return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data))
+
+    folder = tmp_path / "frames"
+    folder.mkdir()
+    cv2.imwrite(str(folder / "a0.png"), np.zeros((4, 5), np.uint8))
+    header = struct.pack(">IIBBBBB", 10000, 9000, 8, 0, 0, 0, 0)  # 9e7 pixels: within Pillow's bound, not ours
+    (folder / "a1.png").write_bytes(b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", header) + chunk(b"IEND", b""))
+    seq = open_sequence(f"video:{folder}")
+    with pytest.raises(InputError, match=re.escape(f"{folder / 'a1.png'}: 10000 x 9000 = 90000000 pixels; "
+                                                   f"expected at most 67108864")):
+        seq.frame(1)
+    (folder / "a1.png").write_bytes(b"\x89PNG\r\n\x1a\n garbage")
+    with pytest.raises(InputError, match=re.escape(f"{folder / 'a1.png'}: cannot be read as an image")):
+        seq.frame(1)

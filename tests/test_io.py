@@ -1,8 +1,15 @@
 import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
 
 import pytest
 
-from torch_atr.io import atomic_path, atomic_write_text
+from torch_atr.io import (OutputExistsError, atomic_path, atomic_write_text, check_output_dir, check_output_file)
+
+REPO = Path(__file__).resolve().parents[1]
 
 
 def test_atomic_write_replaces_whole_file_and_leaves_no_temp(tmp_path):
@@ -25,3 +32,106 @@ def test_failed_write_keeps_the_old_content(tmp_path):
             raise RuntimeError("crash while writing")
     assert target.read_text() == "good"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["model.pt"]
+
+
+def test_stale_temps_of_the_target_only_are_removed_and_live_ones_kept(tmp_path):
+    target = tmp_path / "model.pt"
+    stale = [tmp_path / ".model.pt.abcd1234.tmp", tmp_path / ".model.pt.zz_99xyz.tmp"]
+    others = [tmp_path / ".model.pt.bak.abcd1234.tmp",  # another target's temp (model.pt.bak)
+              tmp_path / ".other.pt.abcd1234.tmp", tmp_path / "notes.tmp"]
+    for p in stale + others:
+        p.write_text("left by a killed write")
+    with atomic_path(target) as tmp:
+        tmp.write_text("new")
+        # A concurrent write of the same target holds its temp locked: it is not touched.
+        with atomic_path(target) as other:
+            other.write_text("concurrent")
+            assert tmp.exists()
+    assert target.read_text() == "new"
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(["model.pt"] + [p.name for p in others])
+
+
+def _kill_mid_write(target: Path, code: str) -> None:
+    """Run ``code`` (it writes ``target`` through atomic_path) in a child and SIGKILL it once its
+    temporary file has grown past 1 MiB, i.e. in the middle of the write."""
+    child = subprocess.Popen([sys.executable, "-c", code, str(target)], cwd=REPO,
+                             env={**os.environ, "PYTHONPATH": str(REPO)})
+    try:
+        deadline = time.monotonic() + 60
+        while time.monotonic() < deadline and child.poll() is None:
+            temps = list(target.parent.glob(f".{target.name}.*.tmp"))
+            if any(p.stat().st_size > 2 ** 20 for p in temps if p.exists()):
+                break
+            time.sleep(0.001)
+        assert child.poll() is None, "the child finished its write before it could be killed"
+        child.send_signal(signal.SIGKILL)
+    finally:
+        child.kill()
+        child.wait()
+    assert child.returncode == -signal.SIGKILL
+
+
+def test_sigkill_during_checkpoint_write_keeps_the_previous_checkpoint(tmp_path):
+    import torch
+
+    from torch_atr.io import atomic_torch_save
+
+    target = tmp_path / "model.pt"
+    atomic_torch_save({"version": 1, "w": torch.arange(10)}, target)
+    before = target.read_bytes()
+    _kill_mid_write(target, "import sys, torch\nfrom torch_atr.io import atomic_torch_save\n"
+                            "atomic_torch_save({'version': 2, 'w': torch.ones(32 * 2 ** 20)}, sys.argv[1])")
+    assert target.read_bytes() == before
+    assert torch.load(target, weights_only=True)["version"] == 1
+    assert len(list(tmp_path.glob(".model.pt.*.tmp"))) == 1  # the killed write's temp file
+    atomic_torch_save({"version": 3}, target)  # the next write of the target cleans it up
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["model.pt"]
+    assert torch.load(target, weights_only=True) == {"version": 3}
+
+
+def test_sigkill_during_report_write_keeps_the_previous_report(tmp_path):
+    target = tmp_path / "report.json"
+    atomic_write_text('{"run": 1}', target)
+    _kill_mid_write(target, "import sys\nfrom torch_atr.io import atomic_write_text\n"
+                            "atomic_write_text('[' + '1, ' * (32 * 2 ** 20) + '2]', sys.argv[1])")
+    assert target.read_text() == '{"run": 1}'
+    assert len(list(tmp_path.glob(".report.json.*.tmp"))) == 1
+    atomic_write_text('{"run": 2}', target)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["report.json"]
+
+
+def test_check_output_file(tmp_path):
+    ours = tmp_path / "model.pt"
+    assert check_output_file(ours, False, lambda p: True, "checkpoint") == ours  # absent: fine
+    ours.write_text("x")
+    with pytest.raises(OutputExistsError, match=f"^{ours} exists; pass --overwrite to replace it"):
+        check_output_file(ours, False, lambda p: True, "checkpoint")
+    assert check_output_file(ours, True, lambda p: True, "checkpoint") == ours
+    with pytest.raises(OutputExistsError, match=f"^{ours} exists and is not a checkpoint; refusing to replace it "
+                                                r"\(even with --overwrite\)"):
+        check_output_file(ours, True, lambda p: False, "checkpoint")
+    with pytest.raises(OutputExistsError, match="is not a file"):
+        check_output_file(tmp_path, True, lambda p: True, "checkpoint")
+
+
+def test_check_output_dir(tmp_path):
+    def is_ours(p):
+        return p.read_text() == "ours"
+
+    run = tmp_path / "run"
+    assert check_output_dir(run, False, "report.json", is_ours, "run") == run
+    run.mkdir()
+    assert check_output_dir(run, False, "report.json", is_ours, "run") == run  # empty: fine
+    (run / "report.json").write_text("ours")
+    with pytest.raises(OutputExistsError, match=rf"^{run} already holds a run \(report.json\); pass --overwrite"):
+        check_output_dir(run, False, "report.json", is_ours, "run")
+    assert check_output_dir(run, True, "report.json", is_ours, "run") == run
+    (run / "report.json").write_text("someone else's")
+    with pytest.raises(OutputExistsError, match="holds no report.json of ours"):
+        check_output_dir(run, True, "report.json", is_ours, "run")
+    (run / "report.json").unlink()
+    (run / "notes.txt").write_text("x")
+    with pytest.raises(OutputExistsError, match=r"not empty and holds no report.json of ours .*even with --overwrite"):
+        check_output_dir(run, True, "report.json", is_ours, "run")
+    with pytest.raises(OutputExistsError, match="is not a folder"):
+        check_output_dir(run / "notes.txt", True, "report.json", is_ours, "run")

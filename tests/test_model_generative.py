@@ -178,7 +178,7 @@ def test_checkpoint_round_trip_is_exact(model, tmp_path):
     path = tmp_path / "model.pt"
     model.save(path, extra={"note": "synthetic", "views": torch.arange(3), "nested": [1, 2.5, None]})
     raw = torch.load(path, weights_only=True)
-    assert raw["format"] == "torch_atr.generative" and raw["format_version"] == 1
+    assert raw["format"] == "torch_atr.generative" and raw["format_version"] == 2 and len(raw["sha256"]) == 64
     assert raw["model_args"]["template"] == {"size_px": 24, "window_m": 12.0, "tau_px": 4.0}
     loaded, extra = load_checkpoint(path)
     assert extra["note"] == "synthetic" and torch.equal(extra["views"], torch.arange(3))
@@ -211,15 +211,20 @@ def test_checkpoint_errors_name_file_and_problem(model, tmp_path):
     for path in (truncated, garbage):
         with pytest.raises(ValueError, match=rf"{path.name}.*not a readable checkpoint"):
             GenerativeShapeModel.from_checkpoint(path)
-    ckpt = torch.load(good, weights_only=True)
+    # Version 1 payloads (no checksum) reach the structural checks with any content.
+    ckpt = {k: v for k, v in torch.load(good, weights_only=True).items() if k != "sha256"} | {"format_version": 1}
     cases = {
         "other.pt": ({"weights": torch.zeros(2)}, "not a torch_atr.generative checkpoint"),
-        "keys.pt": ({"format": "torch_atr.generative"}, "lacks format_version, model_args, state_dict"),
-        "newer.pt": ({**ckpt, "format_version": 2}, "format_version 2 is not supported"),
-        "args.pt": ({**ckpt, "model_args": {**ckpt["model_args"], "num_centres": "36"}}, r"model_args\['num_centres'\]"),
+        "keys.pt": ({"format": "torch_atr.generative", "format_version": 2}, "lacks model_args, sha256, state_dict"),
+        "newer.pt": ({**ckpt, "format_version": 3}, "format_version 3 is not supported"),
+        "bool_version.pt": ({**ckpt, "format_version": True}, "format_version True is not a version number"),
+        "args.pt": ({**ckpt, "model_args": {**ckpt["model_args"], "num_centres": "36"}},
+                    r"model_args\['num_centres'\]: expected an integer in \[1, 10000\]; got '36'"),
         "missing_key.pt": ({**ckpt, "state_dict": {k: v for k, v in ckpt["state_dict"].items()
                                                    if k != "core.core"}}, "state_dict does not match.*core.core"),
-        "shape.pt": ({**ckpt, "model_args": {**ckpt["model_args"], "num_centres": 30}}, "state_dict does not match"),
+        "shape.pt": ({**ckpt, "model_args": {**ckpt["model_args"], "num_centres": 30}},
+                     r"state_dict does not match model_args: rbf.centres_theta has shape \(36,\); model_args call "
+                     r"for \(30,\)"),
         "labels.pt": ({**ckpt, "model_args": {**ckpt["model_args"], "vehicle_classes": [1, 0, 0, 1, 1, 0]}},
                       "differ from model_args"),
     }

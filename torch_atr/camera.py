@@ -7,11 +7,14 @@ with y flipped; :meth:`Camera.from_opencv` and :meth:`Camera.opencv_pose` conver
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import torch
 from torch import nn
 
 from torch_atr._checks import as_float_tensor, check_shape
+from torch_atr.validate import InputError, image_size, integer, real, rotation, vector
 
 # Sensor frame (y up) <-> OpenCV camera frame (y down).
 _FLIP_Y = np.diag([1.0, -1.0, 1.0])
@@ -32,8 +35,10 @@ class Camera(nn.Module):
     def __init__(self, fx: float, fy: float, cx: float, cy: float, width: int, height: int,
                  dist=None, R=None, t=None, dtype: torch.dtype = torch.float64):
         super().__init__()
-        if not (fx > 0 and fy > 0):
-            raise ValueError(f"Expected positive focal lengths; got fx={fx}, fy={fy}")
+        if not (0 < fx < math.inf and 0 < fy < math.inf):
+            raise ValueError(f"Expected positive finite focal lengths; got fx={fx}, fy={fy}")
+        if not (math.isfinite(cx) and math.isfinite(cy)):
+            raise ValueError(f"Expected a finite principal point; got cx={cx}, cy={cy}")
         if width <= 0 or height <= 0:
             raise ValueError(f"Expected a positive image size; got {width} x {height}")
         self.width, self.height = int(width), int(height)
@@ -154,16 +159,32 @@ class Camera(nn.Module):
 
     @classmethod
     def from_dict(cls, d: dict, source: str = "camera") -> "Camera":
-        """Inverse of :meth:`to_dict`; a missing or bad key raises ``ValueError`` naming it."""
+        """Inverse of :meth:`to_dict`, for data from a file: every key checked.
+
+        fx, fy: finite numbers > 0; cx, cy: finite numbers; width, height: integers within
+        :data:`~torch_atr.validate.MAX_IMAGE_SIDE`; dist: 5 finite numbers, R: a rotation
+        (orthonormal rows; det ±1), t: 3 finite numbers, each optional or null. A missing, unknown
+        or bad key raises :class:`~torch_atr.validate.InputError` naming ``source`` and the key.
+        """
+        if not isinstance(d, dict):
+            raise InputError(f"{source}: expected an object of camera keys; got {type(d).__name__}")
         required = ("fx", "fy", "cx", "cy", "width", "height")
         missing = [k for k in required if k not in d]
         if missing:
-            raise ValueError(f"{source}: missing key(s) {', '.join(missing)}")
-        unknown = sorted(set(d) - set(required) - {"dist", "R", "t"})
+            raise InputError(f"{source}: missing key(s) {', '.join(missing)}")
+        unknown = sorted(set(d) - set(required) - {"dist", "R", "t"}, key=str)
         if unknown:
-            raise ValueError(f"{source}: unknown key(s) {', '.join(unknown)}")
-        try:
-            return cls(float(d["fx"]), float(d["fy"]), float(d["cx"]), float(d["cy"]),
-                       int(d["width"]), int(d["height"]), dist=d.get("dist"), R=d.get("R"), t=d.get("t"))
-        except (TypeError, ValueError) as exc:
-            raise ValueError(f"{source}: {exc}") from exc
+            raise InputError(f"{source}: unknown key(s) {', '.join(map(str, unknown))}")
+
+        def key(name: str) -> str:
+            return f"{source}, key {name!r}"
+
+        fx, fy = (real(key(k), d[k], lo=0, lo_open=True) for k in ("fx", "fy"))
+        cx, cy = (real(key(k), d[k]) for k in ("cx", "cy"))
+        width = integer(key("width"), d["width"])
+        height = integer(key("height"), d["height"])
+        image_size(source, width, height)
+        dist = None if d.get("dist") is None else vector(key("dist"), d["dist"], 5)
+        R = None if d.get("R") is None else rotation(key("R"), d["R"])
+        t = None if d.get("t") is None else vector(key("t"), d["t"], 3)
+        return cls(fx, fy, cx, cy, width, height, dist=dist, R=R, t=t)

@@ -1,6 +1,7 @@
 """Typed configs: dataclass defaults <- YAML file <- ``key=value`` overrides.
 
-Unknown keys and values of the wrong type are errors that name the key (and the file).
+Unknown keys, repeated keys, values of the wrong type and non-finite numbers are errors that
+name the key and the file or the override at fault.
 """
 
 from __future__ import annotations
@@ -15,10 +16,15 @@ from typing import Any, TypeVar
 
 import yaml
 
+from torch_atr.validate import InputError, read_text, show
+
 T = TypeVar("T")
 
+MAX_CONFIG_BYTES = 2 ** 20  # a config file is a few hundred bytes
+MAX_TEMPLATE_PX = 512  # H = W of a template: 512² pixels x 150 views x 36 vehicles is already 5.7 GB in float32
 
-class ConfigError(ValueError):
+
+class ConfigError(InputError):
     """A config file, key or value that does not fit its dataclass."""
 
 
@@ -33,17 +39,17 @@ class TemplateConfig:
     side, and the clipped signed distance (tau = 6 px = 1.1 m) reaches across its height.
     """
 
-    size_px: int = 64  # H = W, template pixels
-    window_m: float = 12.0  # world size of the square window, metres
-    tau_px: float = 6.0  # signed-distance clip, template pixels
+    size_px: int = 64  # H = W, template pixels, in [8, 512]
+    window_m: float = 12.0  # world size of the square window, metres, in [0.1, 1000]
+    tau_px: float = 6.0  # signed-distance clip, template pixels, in [0.5, size_px]
 
     def __post_init__(self) -> None:
-        if self.size_px < 8:
-            raise ConfigError(f"template.size_px must be >= 8; got {self.size_px}")
-        if not (self.window_m > 0 and math.isfinite(self.window_m)):
-            raise ConfigError(f"template.window_m must be a positive number; got {self.window_m}")
-        if not self.tau_px > 0:
-            raise ConfigError(f"template.tau_px must be positive; got {self.tau_px}")
+        if not 8 <= self.size_px <= MAX_TEMPLATE_PX:
+            raise ConfigError(f"template.size_px must be in [8, {MAX_TEMPLATE_PX}]; got {self.size_px}")
+        if not 0.1 <= self.window_m <= 1000:
+            raise ConfigError(f"template.window_m must be in [0.1, 1000] metres; got {self.window_m}")
+        if not 0.5 <= self.tau_px <= self.size_px:
+            raise ConfigError(f"template.tau_px must be in [0.5, size_px = {self.size_px}]; got {self.tau_px}")
 
     @property
     def metres_per_px(self) -> float:
@@ -59,14 +65,14 @@ def _check_type(key: str, value: Any, tp: Any) -> Any:
                 return _check_type(key, value, arm)
             except ConfigError:
                 continue
-        raise ConfigError(f"{key}: {value!r} matches none of {tp}")
+        raise ConfigError(f"{key}: {show(value)} matches none of {tp}")
     if tp is type(None):
         if value is None:
             return None
-        raise ConfigError(f"{key}: expected null; got {value!r}")
+        raise ConfigError(f"{key}: expected null; got {show(value)}")
     if origin in (list, tuple):
         if not isinstance(value, (list, tuple)):
-            raise ConfigError(f"{key}: expected a list; got {value!r}")
+            raise ConfigError(f"{key}: expected a list; got {show(value)}")
         args = typing.get_args(tp)
         arm = args[0] if args else Any
         items = [_check_type(f"{key}[{i}]", v, arm) for i, v in enumerate(value)]
@@ -77,82 +83,143 @@ def _check_type(key: str, value: Any, tp: Any) -> Any:
         if isinstance(value, tp):
             return value
         if not isinstance(value, dict):
-            raise ConfigError(f"{key}: expected a mapping; got {value!r}")
+            raise ConfigError(f"{key}: expected a mapping; got {show(value)}")
         return _build(tp, value, prefix=f"{key}.")
     if tp is bool:
         if isinstance(value, bool):
             return value
-        raise ConfigError(f"{key}: expected true/false; got {value!r}")
+        raise ConfigError(f"{key}: expected true/false; got {show(value)}")
     if tp is int:
         if isinstance(value, int) and not isinstance(value, bool):
             return value
-        raise ConfigError(f"{key}: expected an integer; got {value!r}")
+        raise ConfigError(f"{key}: expected an integer; got {show(value)}")
     if tp is float:
+        number = None
         if isinstance(value, (int, float)) and not isinstance(value, bool):
-            return float(value)
-        if isinstance(value, str):  # YAML 1.1 reads 1e-3 (no dot) as a string
             try:
-                return float(value)
+                number = float(value)
+            except OverflowError:  # an integer beyond float's range
+                number = math.inf
+        elif isinstance(value, str):  # YAML 1.1 reads 1e-3 (no dot) as a string
+            try:
+                number = float(value)
             except ValueError:
                 pass
-        raise ConfigError(f"{key}: expected a number; got {value!r}")
+        if number is None:
+            raise ConfigError(f"{key}: expected a number; got {show(value)}")
+        if not math.isfinite(number):
+            raise ConfigError(f"{key}: expected a finite number; got {show(value)}")
+        return number
     if tp is str:
         if isinstance(value, str):
             return value
-        raise ConfigError(f"{key}: expected a string; got {value!r}")
+        raise ConfigError(f"{key}: expected a string; got {show(value)}")
     raise ConfigError(f"{key}: unsupported config type {tp}")
 
 
 def _build(cls: type[T], data: dict, prefix: str = "") -> T:
     hints = typing.get_type_hints(cls)
     fields = {f.name for f in dataclasses.fields(cls)}
-    unknown = sorted(set(data) - fields)
+    unknown = sorted(set(data) - fields, key=str)
     if unknown:
-        raise ConfigError(f"unknown config key(s) {', '.join(prefix + k for k in unknown)}; "
+        raise ConfigError(f"unknown config key(s) {', '.join(prefix + str(k) for k in unknown)}; "
                           f"known: {', '.join(prefix + k for k in sorted(fields))}")
     kwargs = {k: _check_type(prefix + k, v, hints[k]) for k, v in data.items()}
     return cls(**kwargs)
 
 
+def config_from_dict(cls: type[T], data: dict) -> T:
+    """Build the config dataclass ``cls`` from plain data (e.g. a checkpoint's), with the checks
+    of :func:`load_config`; ``ConfigError`` names the key."""
+    if not isinstance(data, dict):
+        raise ConfigError(f"expected a mapping of {cls.__name__} keys; got {show(data)}")
+    return _build(cls, data)
+
+
+class _UniqueKeyLoader(yaml.SafeLoader):
+    """YAML's safe loader, refusing a key repeated in one mapping (plain YAML keeps the last)."""
+
+    def construct_mapping(self, node, deep=False):
+        if isinstance(node, yaml.MappingNode):
+            first: dict = {}
+            for key_node, _ in node.value:
+                if key_node.tag == "tag:yaml.org,2002:merge":
+                    continue
+                key = self.construct_object(key_node, deep=True)
+                try:
+                    repeated = key in first
+                except TypeError:  # an unhashable key: the base class reports it
+                    continue
+                if repeated:
+                    raise yaml.constructor.ConstructorError(
+                        None, None, f"key {show(key)} repeated (first on line {first[key]})", key_node.start_mark)
+                first[key] = key_node.start_mark.line + 1
+        return super().construct_mapping(node, deep=deep)
+
+
+def _parse_yaml(text: str):
+    """``text`` parsed by the safe loader, refusing repeated keys."""
+    return yaml.load(text, Loader=_UniqueKeyLoader)  # noqa: S506 - a SafeLoader subclass
+
+
 def _set_dotted(data: dict, dotted: str, value: Any) -> None:
     parts = dotted.split(".")
+    if not all(parts):
+        raise ConfigError(f"{dotted!r} is not a dotted key (empty part)")
     node = data
     for part in parts[:-1]:
         node = node.setdefault(part, {})
         if not isinstance(node, dict):
-            raise ConfigError(f"override {dotted}: {part} is not a section")
+            raise ConfigError(f"{part} is not a section")
     node[parts[-1]] = value
 
 
-def load_config(cls: type[T], path: str | Path | None = None, overrides: list[str] | None = None) -> T:
+def load_config(cls: type[T], path: str | Path | None = None, overrides: list[str] | None = None,
+                what: str = "override") -> T:
     """Build ``cls`` from its defaults, a YAML file and ``key=value`` overrides.
 
     ``overrides`` use dotted keys for nested sections (``template.size_px=32``); values are
-    parsed as YAML scalars. Raises :class:`ConfigError` naming the file or key at fault.
+    parsed as YAML scalars. Raises :class:`ConfigError` naming the file (for a file that is bad
+    on its own) or the override (``what`` names them in messages) and the key at fault.
     """
     data: dict = {}
     if path is not None:
         path = Path(path)
+        if not path.exists():
+            raise ConfigError(f"config file not found: {path}")
         try:
-            loaded = yaml.safe_load(path.read_text(encoding="utf-8"))
-        except FileNotFoundError as exc:
-            raise ConfigError(f"config file not found: {path}") from exc
+            loaded = _parse_yaml(read_text(path, MAX_CONFIG_BYTES))
         except yaml.YAMLError as exc:
-            raise ConfigError(f"{path}: not valid YAML: {exc}") from exc
+            raise ConfigError(f"{path}: not valid YAML: {' '.join(str(exc).split())}") from None
+        except InputError as exc:
+            raise ConfigError(str(exc)) from None
         if loaded is not None and not isinstance(loaded, dict):
             raise ConfigError(f"{path}: top level must be a mapping; got {type(loaded).__name__}")
         data = loaded or {}
+        try:
+            built = _build(cls, data)
+        except ConfigError as exc:
+            raise ConfigError(f"{path}: {exc}") from None
+        if not overrides:
+            return built
     for item in overrides or []:
         key, sep, raw = item.partition("=")
-        if not sep or not key:
-            raise ConfigError(f"override {item!r} is not of the form key=value")
-        _set_dotted(data, key.strip(), yaml.safe_load(raw))
+        if not sep or not key.strip():
+            raise ConfigError(f"{what} {item!r} is not of the form key=value")
+        try:
+            _set_dotted(data, key.strip(), _parse_yaml(raw))
+        except yaml.YAMLError as exc:
+            raise ConfigError(f"{what} {item!r}: not a YAML value: {' '.join(str(exc).split())}") from None
+        except ConfigError as exc:
+            raise ConfigError(f"{what} {item!r}: {exc}") from None
     try:
         return _build(cls, data)
     except ConfigError as exc:
-        if path is not None:
-            raise ConfigError(f"{path}: {exc}") from exc
-        raise
+        # Name the overrides whose key the message mentions (all of them if it names none).
+        named = [item for item in overrides or [] if item.partition("=")[0].strip() in str(exc)]
+        at_fault = named or list(overrides or [])
+        label = f"{what}{'s' if len(at_fault) > 1 else ''} {', '.join(at_fault)}" if at_fault else "config"
+        raise ConfigError(f"{label}: {exc}") from None
 
 
 @dataclass(frozen=True)
@@ -164,23 +231,24 @@ class ModelConfig:
     widths on held-out views with Adam at ``width_lr`` before the final fit.
     """
 
-    pixel_rank: int | None = 128  # r of the truncated pixel basis; null keeps all d pixels
-    ridge: float = 1e-4  # λ
-    init_width: float | None = None  # kernel width (chord); null: mean nearest-centre chord
-    class_penalty: float | None = None  # a of eq. 4.8; null: (K + 1)·max D₀, keeps classes contiguous
-    width_steps: int = 0  # Adam steps tuning the widths on validation views
-    width_lr: float = 0.02  # Adam learning rate on log(width)
+    pixel_rank: int | None = 128  # r of the truncated pixel basis, in [1, 512²]; null keeps all d pixels
+    ridge: float = 1e-4  # λ in [0, 1000] (at λ = 1000 the training IoU is down to ~0.66)
+    init_width: float | None = None  # kernel width (chord) in [0.001, 4]; null: mean nearest-centre chord
+    class_penalty: float | None = None  # a of eq. 4.8 in [0, 1e12]; null: (K + 1)·max D₀, keeps classes contiguous
+    width_steps: int = 0  # Adam steps tuning the widths on validation views, at most 100000
+    width_lr: float = 0.02  # Adam learning rate on log(width), in (0, 10]
 
     def __post_init__(self) -> None:
-        if self.pixel_rank is not None and self.pixel_rank < 1:
-            raise ConfigError(f"model.pixel_rank must be >= 1 or null; got {self.pixel_rank}")
-        if not (self.ridge >= 0 and math.isfinite(self.ridge)):
-            raise ConfigError(f"model.ridge must be a number >= 0; got {self.ridge}")
-        if self.init_width is not None and not (self.init_width > 0 and math.isfinite(self.init_width)):
-            raise ConfigError(f"model.init_width must be positive or null; got {self.init_width}")
-        if self.class_penalty is not None and not (self.class_penalty >= 0 and math.isfinite(self.class_penalty)):
-            raise ConfigError(f"model.class_penalty must be >= 0 or null; got {self.class_penalty}")
-        if self.width_steps < 0:
-            raise ConfigError(f"model.width_steps must be >= 0; got {self.width_steps}")
-        if not (self.width_lr > 0 and math.isfinite(self.width_lr)):
-            raise ConfigError(f"model.width_lr must be positive; got {self.width_lr}")
+        if self.pixel_rank is not None and not 1 <= self.pixel_rank <= MAX_TEMPLATE_PX ** 2:
+            raise ConfigError(f"model.pixel_rank must be in [1, {MAX_TEMPLATE_PX ** 2}] or null; got {self.pixel_rank}")
+        if not 0 <= self.ridge <= 1000:
+            raise ConfigError(f"model.ridge must be in [0, 1000]; got {self.ridge}")
+        # Chords between unit view vectors are at most 2: wider kernels make every Ψ column alike.
+        if self.init_width is not None and not 0.001 <= self.init_width <= 4:
+            raise ConfigError(f"model.init_width must be in [0.001, 4] or null; got {self.init_width}")
+        if self.class_penalty is not None and not 0 <= self.class_penalty <= 1e12:
+            raise ConfigError(f"model.class_penalty must be in [0, 1e12] or null; got {self.class_penalty}")
+        if not 0 <= self.width_steps <= 100_000:
+            raise ConfigError(f"model.width_steps must be in [0, 100000]; got {self.width_steps}")
+        if not 0 < self.width_lr <= 10:
+            raise ConfigError(f"model.width_lr must be in (0, 10]; got {self.width_lr}")

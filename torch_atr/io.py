@@ -1,38 +1,82 @@
-"""Atomic writes: a file is either its old or its new content, never half written."""
+"""Safe writes: atomic files, temp files of killed writes cleaned up, nothing replaced unasked.
+
+:func:`atomic_path` writes a file so that it is either its old or its new content, never half
+written. Each write holds an exclusive ``flock`` on its temporary file ``.NAME.XXXXXXXX.tmp``;
+the next write of the same target deletes the temporary files of that target nobody holds, i.e.
+those of writes that were killed. :func:`check_output_file` and :func:`check_output_dir` decide
+whether an entry point may write an output: never over something that is not ours, and over our
+own only when the user said so (``--overwrite``).
+"""
 
 from __future__ import annotations
 
 import csv
+import fcntl
 import io
+import logging
 import math
 import os
+import re
 import tempfile
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Iterator
+from typing import Callable, Iterator
 
 import torch
+
+log = logging.getLogger(__name__)
+
+_TEMP_CHARS = "[a-z0-9_]{8}"  # tempfile's random part
+
+
+class OutputExistsError(FileExistsError):
+    """An output that exists and may not be replaced (not ours, or ours without ``--overwrite``)."""
+
+
+def _remove_stale_temps(path: Path) -> None:
+    """Delete ``.NAME.XXXXXXXX.tmp`` files beside ``path`` that no live write holds locked."""
+    pattern = re.compile(rf"\.{re.escape(path.name)}\.{_TEMP_CHARS}\.tmp")
+    for candidate in path.parent.iterdir():
+        if not pattern.fullmatch(candidate.name):
+            continue
+        try:
+            fd = os.open(candidate, os.O_RDONLY)
+        except OSError:  # gone already, or not ours to read
+            continue
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:  # a live write holds it
+            os.close(fd)
+            continue
+        try:
+            candidate.unlink(missing_ok=True)
+            log.info("removed %s, left by an interrupted write of %s", candidate, path)
+        finally:
+            os.close(fd)
 
 
 @contextmanager
 def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
     """Yield a temporary path beside ``path``; on success rename it over ``path``.
 
-    The temporary file is removed if the block raises, so nothing half written is left.
+    The temporary file is removed if the block raises, so nothing half written is left; one left
+    by a killed write of the same target is removed when this write starts.
     """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    os.close(fd)
-    umask = os.umask(0)
-    os.umask(umask)
-    os.chmod(tmp, 0o666 & ~umask)  # mkstemp makes 0600; give the file a plain file's mode
     tmp_path = Path(tmp)
     try:
+        fcntl.flock(fd, fcntl.LOCK_EX)  # held until this write ends (or its process dies)
+        _remove_stale_temps(path)
+        umask = os.umask(0)
+        os.umask(umask)
+        os.chmod(tmp, 0o666 & ~umask)  # mkstemp makes 0600; give the file a plain file's mode
         yield tmp_path
         os.replace(tmp_path, path)
     finally:
         tmp_path.unlink(missing_ok=True)
+        os.close(fd)
 
 
 def atomic_torch_save(obj, path: str | os.PathLike) -> None:
@@ -63,3 +107,48 @@ def atomic_write_csv(rows: list[dict], path: str | os.PathLike, columns: list[st
     writer.writerow(columns)
     writer.writerows([cell(row.get(c)) for c in columns] for row in rows)
     atomic_write_text(buffer.getvalue(), path)
+
+
+def check_output_file(path: str | os.PathLike, overwrite: bool, is_ours: Callable[[Path], bool], what: str) -> Path:
+    """Check that ``path`` may be written; return it as a Path.
+
+    Absent: fine. A folder, or a file ``is_ours`` rejects: refused even with ``overwrite``.
+    A file of ours: refused unless ``overwrite``. Raises :class:`OutputExistsError` naming it.
+    """
+    path = Path(path)
+    if not path.exists():
+        return path
+    if not path.is_file():
+        raise OutputExistsError(f"{path} exists and is not a file; the {what} must be a file")
+    if not is_ours(path):
+        raise OutputExistsError(f"{path} exists and is not a {what}; refusing to replace it (even with "
+                                f"--overwrite): move it away or write the {what} elsewhere")
+    if not overwrite:
+        raise OutputExistsError(f"{path} exists; pass --overwrite to replace it, or write the {what} elsewhere")
+    return path
+
+
+def check_output_dir(folder: str | os.PathLike, overwrite: bool, marker: str, is_ours: Callable[[Path], bool],
+                     what: str) -> Path:
+    """Check that the output folder ``folder`` may take a new run; return it as a Path.
+
+    A run's folder holds the file ``marker`` (e.g. ``report.json``) that ``is_ours`` recognises.
+    Absent or empty: fine. Holding our marker: refused unless ``overwrite``. Anything else (a
+    file, a folder with other content, e.g. of an unfinished run or another tool): refused even
+    with ``overwrite``. Raises :class:`OutputExistsError` naming the folder.
+    """
+    folder = Path(folder)
+    if not folder.exists():
+        return folder
+    if not folder.is_dir():
+        raise OutputExistsError(f"{folder} exists and is not a folder; the {what} must be a folder")
+    if not any(folder.iterdir()):
+        return folder
+    if (folder / marker).is_file() and is_ours(folder / marker):
+        if not overwrite:
+            raise OutputExistsError(f"{folder} already holds a {what} ({marker}); pass --overwrite to replace "
+                                    f"it, or choose another folder")
+        return folder
+    raise OutputExistsError(f"{folder} is not empty and holds no {marker} of ours (an unfinished run, or another "
+                            f"tool's folder); refusing to write a {what} into it (even with --overwrite): delete it "
+                            f"or choose another folder")

@@ -9,7 +9,9 @@ from __future__ import annotations
 
 import logging
 import math
+import re
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Sequence
 
 import torch
@@ -18,8 +20,13 @@ from tqdm import tqdm
 from torch_atr.config import ConfigError, ModelConfig, TemplateConfig
 from torch_atr.render import render_templates
 from torch_atr.shape import signed_distance
+from torch_atr.validate import read_json_object, show
 
 log = logging.getLogger(__name__)
+
+MAX_VIEWS = 10_000  # training views (and RBF centres): the RBF solve is V x V, the templates K x V x H x W
+REPORT_FORMAT = "torch_atr.train_report"  # the "format" of train.py's report.json
+_RUN_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]{0,99}")
 
 
 @dataclass(frozen=True)
@@ -33,10 +40,21 @@ class ViewGridConfig:
     def __post_init__(self) -> None:
         if not 0 < self.azimuth_step_deg <= 180:
             raise ConfigError(f"views.azimuth_step_deg must be in (0, 180]; got {self.azimuth_step_deg}")
-        if not self.elevation_step_deg > 0:
-            raise ConfigError(f"views.elevation_step_deg must be positive; got {self.elevation_step_deg}")
+        if not 0 < self.elevation_step_deg <= 90:
+            raise ConfigError(f"views.elevation_step_deg must be in (0, 90]; got {self.elevation_step_deg}")
         if not 0 <= self.elevation_max_deg < 90:
             raise ConfigError(f"views.elevation_max_deg must be in [0, 90); got {self.elevation_max_deg}")
+        n_theta, n_phi = self.counts
+        if n_theta * n_phi > MAX_VIEWS:
+            raise ConfigError(f"views: azimuth_step_deg={self.azimuth_step_deg:g} and elevation_step_deg="
+                              f"{self.elevation_step_deg:g} give {n_theta} x {n_phi} = {n_theta * n_phi} views; "
+                              f"expected at most {MAX_VIEWS}")
+
+    @property
+    def counts(self) -> tuple[int, int]:
+        """(azimuths, elevations) of the grid."""
+        return (round(360.0 / self.azimuth_step_deg),
+                math.floor(self.elevation_max_deg / self.elevation_step_deg + 1e-9) + 1)
 
     def grid(self, d_theta_deg: float = 0.0, d_phi_deg: float = 0.0) -> tuple[torch.Tensor, torch.Tensor]:
         """The grid, optionally offset: returns theta, phi (V,) float64 radians, θ varying fastest.
@@ -44,8 +62,7 @@ class ViewGridConfig:
         Offsets shift every view (the held-out views of issue 3 use half a step: +6°, +5°);
         θ wraps to [0, 2π).
         """
-        n_theta = round(360.0 / self.azimuth_step_deg)
-        n_phi = math.floor(self.elevation_max_deg / self.elevation_step_deg + 1e-9) + 1
+        n_theta, n_phi = self.counts
         th = (torch.arange(n_theta, dtype=torch.float64) * self.azimuth_step_deg + d_theta_deg) % 360.0
         ph = torch.arange(n_phi, dtype=torch.float64) * self.elevation_step_deg + d_phi_deg
         phi, theta = torch.meshgrid(ph, th, indexing="ij")
@@ -80,6 +97,37 @@ class TrainConfig:
     template: TemplateConfig = field(default_factory=TemplateConfig)
     views: ViewGridConfig = field(default_factory=ViewGridConfig)
     model: ModelConfig = field(default_factory=ModelConfig)
+
+    def __post_init__(self) -> None:
+        # The run folder is <log_dir>/<name>: a plain folder name keeps it inside log_dir.
+        if not _RUN_NAME.fullmatch(self.name):
+            raise ConfigError(f"name must be a plain folder name (letters, digits and '._-', not starting with "
+                              f"'.', at most 100 characters; no '/'); got {show(self.name)}")
+        for key, value in (("checkpoint", self.checkpoint), ("log_dir", self.log_dir)):
+            if not value.strip() or "\0" in value:
+                raise ConfigError(f"{key} must be a path; got {show(value)}")
+
+
+def is_train_report(path: Path) -> bool:
+    """True when ``path`` is a report.json written by train.py (a JSON object whose format is ours)."""
+    try:
+        return read_json_object(path, "").get("format") == REPORT_FORMAT
+    except (OSError, ValueError):
+        return False
+
+
+def non_finite_keys(data, prefix: str = "") -> list[str]:
+    """Dotted keys (``train_iou.tank``, ``test_split[2].mse``) of the NaN or infinite floats in nested
+    dicts and lists of plain data, in order."""
+    if isinstance(data, float):
+        return [] if math.isfinite(data) else [prefix or "value"]
+    if isinstance(data, dict):
+        items = ((f"{prefix}.{k}" if prefix else str(k), v) for k, v in data.items())
+    elif isinstance(data, (list, tuple)):
+        items = ((f"{prefix}[{i}]", v) for i, v in enumerate(data))
+    else:
+        return []
+    return [key for name, value in items for key in non_finite_keys(value, name)]
 
 
 def render_set(vehicles: Sequence, theta: torch.Tensor, phi: torch.Tensor, cfg: TemplateConfig,

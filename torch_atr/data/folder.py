@@ -17,6 +17,7 @@ reads it lazily: opening checks the file list and parses the small CSV, frames a
 from __future__ import annotations
 
 import csv
+import io
 import json
 import logging
 import math
@@ -30,15 +31,9 @@ import cv2
 import numpy as np
 from tqdm import tqdm
 
-from torch_atr.data.sequence import (
-    TEXT_FIELDS,
-    TRUTH_FIELDS,
-    FrameTruth,
-    Sequence,
-    load_camera_json,
-    read_json_object,
-    register_scheme,
-)
+from torch_atr.data.sequence import TEXT_FIELDS, TRUTH_FIELDS, FrameTruth, Sequence, load_camera_json, register_scheme
+from torch_atr.validate import (InputError, image_file_size, image_size, integer, parse_real, read_json_object,
+                                read_text, real, show)
 
 logger = logging.getLogger(__name__)
 
@@ -78,7 +73,7 @@ class FolderSequence(Sequence):
         if not self.folder.exists():
             raise FileNotFoundError(f"Sequence folder not found: {self.folder}")
         if not self.folder.is_dir():
-            raise ValueError(f"{self.folder} is a file, not a sequence folder; open a video with "
+            raise InputError(f"{self.folder} is a file, not a sequence folder; open a video with "
                              f"'video:PATH' or an ARF with 'sensiac:PATH'")
         self.meta = _read_meta(self.folder / "meta.json")
         self.name = self.meta["name"]
@@ -90,7 +85,7 @@ class FolderSequence(Sequence):
         cam_path = self.folder / "camera.json"
         self.camera = load_camera_json(cam_path) if cam_path.exists() else None
         if self.camera is not None and (self.camera.height, self.camera.width) != self._shape[:2]:
-            raise ValueError(f"{cam_path}: camera is {self.camera.width} x {self.camera.height} px; "
+            raise InputError(f"{cam_path}: camera is {self.camera.width} x {self.camera.height} px; "
                              f"frames are {self._shape[1]} x {self._shape[0]}")
         truth_path = self.folder / "truth.csv"
         self._truths = _read_truth_csv(truth_path, self._n) if truth_path.exists() else None
@@ -100,13 +95,20 @@ class FolderSequence(Sequence):
 
     def _read_frame(self, i: int) -> np.ndarray:
         path = self.folder / "frames" / _frame_filename(i)
-        img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+        width, height = image_file_size(path)  # from the header: no decoding of a huge claimed size
+        if (height, width) != self._shape[:2]:
+            raise InputError(f"{path}: image is {width} x {height} px; meta.json says {self._shape[1]} x "
+                             f"{self._shape[0]}")
+        try:
+            img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+        except cv2.error as exc:
+            raise InputError(f"{path}: cannot be decoded ({' '.join(str(exc).split())})") from None
         if img is None:
-            raise ValueError(f"{path}: cannot be read as an image")
+            raise InputError(f"{path}: cannot be read as an image")
         if img.ndim == 3 and img.shape[2] == 3:
             img = cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
         if img.shape != self._shape or img.dtype != self._dtype:
-            raise ValueError(f"{path}: image is {img.shape} {img.dtype}; meta.json says "
+            raise InputError(f"{path}: image is {img.shape} {img.dtype}; meta.json says "
                              f"{self._shape} {self._dtype}")
         return img
 
@@ -115,44 +117,51 @@ class FolderSequence(Sequence):
 
 
 def _read_meta(path: Path) -> dict:
+    """meta.json, checked: our format and version, a name, fps null or > 0, frames >= 1 and a frame
+    shape and dtype we store within the image bounds of :mod:`torch_atr.validate`."""
     meta = read_json_object(path, f"Not a sequence folder: {path} is missing")
     missing = [k for k in ("format", "format_version", "name", "fps", "frames", "dtype", "shape") if k not in meta]
     if missing:
-        raise ValueError(f"{path}: missing key(s) {', '.join(missing)}")
+        raise InputError(f"{path}: missing key(s) {', '.join(missing)}")
     if meta["format"] != FORMAT:
-        raise ValueError(f"{path}: format is {meta['format']!r}; expected {FORMAT!r}")
-    if not isinstance(meta["format_version"], int) or not 1 <= meta["format_version"] <= FORMAT_VERSION:
-        raise ValueError(f"{path}: format_version {meta['format_version']!r} is not supported "
-                         f"(this reader knows 1..{FORMAT_VERSION})")
+        raise InputError(f"{path}: format is {show(meta['format'])}; expected {FORMAT!r}")
+    integer(f"{path}, key 'format_version' (this reader knows 1..{FORMAT_VERSION})", meta["format_version"], 1,
+            FORMAT_VERSION)
     if not isinstance(meta["name"], str):
-        raise ValueError(f"{path}: name must be a string; got {meta['name']!r}")
-    fps = meta["fps"]
-    if fps is not None and (isinstance(fps, bool) or not isinstance(fps, (int, float)) or not fps > 0):
-        raise ValueError(f"{path}: fps must be a positive number or null; got {fps!r}")
-    n = meta["frames"]
-    if isinstance(n, bool) or not isinstance(n, int) or n < 1:
-        raise ValueError(f"{path}: frames must be a positive integer; got {n!r}")
+        raise InputError(f"{path}, key 'name': expected a string; got {show(meta['name'])}")
+    if meta["fps"] is not None:
+        real(f"{path}, key 'fps' (or null)", meta["fps"], lo=0, lo_open=True)
+    integer(f"{path}, key 'frames'", meta["frames"], lo=1)
     shape, dtype = meta["shape"], meta["dtype"]
-    dims_ok = isinstance(shape, list) and all(isinstance(s, int) and not isinstance(s, bool) and s > 0
-                                              for s in shape)
-    if not (dims_ok and _is_stored_frame(tuple(shape), dtype)):
-        raise ValueError(f"{path}: shape {shape!r} with dtype {dtype!r} is not a frame we store ({FRAME_RULE})")
+    if not (isinstance(shape, list) and len(shape) in (2, 3) and isinstance(dtype, str)
+            and all(isinstance(s, int) and not isinstance(s, bool) for s in shape)
+            and _is_stored_frame(tuple(shape), dtype)):
+        raise InputError(f"{path}: shape {show(shape)} with dtype {show(dtype)} is not a frame we store ({FRAME_RULE})")
+    image_size(f"{path}, key 'shape'", shape[1], shape[0])
     return meta
 
 
 def _check_frame_files(frames_dir: Path, n: int) -> None:
+    """Check that ``frames_dir`` holds exactly the frames 0..n-1, in time linear in the files
+    present (not in ``n``, which comes from meta.json)."""
     if not frames_dir.is_dir():
         raise FileNotFoundError(f"Frames folder not found: {frames_dir}")
     present = {p.name for p in frames_dir.iterdir() if not p.name.startswith(".")}
-    expected = {_frame_filename(i) for i in range(n)}
-    missing = sorted(expected - present)
-    extra = sorted(present - expected)
-    if missing:
-        raise ValueError(f"{frames_dir}: {len(missing)} of the {n} frames in meta.json are missing, "
-                         f"e.g. {', '.join(missing[:3])}")
+    extra = sorted(name for name in present
+                   if not (_FRAME_RE.fullmatch(name) and int(name[:-4]) < n and name == _frame_filename(int(name[:-4]))))
+    found = len(present) - len(extra)
+    if found < n:
+        examples = []
+        i = 0
+        while len(examples) < 3 and i < n:  # at most len(present) + 3 steps
+            if _frame_filename(i) not in present:
+                examples.append(_frame_filename(i))
+            i += 1
+        raise InputError(f"{frames_dir}: {n - found} of the {n} frames in meta.json are missing, "
+                         f"e.g. {', '.join(examples)}")
     if extra:
         kind = "frames beyond" if all(_FRAME_RE.fullmatch(e) for e in extra) else "files not among"
-        raise ValueError(f"{frames_dir}: {len(extra)} {kind} the {n} frames in meta.json, "
+        raise InputError(f"{frames_dir}: {len(extra)} {kind} the {n} frames in meta.json, "
                          f"e.g. {', '.join(extra[:3])}")
 
 
@@ -171,37 +180,33 @@ def _write_truth_csv(path: Path, truths: list[FrameTruth | None]) -> None:
 
 
 def _read_truth_csv(path: Path, n: int) -> list[FrameTruth | None]:
-    """Rows of ``truth.csv``: a FrameTruth per row, None for a row of empty cells."""
+    """Rows of ``truth.csv``: a FrameTruth per row, None for a row of empty cells. Numbers must be
+    finite (an empty cell is unknown); more rows than the ``n`` frames stop the reading."""
     truths: list[FrameTruth | None] = []
-    with open(path, newline="", encoding="utf-8") as fh:
-        reader = csv.reader(fh)
+    reader = csv.reader(io.StringIO(read_text(path), newline=""))
+    try:
         header = next(reader, None)
         if header is None:
-            raise ValueError(f"{path}: empty file; expected a header row of FrameTruth fields")
+            raise InputError(f"{path}: empty file; expected a header row of FrameTruth fields")
         unknown = [c for c in header if c not in TRUTH_FIELDS]
         if unknown:
-            raise ValueError(f"{path}, line 1: unknown column(s) {', '.join(map(repr, unknown))}; "
+            raise InputError(f"{path}, line 1: unknown column(s) {', '.join(map(show, unknown[:5]))}; "
                              f"known: {', '.join(TRUTH_FIELDS)}")
         if len(set(header)) != len(header):
-            raise ValueError(f"{path}, line 1: repeated column names in {header}")
+            raise InputError(f"{path}, line 1: repeated column names in {header}")
         for cells in reader:
             where = f"{path}, line {reader.line_num} (frame {len(truths)})"
+            if len(truths) == n:
+                raise InputError(f"{where}: more rows than the {n} frames in meta.json")
             if len(cells) != len(header):
-                raise ValueError(f"{where}: expected {len(header)} columns; got {len(cells)}")
-            values: dict = {}
-            for key, cell in zip(header, cells):
-                if cell == "":
-                    continue
-                if key in TEXT_FIELDS:
-                    values[key] = cell
-                    continue
-                try:
-                    values[key] = float(cell)
-                except ValueError:
-                    raise ValueError(f"{where}, column {key!r}: expected a number; got {cell!r}") from None
+                raise InputError(f"{where}: expected {len(header)} columns; got {len(cells)}")
+            values = {key: cell if key in TEXT_FIELDS else parse_real(f"{where}, column {key!r}", cell)
+                      for key, cell in zip(header, cells) if cell != ""}
             truths.append(FrameTruth(**values) if values else None)
+    except csv.Error as exc:
+        raise InputError(f"{path}, line {reader.line_num}: not a CSV file we can read ({exc})") from None
     if len(truths) != n:
-        raise ValueError(f"{path}: {len(truths)} rows for the {n} frames in meta.json")
+        raise InputError(f"{path}: {len(truths)} rows for the {n} frames in meta.json")
     return truths
 
 

@@ -4,8 +4,15 @@
 cols, image type, frame count, data offset, subheader flags), then per frame rows x cols
 big-endian uint16 pixels. Some files follow each frame with a 40-byte trailer (in public
 readers: ten uint32 x, y, azimuth, elevation, year, day, hour, min, sec, ms), some do not; the
-layout is detected from the file size and recorded in ``meta["arf_layout"]`` as
-``"contiguous"`` or ``"trailer40"``. Frames are memory-mapped, never read ahead.
+layout, ``"contiguous"`` or ``"trailer40"``, is recorded in ``meta["arf_layout"]``. The file
+size decides it when it fits one layout only, unless the header's subheader flags declare
+per-frame data (bit 0x10, "frame data" in public readers) and the size has no room for it: that
+contradiction is refused. A size that fits the trailers also fits contiguous frames followed by
+40 bytes a frame of something else; that file is read as "trailer40" only when the header
+declares it, when it has a single frame, or when every would-be trailer holds a valid time
+stamp; otherwise it is refused, naming both readings. ``layout=`` (the reader's argument, the
+spec's option) decides explicitly. Frames are at most 16384 px a side and 2**26 pixels
+(:mod:`torch_atr.validate`), memory-mapped, never read ahead.
 
 ``.agt`` ground truth ("ARF Ground Truth", a small keyword language). A bare word followed by
 ``{`` opens a block, ``}`` closes it; every other line is ``Key value...`` with quoted strings
@@ -31,6 +38,7 @@ from __future__ import annotations
 
 import csv
 import dataclasses
+import io
 import logging
 import math
 import os
@@ -46,6 +54,7 @@ import numpy as np
 from torch_atr.camera import Camera
 from torch_atr.data.sequence import FrameTruth, Sequence, check_fps, parse_reader_spec, register_scheme
 from torch_atr.io import atomic_path, atomic_write_text
+from torch_atr.validate import InputError, image_size, parse_real, read_text, show
 
 logger = logging.getLogger(__name__)
 
@@ -54,6 +63,8 @@ ARF_HEADER = struct.Struct(">8I")
 ARF_TRAILER_BYTES = 40
 ARF_VERSION = 2
 ARF_IMAGE_TYPE_U16 = 5  # "short_word" in public ARF readers
+ARF_FLAG_FRAMEDATA = 0x10  # subheader flag bit 4: per-frame data (the 40-byte trailers) follows each frame
+ARF_LAYOUTS = ("contiguous", "trailer40")
 SENSIAC_FPS = 30.0  # thesis ch. 6.2; the ARF header carries no frame rate
 
 
@@ -75,54 +86,99 @@ class ArfHeader:
         return self.rows * self.cols * 2
 
 
-def read_arf_header(path: str | os.PathLike) -> tuple[ArfHeader, str]:
+def read_arf_header(path: str | os.PathLike, layout: str | None = None) -> tuple[ArfHeader, str]:
     """Read and check an ARF header; return it and the layout (``"contiguous"``/``"trailer40"``).
 
-    Raises ``ValueError`` naming the file and byte offset for a bad magic, an image type other
-    than 16-bit, zero rows, cols or frames, a truncated file, or a size that matches neither layout.
+    ``layout`` None decides from the size and the header (module docstring); a layout given is
+    used if the file holds all its frames (bytes beyond them are ignored with a warning).
+    Raises ``InputError`` naming the file and byte offset for a bad magic, an image type other
+    than 16-bit, zero or too many rows, cols or frames, a truncated file, or a size that matches
+    neither layout, contradicts the header or fits both.
     """
     path = Path(path)
+    if layout is not None and layout not in ARF_LAYOUTS:
+        raise InputError(f"{path}: layout must be one of {', '.join(ARF_LAYOUTS)}; got {show(layout)}")
     size = path.stat().st_size
     with open(path, "rb") as fh:
         raw = fh.read(ARF_HEADER.size)
     if len(raw) < ARF_HEADER.size:
-        raise ValueError(f"{path}: truncated ARF header: the file ends at byte offset {size}, "
+        raise InputError(f"{path}: truncated ARF header: the file ends at byte offset {size}, "
                          f"inside the {ARF_HEADER.size}-byte header")
     h = ArfHeader(*ARF_HEADER.unpack(raw))
     if h.magic != ARF_MAGIC:
-        raise ValueError(f"{path}: bad ARF magic 0x{h.magic:08X} at byte offset 0; expected 0x{ARF_MAGIC:08X}")
+        raise InputError(f"{path}: bad ARF magic 0x{h.magic:08X} at byte offset 0; expected 0x{ARF_MAGIC:08X}")
     if h.image_type != ARF_IMAGE_TYPE_U16:
-        raise ValueError(f"{path}: ARF image type {h.image_type} (byte offset 16) is not supported; "
+        raise InputError(f"{path}: ARF image type {h.image_type} (byte offset 16) is not supported; "
                          f"this reader reads type {ARF_IMAGE_TYPE_U16} (16-bit pixels) only")
     if h.rows == 0 or h.cols == 0:
-        raise ValueError(f"{path}: ARF header gives rows={h.rows}, cols={h.cols} (byte offsets 8, 12); "
+        raise InputError(f"{path}: ARF header gives rows={h.rows}, cols={h.cols} (byte offsets 8, 12); "
                          f"a frame needs at least one pixel")
+    image_size(f"{path}: ARF header (rows, cols at byte offsets 8, 12)", h.cols, h.rows)
     if h.frames == 0:
-        raise ValueError(f"{path}: ARF header gives a frame count of 0 (byte offset 20)")
+        raise InputError(f"{path}: ARF header gives a frame count of 0 (byte offset 20)")
     if h.offset < ARF_HEADER.size:
-        raise ValueError(f"{path}: ARF data offset {h.offset} (byte offset 24) points inside the "
+        raise InputError(f"{path}: ARF data offset {h.offset} (byte offset 24) points inside the "
                          f"{ARF_HEADER.size}-byte header")
     fb = h.frame_bytes
-    contiguous = h.offset + h.frames * fb
-    trailed = h.offset + h.frames * (fb + ARF_TRAILER_BYTES)
-    if size == contiguous:
+    need = {"contiguous": h.offset + h.frames * fb, "trailer40": h.offset + h.frames * (fb + ARF_TRAILER_BYTES)}
+    declared = bool(h.flags & ARF_FLAG_FRAMEDATA)
+    if layout is not None:
+        stride = fb + (ARF_TRAILER_BYTES if layout == "trailer40" else 0)
+        if size < need[layout]:
+            _truncated(path, h, stride, size)
+        if size > need[layout]:
+            logger.warning("%s: layout %s given; ignoring the %d bytes after frame %d", path, layout,
+                           size - need[layout], h.frames - 1)
+        return h, layout
+    hint = "open it with layout=contiguous or layout=trailer40 (spec: sensiac:FILE.arf,layout=...) if you know which"
+    if size == need["contiguous"]:
+        if declared:
+            raise InputError(f"{path}: the header's flags 0x{h.flags:X} (byte offset 28) declare per-frame data "
+                             f"(bit 0x10), but the size, {size} bytes, has room for {h.frames} contiguous frames "
+                             f"only; {hint}")
         return h, "contiguous"
-    if size == trailed:
-        return h, "trailer40"
-    if size < contiguous:
-        k = max(0, (size - h.offset) // fb)
-        raise ValueError(f"{path}: truncated ARF: frame {k} of {h.frames} starts at byte offset "
-                         f"{h.offset + k * fb} and needs {fb} bytes, but the file ends at byte offset {size}")
-    raise ValueError(f"{path}: ARF size {size} bytes matches neither layout: {contiguous} bytes "
-                     f"without per-frame trailers, {trailed} bytes with {ARF_TRAILER_BYTES}-byte trailers")
+    if size == need["trailer40"]:
+        if declared or h.frames == 1 or _trailers_hold_times(path, h):
+            return h, "trailer40"
+        raise InputError(f"{path}: ARF size {size} bytes fits two layouts: {h.frames} frames each followed by a "
+                         f"{ARF_TRAILER_BYTES}-byte trailer, or {h.frames} contiguous frames followed by "
+                         f"{h.frames * ARF_TRAILER_BYTES} other bytes; the header's flags 0x{h.flags:X} do not "
+                         f"declare per-frame data (bit 0x10) and the would-be trailers hold no valid time stamps; "
+                         f"{hint}")
+    if size < need["contiguous"]:
+        _truncated(path, h, fb, size)
+    raise InputError(f"{path}: ARF size {size} bytes matches neither layout: {need['contiguous']} bytes "
+                     f"without per-frame trailers, {need['trailer40']} bytes with {ARF_TRAILER_BYTES}-byte "
+                     f"trailers; {hint}")
+
+
+def _truncated(path: Path, h: ArfHeader, stride: int, size: int) -> None:
+    """Raise the InputError of a file too short for the header's frames at ``stride`` bytes each."""
+    k = max(0, (size - h.offset) // stride)
+    what = f"{stride} bytes with its trailer" if stride != h.frame_bytes else f"{stride} bytes"
+    raise InputError(f"{path}: truncated ARF: frame {k} of {h.frames} starts at byte offset "
+                     f"{h.offset + k * stride} and needs {what}, but the file ends at byte offset {size}")
+
+
+def _trailers_hold_times(path: Path, h: ArfHeader) -> bool:
+    """True when every 40-byte trailer of a "trailer40" reading holds a valid time (uint32 words
+    5-10: year 1970-2100, day of the year, hour, minute, second, millisecond)."""
+    stride = h.frame_bytes + ARF_TRAILER_BYTES
+    mm = np.memmap(path, dtype=np.uint8, mode="r", offset=h.offset, shape=(h.frames, stride))
+    words = np.ascontiguousarray(mm[:, h.frame_bytes + 16:stride]).view(">u4").astype(np.int64)  # (frames, 6)
+    del mm
+    year, day, hour, minute, sec, ms = words.T
+    return bool(((1970 <= year) & (year <= 2100) & (1 <= day) & (day <= 366) & (hour < 24) & (minute < 60)
+                 & (sec < 61) & (ms < 1000)).all())
 
 
 def write_arf(path: str | os.PathLike, frames: Iterable[np.ndarray], gap: bool = False) -> int:
     """Write (H, W) uint16 frames as an ARF file; return the frame count.
 
     ``frames``: an (N, H, W) uint16 array or any iterable of (H, W) uint16 arrays (a Sequence
-    works). ``gap=True`` follows each frame with a 40-byte trailer of zeros. The header says
-    version 2, image type 5 (16-bit), data offset 32, no subheaders. Written atomically.
+    works). ``gap=True`` follows each frame with a 40-byte trailer of zeros and sets the header's
+    flag 0x10 that declares it. The header says version 2, image type 5 (16-bit), data offset 32.
+    Written atomically.
     """
     path = Path(path)
     n, shape = 0, None
@@ -143,7 +199,7 @@ def write_arf(path: str | os.PathLike, frames: Iterable[np.ndarray], gap: bool =
             raise ValueError(f"{path}: no frames to write; an ARF needs at least one")
         fh.seek(0)
         fh.write(ARF_HEADER.pack(ARF_MAGIC, ARF_VERSION, shape[0], shape[1], ARF_IMAGE_TYPE_U16, n,
-                                 ARF_HEADER.size, 0))
+                                 ARF_HEADER.size, ARF_FLAG_FRAMEDATA if gap else 0))
     return n
 
 
@@ -187,7 +243,7 @@ def _agt_tokens(text: str, source: str) -> list[tuple[str, str, int, bool]]:
         for j, m in enumerate(_AGT_TOKEN_RE.finditer(line)):
             tok = m.group()
             if tok == '"':
-                raise ValueError(f"{source}, line {line_no}: unterminated string")
+                raise InputError(f"{source}, line {line_no}: unterminated string")
             kind = tok if tok in "{}" else "str" if tok.startswith('"') else "word"
             tokens.append((kind, tok[1:-1] if kind == "str" else tok, line_no, j == 0))
     return tokens
@@ -199,7 +255,7 @@ def _opens_value(token: tuple[str, str, int, bool]) -> bool:
 
 
 def parse_agt(text: str, source: str = "<agt>") -> AgtBlock:
-    """Parse AGT text into its ``Agt`` block; ``ValueError`` naming ``source`` and the line."""
+    """Parse AGT text into its ``Agt`` block; ``InputError`` naming ``source`` and the line."""
     tokens = _agt_tokens(text, source)
     root = AgtBlock("", 0)
     stack = [root]
@@ -208,14 +264,14 @@ def parse_agt(text: str, source: str = "<agt>") -> AgtBlock:
         kind, tok, line, _ = tokens[i]
         if kind == "}":
             if len(stack) == 1:
-                raise ValueError(f"{source}, line {line}: '}}' closes no open block")
+                raise InputError(f"{source}, line {line}: '}}' closes no open block")
             stack.pop()
             i += 1
             continue
         if kind == "{":
-            raise ValueError(f"{source}, line {line}: '{{' opens a block with no name")
+            raise InputError(f"{source}, line {line}: '{{' opens a block with no name")
         if kind == "str" or not _IDENT_RE.fullmatch(tok):
-            raise ValueError(f"{source}, line {line}: value {tok!r} has no keyword before it")
+            raise InputError(f"{source}, line {line}: value {show(tok)} has no keyword before it")
         if i + 1 < len(tokens) and tokens[i + 1][0] == "{":
             block = AgtBlock(tok, line)
             stack[-1].blocks.append(block)
@@ -234,55 +290,47 @@ def parse_agt(text: str, source: str = "<agt>") -> AgtBlock:
                 values.append(tokens[j][1])
                 j += 1
         if stack[-1] is root:
-            raise ValueError(f"{source}, line {line}: attribute {tok!r} outside any block")
+            raise InputError(f"{source}, line {line}: attribute {show(tok)} outside any block")
         stack[-1].attrs.append(AgtAttr(tok, tuple(values), line))
         i = j
     if len(stack) > 1:
         last = tokens[-1][2]
-        raise ValueError(f"{source}, line {stack[-1].line}: block {stack[-1].name!r} opened here is "
+        raise InputError(f"{source}, line {stack[-1].line}: block {show(stack[-1].name)} opened here is "
                          f"never closed (the file ends at line {last})")
     agts = root.find("Agt")
     others = [b for b in root.blocks if b.name != "Agt"]
     if others:
-        raise ValueError(f"{source}, line {others[0].line}: top-level block {others[0].name!r}; "
+        raise InputError(f"{source}, line {others[0].line}: top-level block {show(others[0].name)}; "
                          f"expected a single 'Agt' block")
     if not agts:
-        raise ValueError(f"{source}: no 'Agt' block")
+        raise InputError(f"{source}: no 'Agt' block")
     if len(agts) > 1:
-        raise ValueError(f"{source}, line {agts[1].line}: a second 'Agt' block; expected exactly one")
+        raise InputError(f"{source}, line {agts[1].line}: a second 'Agt' block; expected exactly one")
     return agts[0]
 
 
 def read_agt(path: str | os.PathLike) -> AgtBlock:
-    """Parse an ``.agt`` file into its ``Agt`` block (errors name the file and line)."""
+    """Parse an ``.agt`` file (UTF-8, at most 64 MiB) into its ``Agt`` block (errors name the file and line)."""
     path = Path(path)
-    return parse_agt(path.read_text(encoding="utf-8", errors="replace"), source=str(path))
+    return parse_agt(read_text(path), source=str(path))
 
 
 def _numbers(attr: AgtAttr, count: int, source: str) -> list[float]:
     if len(attr.values) != count:
-        raise ValueError(f"{source}, line {attr.line}: {attr.key} expects {count} number(s); "
+        raise InputError(f"{source}, line {attr.line}: {attr.key} expects {count} number(s); "
                          f"got {len(attr.values)}: {' '.join(attr.values) or '(none)'}")
-    out = []
-    for v in attr.values:
-        try:
-            out.append(float(v))
-        except ValueError:
-            raise ValueError(f"{source}, line {attr.line}: {attr.key} expects a number; got {v!r}") from None
-        if not math.isfinite(out[-1]):
-            raise ValueError(f"{source}, line {attr.line}: {attr.key} expects a finite number; got {v!r}")
-    return out
+    return [parse_real(f"{source}, line {attr.line}: {attr.key}", v) for v in attr.values]
 
 
 def _agt_time(attr: AgtAttr, source: str) -> float:
     """``Time year julian_day hour min sec ms`` -> POSIX seconds, taking the time as UTC."""
     nums = _numbers(attr, 6, source)
     if any(not x.is_integer() for x in nums):
-        raise ValueError(f"{source}, line {attr.line}: Time expects six integers; got {' '.join(attr.values)}")
+        raise InputError(f"{source}, line {attr.line}: Time expects six integers; got {' '.join(attr.values)}")
     year, day, hour, minute, sec, ms = (int(x) for x in nums)
     if not (1 <= year <= 9999 and 1 <= day <= 366 and 0 <= hour < 24 and 0 <= minute < 60
             and 0 <= sec < 61 and 0 <= ms < 1000):
-        raise ValueError(f"{source}, line {attr.line}: Time {' '.join(attr.values)} is not a valid "
+        raise InputError(f"{source}, line {attr.line}: Time {' '.join(attr.values)} is not a valid "
                          f"year, julian day, hour, min, sec, ms")
     t = datetime(year, 1, 1, tzinfo=timezone.utc) + timedelta(days=day - 1, hours=hour, minutes=minute,
                                                                 seconds=sec, milliseconds=ms)
@@ -383,33 +431,30 @@ class BboxMetRow:
 
 def _bbox_met_row(cells: list[str], where: str) -> BboxMetRow:
     if len(cells) != len(BBOX_MET_COLUMNS):
-        raise ValueError(f"{where}: expected {len(BBOX_MET_COLUMNS)} columns; got {len(cells)}")
+        raise InputError(f"{where}: expected {len(BBOX_MET_COLUMNS)} columns; got {len(cells)}")
     cells = [c.strip() for c in cells]
     frame_cell = cells[_COL["frame"]]
-    try:
-        frame = int(frame_cell)
-    except ValueError:
-        raise ValueError(f"{where}, column 'frame': expected an integer; got {frame_cell!r}") from None
+    if not frame_cell.isdecimal() or len(frame_cell) > 18:
+        raise InputError(f"{where}, column 'frame': expected an integer; got {show(frame_cell)}")
+    frame = int(frame_cell)
     if frame < 1:
-        raise ValueError(f"{where}, column 'frame': frames count from 1; got {frame}")
-    corner = []
-    for name in ("upper_left_u", "upper_left_v"):
-        try:
-            corner.append(float(cells[_COL[name]]))
-        except ValueError:
-            raise ValueError(f"{where}, column {name!r}: expected a number; got {cells[_COL[name]]!r}") from None
-    return BboxMetRow(tuple(cells), frame, (corner[0], corner[1]))
+        raise InputError(f"{where}, column 'frame': frames count from 1; got {frame}")
+    u, v = (parse_real(f"{where}, column {name!r}", cells[_COL[name]]) for name in ("upper_left_u", "upper_left_v"))
+    return BboxMetRow(tuple(cells), frame, (u, v))
 
 
 def read_bbox_met(path: str | os.PathLike) -> list[BboxMetRow]:
-    """Rows of a ``.bbox_met`` file (blank lines skipped); errors name the file and line."""
+    """Rows of a ``.bbox_met`` file (UTF-8, at most 64 MiB; blank lines skipped); errors name the
+    file and line. Corners must be finite numbers."""
     path = Path(path)
     rows = []
-    with open(path, newline="", encoding="utf-8", errors="replace") as fh:
-        reader = csv.reader(fh)
+    reader = csv.reader(io.StringIO(read_text(path), newline=""))
+    try:
         for cells in reader:
             if cells and any(c.strip() for c in cells):
                 rows.append(_bbox_met_row(cells, f"{path}, line {reader.line_num}"))
+    except csv.Error as exc:
+        raise InputError(f"{path}, line {reader.line_num}: not a CSV file we can read ({exc})") from None
     return rows
 
 
@@ -444,20 +489,22 @@ class SensiacSequence(Sequence):
         camera: a calibrated camera (SENSIAC ships none), or None.
         fps: frame rate, positive; SENSIAC records at 30 Hz and the ARF does not say.
         agt_path, bbox_met_path: companion files; None = look beside the ARF by stem.
+        layout: ``"contiguous"`` or ``"trailer40"``; None decides from the file (module docstring).
     Frames are (rows, cols) native uint16, each a fresh copy out of the memory map, which is
     opened last, once every check has passed.
     """
 
     def __init__(self, arf_path: str | os.PathLike, camera: Camera | None = None, fps: float = SENSIAC_FPS,
-                 agt_path: str | os.PathLike | None = None, bbox_met_path: str | os.PathLike | None = None):
+                 agt_path: str | os.PathLike | None = None, bbox_met_path: str | os.PathLike | None = None,
+                 layout: str | None = None):
         arf = Path(arf_path)
         self.fps = check_fps(fps, str(arf))
         if not arf.is_file():
             raise FileNotFoundError(f"ARF file not found: {arf}")
-        header, layout = read_arf_header(arf)
+        header, layout = read_arf_header(arf, layout)
         logger.info("%s: ARF layout %s, %d frames of %d x %d", arf, layout, header.frames, header.cols, header.rows)
         if camera is not None and (camera.height, camera.width) != (header.rows, header.cols):
-            raise ValueError(f"{arf}: camera is {camera.width} x {camera.height} px; frames are "
+            raise InputError(f"{arf}: camera is {camera.width} x {camera.height} px; frames are "
                              f"{header.cols} x {header.rows}")
         self._header = header
         self.name = arf.stem
@@ -520,8 +567,8 @@ def _merge_truth(n: int, agt: list[FrameTruth | None], met: list[BboxMetRow], so
 
 
 def _open_spec(rest: str) -> SensiacSequence:
-    target, kwargs, _ = parse_reader_spec("sensiac", rest)
-    return SensiacSequence(target, **kwargs)
+    target, kwargs, options = parse_reader_spec("sensiac", rest, ("layout",))
+    return SensiacSequence(target, **kwargs, **options)
 
 
 register_scheme("sensiac", _open_spec)

@@ -8,7 +8,7 @@ optional per-frame ground truth (:class:`FrameTruth`).
 
     path/to/folder                      our folder format (``folder.py``)
     folder:path/to/folder               the same, spelled out
-    sensiac:FILE.arf[,calib=..,fps=..]  a SENSIAC ARF with its AGT / bbox_met (``sensiac.py``)
+    sensiac:FILE.arf[,calib=..,fps=..,layout=..]  a SENSIAC ARF with its AGT / bbox_met (``sensiac.py``)
     video:FILE[,calib=..,color=..,fps=..]  a video, image folder or glob (``video.py``)
     synthetic:...                       the scene simulator, once it registers itself
 
@@ -21,7 +21,6 @@ from __future__ import annotations
 import abc
 import dataclasses
 import importlib
-import json
 import math
 import numbers
 import operator
@@ -33,6 +32,7 @@ from typing import Callable, Iterator
 import numpy as np
 
 from torch_atr.camera import Camera
+from torch_atr.validate import InputError, read_json_object, show
 
 TEXT_FIELDS: frozenset[str] = frozenset({"vehicle", "vehicle_class"})
 
@@ -215,11 +215,12 @@ def registered_schemes() -> tuple[str, ...]:
 def open_sequence(spec: str) -> Sequence:
     """Open the sequence ``spec`` names (see the module docstring for the forms).
 
-    A spec without a ``scheme:`` prefix is a folder in our format. Raises ``ValueError`` for a
-    bad spec, unknown scheme or option, ``FileNotFoundError`` for a missing file, each naming it.
+    A spec without a ``scheme:`` prefix is a folder in our format. Raises ``InputError`` (a
+    ``ValueError``) for a bad spec, unknown scheme or option and for a bad file,
+    ``FileNotFoundError`` for a missing file, each naming it.
     """
     if not isinstance(spec, str) or not spec.strip():
-        raise ValueError(f"Expected a sequence spec string; got {spec!r}")
+        raise InputError(f"Expected a sequence spec string; got {show(spec)}")
     m = _SPEC_RE.fullmatch(spec)
     if m is None:
         scheme, rest = "folder", spec
@@ -233,7 +234,7 @@ def open_sequence(spec: str) -> Sequence:
                 raise
     if scheme not in _SCHEMES:
         known = ", ".join(registered_schemes()) or "none"
-        raise ValueError(f"Unknown scheme {scheme!r} in sequence spec {spec!r}; known schemes: {known}")
+        raise InputError(f"Unknown scheme {scheme!r} in sequence spec {show(spec)}; known schemes: {known}")
     return _SCHEMES[scheme](rest)
 
 
@@ -243,14 +244,14 @@ def parse_spec_options(spec: str, allowed: tuple[str, ...] | None = None,
 
     ``allowed``: the option names accepted, or None for any. ``has_target=False`` parses
     ``"key=value,..."`` (a blank spec: no options) and returns ``""`` as the target. Raises
-    ``ValueError`` naming the spec for an empty target, an option without ``=`` (an empty part
+    ``InputError`` naming the spec for an empty target, an option without ``=`` (an empty part
     included), a repeated option or one not in ``allowed``.
     """
     parts = spec.split(",")
     if has_target:
         target = parts.pop(0).strip()
         if not target:
-            raise ValueError(f"Sequence spec {spec!r} names no file")
+            raise InputError(f"Sequence spec {show(spec)} names no file")
     else:
         target = ""
         parts = parts if spec.strip() else []
@@ -259,32 +260,32 @@ def parse_spec_options(spec: str, allowed: tuple[str, ...] | None = None,
         key, sep, value = part.partition("=")
         key = key.strip()
         if not sep or not key:
-            raise ValueError(f"Sequence spec {spec!r}: expected key=value; got {part!r}")
+            raise InputError(f"Sequence spec {show(spec)}: expected key=value; got {show(part)}")
         if allowed is not None and key not in allowed:
-            raise ValueError(f"Sequence spec {spec!r}: unknown option {key!r}; "
+            raise InputError(f"Sequence spec {show(spec)}: unknown option {show(key)}; "
                              f"allowed: {', '.join(sorted(allowed))}")
         if key in options:
-            raise ValueError(f"Sequence spec {spec!r}: option {key!r} given twice")
+            raise InputError(f"Sequence spec {show(spec)}: option {show(key)} given twice")
         options[key] = value.strip()
     return target, options
 
 
 def check_fps(fps, source: str) -> float:
     """``fps`` as a float after checking it is a positive finite real number (not a bool);
-    ``ValueError`` naming ``source``."""
+    ``InputError`` naming ``source``."""
     if isinstance(fps, bool) or not isinstance(fps, numbers.Real) or not (math.isfinite(fps) and fps > 0):
-        raise ValueError(f"{source}: fps must be a positive number; got {fps!r}")
+        raise InputError(f"{source}: fps must be a positive number; got {show(fps)}")
     return float(fps)
 
 
 def parse_fps(value: str, source: str) -> float:
-    """A positive finite frame rate from an option string; ``ValueError`` naming ``source``."""
+    """A positive finite frame rate from an option string; ``InputError`` naming ``source``."""
     try:
         fps = float(value)
     except ValueError:
         fps = math.nan
     if not (math.isfinite(fps) and fps > 0):
-        raise ValueError(f"{source}: fps must be a positive number; got {value!r}")
+        raise InputError(f"{source}: fps must be a positive number; got {show(value)}")
     return fps
 
 
@@ -302,20 +303,6 @@ def parse_reader_spec(scheme: str, rest: str, extra: tuple[str, ...] = ()) -> tu
     if "fps" in options:
         kwargs["fps"] = parse_fps(options.pop("fps"), f"{scheme}:{rest}")
     return target, kwargs, options
-
-
-def read_json_object(path: Path, missing: str) -> dict:
-    """The JSON object in ``path``; a missing file raises FileNotFoundError(``missing``), bad JSON a
-    ValueError naming the file."""
-    if not path.is_file():
-        raise FileNotFoundError(missing)
-    try:
-        d = json.loads(path.read_text(encoding="utf-8"))
-    except json.JSONDecodeError as exc:
-        raise ValueError(f"{path}: not valid JSON ({exc})") from exc
-    if not isinstance(d, dict):
-        raise ValueError(f"{path}: expected a JSON object; got {type(d).__name__}")
-    return d
 
 
 def load_camera_json(path: str | Path) -> Camera:

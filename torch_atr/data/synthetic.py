@@ -103,6 +103,7 @@ from torch_atr.config import ConfigError, load_config
 from torch_atr.data.sequence import FrameTruth, Sequence, parse_spec_options, register_scheme
 from torch_atr.pose import VehiclePose, body_to_world, view_of_pose
 from torch_atr.render import render_mask
+from torch_atr.validate import InputError, show
 from torch_atr.vehicles import Vehicle, load_vehicle
 from torch_atr.vehicles import load_catalog_vehicle
 
@@ -127,6 +128,12 @@ _OCCLUDER_GAP_M = 10.0  # the occluder stands at least this far in front of the 
 _OCCLUDER_BUMPS_M = 1.5  # spacing of the occluder's top profile samples
 _PSF_TRUNCATE = 4.0  # Gaussian kernels reach 4 σ
 _SUPERSAMPLE = 3  # the target's radiance is averaged over 3 x 3 sub-samples per pixel
+_MAX_BLUR_PX = 100.0  # Gaussian σ of the PSF and the clutter: kernels of at most 801 taps
+# Memory bounds of one rendered frame (measured: a 512 px target in a 2048 x 2048 frame peaks ~0.6 GB above the
+# process's baseline, a 1024 px one in a 2048 x 2048 frame 2 GB).
+MAX_TARGET_PX = 512  # the vehicle's 3D diagonal at the circle's nearest point, in pixels (rendered x 3 x 3)
+MAX_FRAME_SIDE = 4096
+MAX_FRAME_PIXELS = 2 ** 22  # 4 Mpx: e.g. 2048 x 2048; SENSIAC's 640 x 512 is 0.33 Mpx
 
 # Resolved defaults of the temperature fields (kelvin) at night and by day.
 _NIGHT = {"ground_k": 285.0, "sky_k": 262.0, "body_k": 291.0, "running_gear_k": 295.0, "engine_deck_k": 305.0,
@@ -182,29 +189,33 @@ class SceneConfig:
     def __post_init__(self) -> None:
         r = self.circle_diameter_m / 2
         checks = {
-            "range_m": (math.isfinite(self.range_m) and self.range_m - r > 2 * _OCCLUDER_GAP_M,
-                        f"finite, more than circle_diameter_m / 2 + {2 * _OCCLUDER_GAP_M:g} m"),
-            "circle_diameter_m": (self.circle_diameter_m > 0, "positive"),
-            "frames": (self.frames >= 1, ">= 1"),
-            "fps": (0 < self.fps < math.inf, "positive"),
-            "speed_mps": (0 <= self.speed_mps < math.inf, ">= 0"),
+            "range_m": (self.range_m - r > 2 * _OCCLUDER_GAP_M and self.range_m <= 1e5,
+                        f"at most 100 km, more than circle_diameter_m / 2 + {2 * _OCCLUDER_GAP_M:g} m"),
+            "circle_diameter_m": (0 < self.circle_diameter_m <= 1e4, "in (0, 10000]"),
+            "frames": (1 <= self.frames <= 10 ** 7, "in [1, 10**7]"),
+            "fps": (0 < self.fps <= 1e4, "in (0, 10000]"),
+            "speed_mps": (0 <= self.speed_mps <= 1e3, "in [0, 1000]"),
             "start_deg": (self.start_deg is None or math.isfinite(self.start_deg), "finite or null"),
-            "width": (self.width >= 1, ">= 1"),
-            "height": (self.height >= 1, ">= 1"),
-            "focal_px": (0 < self.focal_px < math.inf, "positive"),
-            "camera_height_m": (0 < self.camera_height_m < math.inf, "positive"),
+            "width": (1 <= self.width <= MAX_FRAME_SIDE, f"in [1, {MAX_FRAME_SIDE}]"),
+            "height": (1 <= self.height <= MAX_FRAME_SIDE and self.width * self.height <= MAX_FRAME_PIXELS,
+                       f"in [1, {MAX_FRAME_SIDE}], width x height at most {MAX_FRAME_PIXELS}"),
+            "focal_px": (0 < self.focal_px <= 1e6, "in (0, 1e6]"),
+            "camera_height_m": (0 < self.camera_height_m <= 1e4, "in (0, 10000]"),
             "tilt_deg": (self.tilt_deg is None or -45 <= self.tilt_deg <= 45, "in [-45, 45] or null"),
             "ground_gradient_k": (math.isfinite(self.ground_gradient_k), "finite"),
             "clutter_k": (0 <= self.clutter_k < math.inf, ">= 0"),
-            "clutter_scale_px": (0 < self.clutter_scale_px < math.inf, "positive"),
-            "clutter_stretch": (0 < self.clutter_stretch < math.inf, "positive"),
+            "clutter_scale_px": (0 < self.clutter_scale_px <= _MAX_BLUR_PX, f"in (0, {_MAX_BLUR_PX:g}]"),
+            "clutter_stretch": (0 < self.clutter_stretch and self.clutter_scale_px * self.clutter_stretch <= _MAX_BLUR_PX,
+                                f"positive, clutter_scale_px x clutter_stretch at most {_MAX_BLUR_PX:g} px"),
             "noise_k": (0 <= self.noise_k < math.inf, ">= 0"),
             "extinction_per_km": (0 <= self.extinction_per_km < math.inf, ">= 0"),
-            "psf_sigma_px": (0 <= self.psf_sigma_px < math.inf, ">= 0"),
-            "psf_sigma_per_km": (0 <= self.psf_sigma_per_km < math.inf, ">= 0"),
-            "occluder_width_m": (0 <= self.occluder_width_m < math.inf, ">= 0"),
+            "psf_sigma_px": (0 <= self.psf_sigma_px <= _MAX_BLUR_PX, f"in [0, {_MAX_BLUR_PX:g}]"),
+            "psf_sigma_per_km": (0 <= self.psf_sigma_per_km and self.psf_sigma <= _MAX_BLUR_PX,
+                                 f">= 0, with psf_sigma_px + psf_sigma_per_km * range_m / 1000 at most "
+                                 f"{_MAX_BLUR_PX:g} px"),
+            "occluder_width_m": (0 <= self.occluder_width_m <= 1e4, "in [0, 10000]"),
             "occluder_x_m": (math.isfinite(self.occluder_x_m), "finite"),
-            "occluder_height_m": (0 < self.occluder_height_m < math.inf, "positive"),
+            "occluder_height_m": (0 < self.occluder_height_m <= 1e3, "in (0, 1000]"),
             "occluder_range_m": (self.occluder_range_m is None
                                  or 0 < self.occluder_range_m <= self.range_m - r - _OCCLUDER_GAP_M,
                                  f"null or in (0, range_m - circle_diameter_m / 2 - {_OCCLUDER_GAP_M:g}]"),
@@ -387,7 +398,7 @@ def resolve_vehicle(vehicle: Vehicle | str | os.PathLike) -> Vehicle:
     try:
         return load_catalog_vehicle(str(vehicle))
     except ValueError as exc:
-        raise ValueError(f"Unknown vehicle {str(vehicle)!r}: not a file and not a catalog name ({exc})") from exc
+        raise InputError(f"Unknown vehicle {show(str(vehicle))}: not a file and not a catalog name ({exc})") from exc
 
 
 def _generator(seed: int, stream: int, index: int) -> torch.Generator:
@@ -435,6 +446,12 @@ class SyntheticSequence(Sequence):
             raise ValueError(f"Expected cfg to be a SceneConfig; got {type(cfg).__name__}")
         self.cfg = cfg
         self.vehicle = resolve_vehicle(vehicle)
+        diagonal = float(np.linalg.norm(self.vehicle.mesh.extents))
+        span = cfg.focal_px * diagonal / (cfg.range_m - cfg.radius_m)  # pixels at the nearest point
+        if span > MAX_TARGET_PX:
+            raise ConfigError(f"scene: {self.vehicle.name} ({diagonal:.1f} m across) would span {span:.0f} px at the "
+                              f"circle's nearest point, {cfg.range_m - cfg.radius_m:g} m away; expected at most "
+                              f"{MAX_TARGET_PX} (raise range_m or lower focal_px)")
         self.camera = scene_camera(cfg)
         self.camera_height_m = cfg.camera_height_m
         self.fps = cfg.fps
@@ -691,19 +708,19 @@ def parse_synthetic_spec(rest: str) -> tuple[str, SceneConfig]:
     Keys are SceneConfig fields (``range`` is short for ``range_m``), values YAML scalars.
     ``ValueError`` names the spec and the bad part, key or value.
     """
-    where = f"synthetic spec {rest!r}"
+    where = f"synthetic spec {show(rest)}"
     _, options = parse_spec_options(rest, has_target=False)
     if "range" in options:
         if "range_m" in options:
-            raise ValueError(f"{where}: option 'range_m' given twice (as 'range' and 'range_m')")
+            raise InputError(f"{where}: option 'range_m' given twice (as 'range' and 'range_m')")
         options["range_m"] = options.pop("range")
     vehicle = options.pop("vehicle", "")
     if not vehicle:
-        raise ValueError(f"{where}: missing vehicle=NAME_OR_PATH")
+        raise InputError(f"{where}: missing vehicle=NAME_OR_PATH")
     try:
-        cfg = load_config(SceneConfig, overrides=[f"{k}={v}" for k, v in options.items()])
+        cfg = load_config(SceneConfig, overrides=[f"{k}={v}" for k, v in options.items()], what="option")
     except ConfigError as exc:
-        raise ValueError(f"{where}: {exc}") from exc
+        raise ConfigError(f"{where}: {exc}") from None
     return vehicle, cfg
 
 

@@ -3,6 +3,8 @@
 Frames come out grey uint8 (``color=False``, the default) or RGB uint8 (``color=True``); a
 16-bit grey image (an IR frame saved as PNG or TIFF) stays uint16 when read grey. Image files
 are ordered naturally (``frame2`` before ``frame10``). These sources carry no ground truth.
+Frame sizes are checked against the bounds of :mod:`torch_atr.validate` before any decoding
+(an image file's header, a video's reported size).
 """
 
 from __future__ import annotations
@@ -19,6 +21,7 @@ import numpy as np
 
 from torch_atr.camera import Camera
 from torch_atr.data.sequence import Sequence, check_fps, parse_reader_spec, register_scheme
+from torch_atr.validate import InputError, image_file_size, image_size
 
 logger = logging.getLogger(__name__)
 
@@ -33,13 +36,13 @@ def natural_key(name: str) -> list:
 def _convert(img: np.ndarray, color: bool, source: str) -> np.ndarray:
     """BGR(A) or grey OpenCV image -> grey (H, W) or RGB (H, W, 3) uint8 (uint16 grey kept)."""
     if img.dtype not in (np.uint8, np.uint16):
-        raise ValueError(f"{source}: pixel type {img.dtype} is not supported (uint8 or uint16)")
+        raise InputError(f"{source}: pixel type {img.dtype} is not supported (uint8 or uint16)")
     if img.ndim == 3 and img.shape[2] == 1:
         img = img[:, :, 0]
     elif img.ndim == 3 and img.shape[2] == 4:
         img = cv2.cvtColor(img, cv2.COLOR_BGRA2BGR)
     elif img.ndim != 2 and not (img.ndim == 3 and img.shape[2] == 3):
-        raise ValueError(f"{source}: image of shape {img.shape} is neither grey nor colour")
+        raise InputError(f"{source}: image of shape {img.shape} is neither grey nor colour")
     if not color:
         return img if img.ndim == 2 else cv2.cvtColor(img, cv2.COLOR_BGR2GRAY)
     if img.dtype == np.uint16:
@@ -95,7 +98,7 @@ class VideoSequence(Sequence):
             self.fps = fps
         if camera is not None and (camera.height, camera.width) != (h, w):
             self.close()
-            raise ValueError(f"{self.path}: the camera is {camera.width} x {camera.height} px but the "
+            raise InputError(f"{self.path}: the camera is {camera.width} x {camera.height} px but the "
                              f"frames are {w} x {h}")
         logger.info("%s: %d frames of %d x %d (%s), fps %s", self.path, self._n, w, h, self.meta["kind"], self.fps)
 
@@ -103,17 +106,23 @@ class VideoSequence(Sequence):
         """Open the video ``p``, set its name, fps, length and meta; return its (height, width)."""
         cap = cv2.VideoCapture(str(p))
         if not cap.isOpened():
-            raise ValueError(f"{p}: OpenCV cannot open it as a video")
-        n = int(cap.get(cv2.CAP_PROP_FRAME_COUNT))
-        if n <= 0:
+            raise InputError(f"{p}: OpenCV cannot open it as a video")
+        count = cap.get(cv2.CAP_PROP_FRAME_COUNT)
+        if not (math.isfinite(count) and count >= 1):
             cap.release()
-            raise ValueError(f"{p}: the video reports no frames")
+            raise InputError(f"{p}: the video reports no frames")
+        n = int(count)
         w, h = int(cap.get(cv2.CAP_PROP_FRAME_WIDTH)), int(cap.get(cv2.CAP_PROP_FRAME_HEIGHT))
+        try:
+            image_size(f"{p}: the video's frame size", w, h)
+        except InputError:
+            cap.release()
+            raise
         rate = cap.get(cv2.CAP_PROP_FPS)
         fourcc = int(cap.get(cv2.CAP_PROP_FOURCC))
         self._cap, self._pos, self._n = cap, 0, n
         self.name = p.stem
-        self.fps = rate if rate > 0 else math.nan
+        self.fps = rate if 0 < rate < math.inf else math.nan
         self.meta = {"path": self.path, "kind": "video", "color": self.color, "video_fps": rate,
                      "fourcc": "".join(chr((fourcc >> 8 * k) & 0xFF) for k in range(4)).strip("\0")}
         return h, w
@@ -123,12 +132,16 @@ class VideoSequence(Sequence):
 
     def _read_image(self, i: int) -> np.ndarray:
         path = self._files[i]
-        img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+        image_file_size(path)  # the header's size within the bounds before decoding
+        try:
+            img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+        except cv2.error as exc:
+            raise InputError(f"{path}: cannot be decoded ({' '.join(str(exc).split())})") from None
         if img is None:
-            raise ValueError(f"{path}: cannot be read as an image")
+            raise InputError(f"{path}: cannot be read as an image")
         img = _convert(img, self.color, str(path))
         if i > 0 and (img.shape != self._first.shape or img.dtype != self._first.dtype):
-            raise ValueError(f"{path}: image is {img.shape} {img.dtype}; {self._files[0].name} was "
+            raise InputError(f"{path}: image is {img.shape} {img.dtype}; {self._files[0].name} was "
                              f"{self._first.shape} {self._first.dtype}")
         return img
 
@@ -142,7 +155,7 @@ class VideoSequence(Sequence):
         ok, img = self._cap.read()
         if not ok:
             self._pos = -1
-            raise ValueError(f"{self.path}: cannot read frame {i} of {self._n}")
+            raise InputError(f"{self.path}: cannot read frame {i} of {self._n}")
         self._pos = i + 1
         return _convert(img, self.color, f"{self.path} frame {i}")
 
@@ -160,7 +173,7 @@ def _open_spec(rest: str) -> VideoSequence:
     target, kwargs, opts = parse_reader_spec("video", rest, ("color",))
     color = opts.get("color", "0").lower()
     if color not in _TRUE + _FALSE:
-        raise ValueError(f"video:{rest}: color must be one of {'/'.join(_TRUE + _FALSE)}; got {opts['color']!r}")
+        raise InputError(f"video:{rest}: color must be one of {'/'.join(_TRUE + _FALSE)}; got {opts['color']!r}")
     return VideoSequence(target, color=color in _TRUE, **kwargs)
 
 

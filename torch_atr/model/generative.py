@@ -3,9 +3,11 @@
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 import logging
 import os
 import pickle
+import warnings
 import zipfile
 from collections.abc import Sequence
 from pathlib import Path
@@ -16,18 +18,28 @@ from tqdm import tqdm
 
 import torch_atr
 from torch_atr._checks import as_float_tensor, check_shape
-from torch_atr.config import ConfigError, ModelConfig, TemplateConfig
-from torch_atr.io import atomic_torch_save
-from torch_atr.model.identity import IdentityManifold, dissimilarity, shortest_closed_path
+from torch_atr.config import ConfigError, ModelConfig, TemplateConfig, config_from_dict
+from torch_atr.io import atomic_torch_save, check_output_file
+from torch_atr.model.identity import DEGREE, IdentityManifold, dissimilarity, shortest_closed_path
 from torch_atr.model.rbf import RBFViewMapping, ridge_hat
 from torch_atr.model.tensor import TensorCore, principal_basis
+from torch_atr.validate import InputError, integer, show
 
 log = logging.getLogger(__name__)
 
 FORMAT = "torch_atr.generative"
-FORMAT_VERSION = 1
-_MODEL_ARG_TYPES = {"num_centres": int, "num_vehicles": int, "pixel_rank": (int, type(None)), "vehicle_names": list,
-                    "vehicle_classes": list, "class_names": list, "template": dict}
+FORMAT_VERSION = 2  # 2 adds "sha256", the content checksum; version 1 files are still read
+MAX_CHECKPOINT_BYTES = 2 ** 31  # a checkpoint is read whole; the shipped one is 5 MB
+MAX_CENTRES = 10_000  # Nc, as many as train.py's views
+MAX_VEHICLES = 1000  # K
+MAX_CLASSES = 1000  # C
+_MODEL_ARG_KEYS = ("num_centres", "num_vehicles", "pixel_rank", "vehicle_names", "vehicle_classes", "class_names",
+                   "template")
+_CHECKPOINT_KEYS = {"format", "format_version", "torch_atr_version", "model_args", "state_dict", "extra", "sha256"}
+_FLOAT_DTYPES = (torch.float32, torch.float64)
+MAX_ABS_VALUE = 1e6  # |x| of any stored float (the shipped model's largest is 262): reconstructions stay finite
+LOG_WIDTH_RANGE = (-20.0, 20.0)  # kernel widths exp(log_width) stay positive and finite in float32
+_INDEX_KEYS = ("identity.order", "identity.labels")  # int64; every other tensor is floating
 
 
 class GenerativeShapeModel(nn.Module):
@@ -90,27 +102,15 @@ class GenerativeShapeModel(nn.Module):
     def from_model_args(cls, model_args: dict) -> GenerativeShapeModel:
         """A model of the right sizes with placeholder values, for ``load_state_dict``.
 
-        Raises ValueError naming the key when ``model_args`` is incomplete or mistyped.
+        Raises InputError naming the key when ``model_args`` is incomplete, mistyped or out of
+        bounds (:func:`check_model_args`) before anything is allocated.
         """
-        if not isinstance(model_args, dict):
-            raise ValueError(f"Expected model_args to be a dict; got {type(model_args).__name__}")
-        for key, types in _MODEL_ARG_TYPES.items():
-            if key not in model_args:
-                raise ValueError(f"model_args lacks {key!r}")
-            if not isinstance(model_args[key], types) or isinstance(model_args[key], bool):
-                raise ValueError(f"model_args[{key!r}] has type {type(model_args[key]).__name__}")
-        try:
-            template = TemplateConfig(**model_args["template"])
-        except (TypeError, ConfigError) as exc:
-            raise ValueError(f"model_args['template'] is not a TemplateConfig: {exc}") from exc
+        template = check_model_args(model_args)
         K, Nc = model_args["num_vehicles"], model_args["num_centres"]
-        classes = model_args["vehicle_classes"]
-        if len(classes) != K or not all(isinstance(c, int) for c in classes):
-            raise ValueError(f"model_args['vehicle_classes'] must be {K} integers; got {classes}")
         rbf = RBFViewMapping(torch.zeros(Nc), torch.zeros(Nc), init_width=1.0)
         core = TensorCore(template.size_px ** 2, Nc + 4, K, model_args["pixel_rank"])
         identity = IdentityManifold(K)
-        identity.labels.copy_(torch.tensor(classes, dtype=torch.long))
+        identity.labels.copy_(torch.tensor(model_args["vehicle_classes"], dtype=torch.long))
         return cls(rbf, core, identity, model_args["vehicle_names"], model_args["class_names"], template)
 
     @classmethod
@@ -245,11 +245,16 @@ class GenerativeShapeModel(nn.Module):
         """Write a self-describing checkpoint atomically; it loads with ``torch.load(weights_only=True)``.
 
         extra: plain data to store alongside (tensors, numbers, strings, None, lists/dicts of them).
+        The file stores the SHA-256 of its content (:func:`content_sha256`), checked on load. An
+        existing checkpoint at ``path`` is replaced; any other file is not (``OutputExistsError``).
         """
         _check_plain("extra", extra)
+        path = check_output_file(path, True, is_checkpoint, "checkpoint")
+        model_args, state = self.model_args, self.state_dict()
         atomic_torch_save({"format": FORMAT, "format_version": FORMAT_VERSION,
-                           "torch_atr_version": torch_atr.__version__, "model_args": self.model_args,
-                           "state_dict": self.state_dict(), "extra": extra}, path)
+                           "torch_atr_version": torch_atr.__version__, "model_args": model_args,
+                           "state_dict": state, "extra": extra,
+                           "sha256": content_sha256(model_args, state, extra)}, path)
 
     @classmethod
     def from_checkpoint(cls, path: str | os.PathLike, map_location=None) -> GenerativeShapeModel:
@@ -274,45 +279,258 @@ def _check_plain(name: str, value) -> None:
     raise ValueError(f"{name} holds a {type(value).__name__}; checkpoints store only tensors and plain data")
 
 
+def content_sha256(model_args: dict, state_dict: dict, extra) -> str:
+    """SHA-256 (hex) of a checkpoint's content, independent of how ``torch.save`` lays it out.
+
+    The digest covers model_args, the state_dict and extra, fed in a canonical order: dict items
+    sorted by key, each value tagged with its type; a tensor as its dtype, shape and raw bytes
+    (C order, native byte order). Raises InputError for data a checkpoint cannot hold.
+    """
+    digest = hashlib.sha256()
+    _feed(digest, {"model_args": model_args, "state_dict": state_dict, "extra": extra})
+    return digest.hexdigest()
+
+
+def _feed(digest, value) -> None:
+    """Feed ``value`` to ``digest`` in the canonical encoding of :func:`content_sha256`."""
+    if value is None:
+        digest.update(b"N")
+    elif isinstance(value, bool):
+        digest.update(b"T" if value else b"F")
+    elif isinstance(value, int):
+        digest.update(b"i%d;" % value)
+    elif isinstance(value, float):
+        digest.update(b"f" + value.hex().encode() + b";")
+    elif isinstance(value, str):
+        data = value.encode("utf-8", "surrogatepass")
+        digest.update(b"s%d;" % len(data) + data)
+    elif isinstance(value, (list, tuple)):
+        digest.update(b"l%d;" % len(value))
+        for item in value:
+            _feed(digest, item)
+    elif isinstance(value, dict):
+        if not all(isinstance(key, str) for key in value):
+            raise InputError(f"a dict with non-string keys {show(list(value))}")
+        digest.update(b"d%d;" % len(value))
+        for key in sorted(value):
+            _feed(digest, key)
+            _feed(digest, value[key])
+    elif isinstance(value, torch.Tensor):
+        if value.layout != torch.strided:
+            raise InputError(f"a {value.layout} tensor; checkpoints hold dense tensors")
+        t = value.detach().to("cpu").contiguous()
+        digest.update(f"t{t.dtype};{tuple(t.shape)};".encode())
+        digest.update(t.reshape(-1).view(torch.uint8).numpy())
+    else:
+        raise InputError(f"a {type(value).__name__}; checkpoints hold only tensors and plain data")
+
+
+def is_checkpoint(path: str | os.PathLike) -> bool:
+    """True when ``path`` is a file :meth:`GenerativeShapeModel.save` wrote (its format says so; the
+    tensors are memory-mapped, not read, and nothing else is checked)."""
+    try:
+        ckpt = torch.load(path, map_location="cpu", weights_only=True, mmap=True)
+    except Exception:  # anything torch cannot read is not ours
+        return False
+    return isinstance(ckpt, dict) and ckpt.get("format") == FORMAT
+
+
+def check_model_args(model_args, where: str = "model_args") -> TemplateConfig:
+    """Check a checkpoint's ``model_args``: every key present, of its type and within the bounds
+    (K in [2, 1000], Nc in [1, 10000], C in [1, 1000], template as :class:`TemplateConfig`, r in
+    [1, H·W] or None, K names, K class indices in [0, C)); return the template. Raises InputError
+    naming ``where`` and the key. Allocates nothing.
+    """
+    if not isinstance(model_args, dict):
+        raise InputError(f"{where}: expected a dict; got {type(model_args).__name__}")
+    missing = [k for k in _MODEL_ARG_KEYS if k not in model_args]
+    unknown = sorted(set(model_args) - set(_MODEL_ARG_KEYS), key=str)
+    if missing or unknown:
+        raise InputError(f"{where}: " + "; ".join(
+            ([f"lacks {', '.join(map(repr, missing))}"] if missing else [])
+            + ([f"unknown key(s) {', '.join(map(show, unknown))}"] if unknown else [])))
+
+    def key(name: str) -> str:
+        return f"{where}[{name!r}]"
+
+    K = integer(key("num_vehicles"), model_args["num_vehicles"], 2, MAX_VEHICLES)
+    integer(key("num_centres"), model_args["num_centres"], 1, MAX_CENTRES)
+    try:
+        template = config_from_dict(TemplateConfig, model_args["template"])
+    except ConfigError as exc:
+        raise InputError(f"{key('template')}: {exc}") from None
+    if model_args["pixel_rank"] is not None:
+        integer(key("pixel_rank"), model_args["pixel_rank"], 1, template.size_px ** 2)
+    names, class_names, classes = (model_args[k] for k in ("vehicle_names", "class_names", "vehicle_classes"))
+    if not isinstance(class_names, list) or not 1 <= len(class_names) <= MAX_CLASSES or not all(
+            isinstance(c, str) for c in class_names):
+        raise InputError(f"{key('class_names')}: expected a list of 1 to {MAX_CLASSES} strings; got {show(class_names)}")
+    if not isinstance(names, list) or len(names) != K or not all(isinstance(n, str) for n in names):
+        raise InputError(f"{key('vehicle_names')}: expected a list of {K} strings; got {show(names)}")
+    if not isinstance(classes, list) or len(classes) != K:
+        raise InputError(f"{key('vehicle_classes')}: expected a list of {K} class indices; got {show(classes)}")
+    for k, c in enumerate(classes):
+        integer(f"{key('vehicle_classes')}[{k}]", c, 0, len(class_names) - 1)
+    return template
+
+
+def state_shapes(model_args: dict) -> dict[str, tuple[int, ...]]:
+    """The state_dict shapes that checked ``model_args`` call for (the buffers of RBFViewMapping,
+    TensorCore and IdentityManifold), computed without building the model."""
+    K, Nc, rank = model_args["num_vehicles"], model_args["num_centres"], model_args["pixel_rank"]
+    d = model_args["template"]["size_px"] ** 2
+    shapes = {"rbf.centres_theta": (Nc,), "rbf.centres_phi": (Nc,), "rbf.log_width": (Nc,),
+              "core.core": (d if rank is None else rank, Nc + 4, K), "core.identity_vectors": (K, K),
+              "core.relative_error": (), "identity.knots": (K + 1 + 2 * DEGREE,),
+              "identity.coefficients": (K + DEGREE, K), "identity.alphas": (K,), "identity.order": (K,),
+              "identity.labels": (K,)}
+    if rank is not None:
+        shapes["core.pixel_basis"] = (d, rank)
+    return shapes
+
+
+def _check_state(state, model_args: dict, where: str) -> None:
+    """Check a loaded state_dict against checked ``model_args``: the keys, shapes and dtypes they
+    call for (one float dtype, float32 or float64; int64 order and labels), dense finite tensors
+    within MAX_ABS_VALUE (log widths within LOG_WIDTH_RANGE), strictly increasing knots,
+    ``identity.order`` a permutation and ``identity.labels`` equal to ``vehicle_classes``: what
+    keeps every reconstruction finite."""
+    if not isinstance(state, dict):
+        raise InputError(f"{where}: state_dict is a {type(state).__name__}; expected a dict of tensors")
+    shapes = state_shapes(model_args)
+    missing = sorted(set(shapes) - set(state))
+    unexpected = sorted(map(str, set(state) - set(shapes)))
+    if missing or unexpected:
+        raise InputError(f"{where}: state_dict does not match model_args: " + "; ".join(
+            ([f"missing {', '.join(missing)}"] if missing else [])
+            + ([f"unexpected {', '.join(map(show, unexpected))}"] if unexpected else [])))
+    float_dtype = None
+    for name, shape in shapes.items():
+        t = state[name]
+        if not isinstance(t, torch.Tensor) or t.layout != torch.strided:
+            raise InputError(f"{where}: state_dict[{name!r}] is a {type(t).__name__}; expected a dense tensor")
+        if tuple(t.shape) != shape:
+            raise InputError(f"{where}: state_dict does not match model_args: {name} has shape {tuple(t.shape)}; "
+                             f"model_args call for {shape}")
+        if name in _INDEX_KEYS:
+            if t.dtype != torch.int64:
+                raise InputError(f"{where}: state_dict[{name!r}] has dtype {t.dtype}; expected torch.int64")
+            continue
+        float_dtype = float_dtype or t.dtype
+        if t.dtype not in _FLOAT_DTYPES or t.dtype != float_dtype:
+            raise InputError(f"{where}: state_dict[{name!r}] has dtype {t.dtype}; expected the model's one float "
+                             f"dtype, float32 or float64 ({float_dtype} here)")
+        if not bool(torch.isfinite(t).all()):
+            raise InputError(f"{where}: state_dict[{name!r}] holds {int((~torch.isfinite(t)).sum())} NaN or "
+                             f"infinite value(s)")
+        lo, hi = LOG_WIDTH_RANGE if name == "rbf.log_width" else (-MAX_ABS_VALUE, MAX_ABS_VALUE)
+        if t.numel() and not lo <= t.min().item() <= t.max().item() <= hi:
+            raise InputError(f"{where}: state_dict[{name!r}] holds values in [{t.min().item():.3g}, "
+                             f"{t.max().item():.3g}]; expected them within [{lo:g}, {hi:g}]")
+    knots = state["identity.knots"]
+    if not bool((knots[1:] > knots[:-1]).all()):
+        raise InputError(f"{where}: state_dict['identity.knots'] is not strictly increasing")
+    K = model_args["num_vehicles"]
+    order = state["identity.order"]
+    if not torch.equal(order.sort().values.cpu(), torch.arange(K)):
+        raise InputError(f"{where}: state_dict['identity.order'] is not a permutation of 0..{K - 1}: "
+                         f"{show(order.tolist())}")
+    if state["identity.labels"].tolist() != model_args["vehicle_classes"]:
+        raise InputError(f"{where}: state_dict labels {show(state['identity.labels'].tolist())} differ from "
+                         f"model_args vehicle_classes {show(model_args['vehicle_classes'])}")
+
+
+def _check_archive(path: Path) -> None:
+    """Check, before unpickling anything, that ``path`` is a zip archive as ``torch.save`` writes
+    it: at most MAX_CHECKPOINT_BYTES, entries stored uncompressed, so what ``torch.load``
+    allocates is bounded by the file's size."""
+    size = path.stat().st_size
+    if size > MAX_CHECKPOINT_BYTES:
+        raise InputError(f"{path}: {size} bytes; a checkpoint is at most {MAX_CHECKPOINT_BYTES}")
+    try:
+        with zipfile.ZipFile(path) as archive:
+            entries = archive.infolist()
+    except Exception as exc:  # zipfile raises many kinds on corrupt bytes
+        raise InputError(f"{path}: not a readable checkpoint (corrupt, truncated or another kind of file): not a "
+                         f"zip archive as torch.save writes ({type(exc).__name__}: {show(str(exc))})") from None
+    for entry in entries:
+        if entry.compress_type != zipfile.ZIP_STORED or entry.compress_size != entry.file_size:
+            raise InputError(f"{path}: archive entry {show(entry.filename)} is compressed; torch.save stores "
+                             f"entries uncompressed")
+    if sum(entry.file_size for entry in entries) > size:
+        raise InputError(f"{path}: the archive's entries claim more bytes than the file holds (corrupt)")
+
+
+def _load_error(path: Path, exc: Exception) -> InputError:
+    """An InputError for an exception of ``torch.load``, without PyTorch's advice to retry with
+    ``weights_only=False`` (which would run whatever the file holds)."""
+    boilerplate = ("Weights only load failed", "Please file an issue", "Check the documentation")
+    detail = " ".join(line.strip() for line in str(exc).splitlines() if line.strip()
+                      and not line.startswith(boilerplate) and "weights_only" not in line)[:200] or type(exc).__name__
+    if isinstance(exc, pickle.UnpicklingError):
+        return InputError(f"{path}: refused to load: it holds something other than tensors and plain data, which "
+                          f"torch_atr checkpoints never do ({detail})")
+    return InputError(f"{path}: not a readable checkpoint (corrupt or truncated?): {detail}")
+
+
 def load_checkpoint(path: str | os.PathLike, map_location=None) -> tuple[GenerativeShapeModel, dict | None]:
     """Load a model and its ``extra`` data from a checkpoint written by :meth:`GenerativeShapeModel.save`.
 
-    Raises FileNotFoundError for a missing file and ValueError naming the file for a corrupt or
-    truncated file, another format, a newer format_version, bad model_args or a state_dict that
-    does not match them.
+    Everything is checked before the model is built: the archive (:func:`_check_archive`), the
+    format and version, the content checksum (version 2; a version-1 file has none and loads
+    with a warning), ``model_args`` (:func:`check_model_args`) and the state_dict against them
+    (keys, shapes, dtypes, finite values, ``identity.order`` a permutation). Raises
+    FileNotFoundError for a missing file and InputError naming the file and the problem.
     """
     path = Path(path)
-    if not path.is_file():
+    if not path.exists():
         raise FileNotFoundError(f"checkpoint not found: {path}")
+    if not path.is_file():
+        raise InputError(f"{path}: expected a checkpoint file; it is a folder or a device")
+    _check_archive(path)
     try:
-        ckpt = torch.load(path, map_location=map_location, weights_only=True)
-    except (RuntimeError, EOFError, pickle.UnpicklingError, zipfile.BadZipFile, ValueError) as exc:
-        raise ValueError(f"{path}: not a readable checkpoint (corrupt or truncated?): {exc}") from exc
+        with warnings.catch_warnings():  # a corrupt pickle header's protocol warning: our checks decide
+            warnings.filterwarnings("ignore", message="Detected pickle protocol", category=UserWarning)
+            ckpt = torch.load(path, map_location=map_location, weights_only=True)
+    except Exception as exc:  # torch.load raises many kinds on corrupt bytes
+        raise _load_error(path, exc) from None
     if not isinstance(ckpt, dict) or ckpt.get("format") != FORMAT:
         found = ckpt.get("format") if isinstance(ckpt, dict) else type(ckpt).__name__
-        raise ValueError(f"{path}: not a {FORMAT} checkpoint (format: {found!r})")
-    missing = sorted({"format_version", "model_args", "state_dict"} - set(ckpt))
-    if missing:
-        raise ValueError(f"{path}: checkpoint lacks {', '.join(missing)}")
-    version = ckpt["format_version"]
-    if not isinstance(version, int) or version > FORMAT_VERSION:
-        raise ValueError(f"{path}: format_version {version!r} is not supported (this torch_atr reads up to "
+        raise InputError(f"{path}: not a {FORMAT} checkpoint (format: {show(found)})")
+    version = ckpt.get("format_version")
+    if isinstance(version, bool) or not isinstance(version, int) or version < 1:
+        raise InputError(f"{path}: format_version {show(version)} is not a version number")
+    if version > FORMAT_VERSION:
+        raise InputError(f"{path}: format_version {version} is not supported (this torch_atr reads up to "
                          f"{FORMAT_VERSION}; upgrade torch_atr)")
+    required = {"format_version", "model_args", "state_dict"} | ({"sha256"} if version >= 2 else set())
+    missing = sorted(required - set(ckpt))
+    if missing:
+        raise InputError(f"{path}: checkpoint lacks {', '.join(missing)}")
+    unknown = sorted(map(str, set(ckpt) - _CHECKPOINT_KEYS))
+    if unknown:
+        raise InputError(f"{path}: unknown checkpoint key(s) {', '.join(map(show, unknown))}")
+    model_args, state, extra = ckpt["model_args"], ckpt["state_dict"], ckpt.get("extra")
+    if version >= 2:
+        try:
+            digest = content_sha256(model_args, state, extra)
+        except InputError as exc:
+            raise InputError(f"{path}: holds {exc}") from None
+        if digest != ckpt["sha256"]:
+            raise InputError(f"{path}: content checksum mismatch (stored sha256 {show(ckpt['sha256'])}, content "
+                             f"{digest}): the file is corrupt or was edited")
+    else:
+        log.warning("%s: format_version 1 carries no checksum, so its content cannot be verified; re-save it "
+                    "with this torch_atr to add one", path)
+    check_model_args(model_args, f"{path}: model_args")
+    _check_state(state, model_args, str(path))
     try:
-        model = GenerativeShapeModel.from_model_args(ckpt["model_args"])
+        _check_plain("extra", extra)
     except ValueError as exc:
-        raise ValueError(f"{path}: {exc}") from exc
-    state = ckpt["state_dict"]
-    try:
-        if not isinstance(state, dict):
-            raise RuntimeError(f"state_dict is a {type(state).__name__}")
-        model.load_state_dict(state, assign=True)
-    except RuntimeError as exc:
-        raise ValueError(f"{path}: state_dict does not match model_args: {exc}") from exc
-    if model.vehicle_classes != ckpt["model_args"]["vehicle_classes"]:
-        raise ValueError(f"{path}: state_dict labels {model.vehicle_classes} differ from model_args "
-                         f"vehicle_classes {ckpt['model_args']['vehicle_classes']}")
-    return model, ckpt.get("extra")
+        raise InputError(f"{path}: {exc}") from None
+    model = GenerativeShapeModel.from_model_args(model_args)
+    model.load_state_dict(state, assign=True)
+    return model, extra
 
 
 def _fit_core_and_identity(rbf: RBFViewMapping, Y: torch.Tensor, theta: torch.Tensor, phi: torch.Tensor,

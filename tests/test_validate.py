@@ -1,0 +1,105 @@
+"""The validation layer: each helper against hand-written good and bad values."""
+
+import math
+import re
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from torch_atr.validate import (InputError, image_size, integer, parse_real, read_json_object, read_text, real,
+                                rotation, show, vector)
+
+
+def test_real_accepts_finite_real_numbers_only():
+    assert real("k", 3) == 3.0 and isinstance(real("k", 3), float)
+    assert real("k", np.float32(1.5)) == 1.5 and real("k", np.int64(2)) == 2.0
+    for bad in (True, "1.0", None, [1.0], math.nan, math.inf, -math.inf, 10 ** 400):
+        with pytest.raises(InputError, match="^camera.json, key 'fx': expected a finite number; got "):
+            real("camera.json, key 'fx'", bad)
+    assert real("k", 0.0, lo=0) == 0.0
+    with pytest.raises(InputError, match=r"expected a finite number > 0; got 0.0"):
+        real("k", 0.0, lo=0, lo_open=True)
+    with pytest.raises(InputError, match=re.escape("expected a finite number in [1, 2]; got 3")):
+        real("k", 3, lo=1, hi=2)
+    with pytest.raises(InputError, match=re.escape("expected a finite number <= 2; got 3")):
+        real("k", 3, hi=2)
+
+
+def test_integer_refuses_bools_floats_and_strings():
+    assert integer("k", np.int32(7), 1, 10) == 7
+    for bad in (True, 7.0, "7", None):
+        with pytest.raises(InputError, match=r"^k: expected an integer in \[1, 10\]; got "):
+            integer("k", bad, 1, 10)
+    with pytest.raises(InputError, match="expected an integer >= 1; got 0"):
+        integer("k", 0, lo=1)
+
+
+def test_parse_real_refuses_non_finite_text():
+    assert parse_real("f, line 3", " -2.5e1 ") == -25.0
+    for bad, what in (("inf", "a finite number"), ("-inf", "a finite number"), ("1e400", "a finite number"),
+                      ("nan", "a finite number"), ("abc", "a number"), ("", "a number")):
+        with pytest.raises(InputError, match=f"^f, line 3: expected {what}; got '{bad}'"):
+            parse_real("f, line 3", bad)
+
+
+def test_show_shortens_long_values():
+    assert show("ab") == "'ab'"
+    long = show("x" * 10_000)
+    assert len(long) < 240 and long.endswith("(10002 characters)")
+
+
+def test_image_size_bounds():
+    assert image_size("f", 640, 512) == (640, 512)
+    with pytest.raises(InputError, match=r"^f: width: expected an integer in \[1, 16384\]; got 100000"):
+        image_size("f", 100_000, 512)
+    with pytest.raises(InputError, match=r"^f: height: expected an integer in \[1, 16384\]; got 512.0"):
+        image_size("f", 640, 512.0)
+    with pytest.raises(InputError, match=r"^f: 16384 x 16384 = 268435456 pixels; expected at most 67108864"):
+        image_size("f", 16384, 16384)
+
+
+def test_rotation_accepts_rotations_and_reflections_of_them():
+    R = Rotation.from_euler("xyz", [0.3, -1.2, 2.0]).as_matrix()  # independent: scipy
+    assert np.allclose(rotation("R", R.tolist()), R)
+    flipped = (R @ np.diag([1.0, -1.0, 1.0])).tolist()  # det -1: a left-handed world frame (camera.py)
+    assert np.allclose(rotation("R", flipped), flipped)
+    with pytest.raises(InputError, match=r"^cam.json, key 'R': expected a rotation .* differs from I by 3"):
+        rotation("cam.json, key 'R'", (2 * R).tolist())
+    with pytest.raises(InputError, match=r"expected a 3 x 3 matrix"):
+        rotation("R", [[1, 0], [0, 1]])
+    with pytest.raises(InputError, match=r"^R\[1\]\[1\]: expected a finite number; got nan"):
+        rotation("R", [[1, 0, 0], [0, math.nan, 0], [0, 0, 1]])
+    with pytest.raises(InputError, match=r"^t\[2\]: expected a finite number; got '0'"):
+        vector("t", [0, 0, "0"], 3)
+
+
+def test_read_text_names_file_line_and_byte(tmp_path):
+    path = tmp_path / "a.csv"
+    path.write_bytes("\ufeffx,y\n1,2\n".encode("utf-8"))
+    assert read_text(path) == "x,y\n1,2\n"  # a byte-order mark is dropped
+    path.write_bytes(b"x,y\n1,\xff\n")
+    with pytest.raises(InputError, match=rf"^{path}, line 2: not UTF-8 text \(byte 0xff at byte offset 6\)"):
+        read_text(path)
+    with pytest.raises(InputError, match=rf"^{path}: larger than 4 bytes"):
+        read_text(path, max_bytes=4)
+    with pytest.raises(FileNotFoundError, match="nope.csv"):
+        read_text(tmp_path / "nope.csv")
+    with pytest.raises(InputError, match="expected a file"):
+        read_text(tmp_path)
+
+
+@pytest.mark.parametrize("text, message", [
+    ('{"fx": NaN}', "NaN is not a finite number"),
+    ('{"fx": -Infinity}', "-Infinity is not a finite number"),
+    ('{"fx": 1e400}', "1e400 is not a finite number"),
+    ('{"n": ' + "9" * 5000 + "}", "Exceeds the limit"),
+    ("[" * 100_000, "nested too deeply"),
+    ('{"a": 1,}', r"line 1, column 9: not valid JSON"),
+    ("[1, 2]", "expected a JSON object; got list"),
+])
+def test_read_json_object_refuses_non_finite_numbers_and_bad_json(tmp_path, text, message):
+    path = tmp_path / "meta.json"
+    path.write_text(text)
+    with pytest.raises(InputError, match=rf"^{path}.*{message}"):
+        read_json_object(path, "missing")

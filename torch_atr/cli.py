@@ -1,0 +1,33 @@
+"""What every entry point shares (``train.py``, ``track.py``, ``python -m torch_atr...``).
+
+:func:`run_main` runs an entry point's ``main(argv)`` and turns a user error (a bad config,
+file, spec or checkpoint; an output that may not be replaced) into one line on stderr,
+``PROG: error: MESSAGE``, and exit status 2, the way ``argparse`` reports a bad argument. Other
+exceptions are bugs and keep their traceback.
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+from typing import Callable
+
+# ValueError covers ConfigError and InputError; OSError covers missing files, outputs that may
+# not be replaced (OutputExistsError) and permissions.
+USER_ERRORS: tuple[type[BaseException], ...] = (ValueError, OSError)
+
+
+def run_main(main: Callable[[list[str] | None], object], argv: list[str] | None = None,
+             prog: str | None = None) -> None:
+    """Call ``main(argv)``; on a user error print ``PROG: error: MESSAGE`` (one line) to stderr and
+    exit with status 2. ``prog`` defaults to the script's file name.
+
+    Use as ``if __name__ == "__main__": run_main(main)``; tests call ``main`` directly.
+    """
+    try:
+        main(argv)
+    except USER_ERRORS as exc:
+        prog = prog or Path(sys.argv[0]).name
+        message = " ".join(str(exc).split()) or type(exc).__name__
+        print(f"{prog}: error: {message}", file=sys.stderr)
+        raise SystemExit(2) from None
