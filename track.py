@@ -2,7 +2,7 @@
 
     python track.py [--sequence SPEC] [--checkpoint PATH] [--method I|II|III|IV] [--particles N]
                     [--init blind|truth] [--device cpu|cuda] [--out runs/NAME] [--frames N]
-                    [--tensorboard] [--video] [--config configs/track.yaml] [key=value ...]
+                    [--tensorboard] [--video] [--overwrite] [--config configs/track.yaml] [key=value ...]
 
 With no arguments it tracks a built-in simulated sequence (the held-out T-72 at 1000 m, 300
 frames) with the shipped checkpoint. Steps: open the sequence and the model; warm up the
@@ -17,14 +17,14 @@ import argparse
 import logging
 from pathlib import Path
 
-import torch
-
 from torch_atr import viz
+from torch_atr.cli import run_main
 from torch_atr.config import load_config
 from torch_atr.data import open_sequence
+from torch_atr.io import check_output_dir
 from torch_atr.model import GenerativeShapeModel
-from torch_atr.tracking.job import TrackConfig, run_summary, write_run
 from torch_atr.tracking.filter import Tracker
+from torch_atr.tracking.job import TrackConfig, is_track_run, run_summary, write_run
 from torch_atr.training import training_templates
 
 log = logging.getLogger("track")
@@ -50,12 +50,14 @@ def main(argv: list[str] | None = None) -> dict:
         parser.add_argument(f"--{flag}", help=f"sets {FLAGS[flag]}")
     parser.add_argument("--tensorboard", action="store_true", help="also log to TensorBoard in the run folder")
     parser.add_argument("--video", action="store_true", help="also write overlay.mp4")
+    parser.add_argument("--overwrite", action="store_true", help="replace an earlier run in --out (only ours)")
     parser.add_argument("overrides", nargs="*", help="key=value overrides (tracker.filter.sigma=0.03)")
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s: %(message)s", datefmt="%H:%M:%S")
     flags = [f"{key}={getattr(args, flag)}" for flag, key in FLAGS.items() if getattr(args, flag) is not None]
     flags += [f"{name}=true" for name in ("tensorboard", "video") if getattr(args, name)]
     cfg = load_config(TrackConfig, args.config, flags + args.overrides)
+    out = check_output_dir(cfg.out, args.overwrite, "metrics.json", is_track_run, "tracking run")
 
     # 1. The model, the sequence and (for Method IV) the training templates.
     model = GenerativeShapeModel.from_checkpoint(resolve(cfg.checkpoint), map_location=cfg.device)
@@ -71,7 +73,6 @@ def main(argv: list[str] | None = None) -> dict:
     metrics = run_summary(result, model, SETTLE_FRAMES)
 
     # 3. The run folder: estimates, metrics, config and figures (TensorBoard and video on request).
-    out = Path(cfg.out)
     write_run(out, cfg, result, metrics)
     figures = viz.track_figures(result, model, sequence.name)
     if cfg.tensorboard:
@@ -92,5 +93,4 @@ def main(argv: list[str] | None = None) -> dict:
 
 
 if __name__ == "__main__":
-    with torch.no_grad():
-        main()
+    run_main(main)

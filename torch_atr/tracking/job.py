@@ -15,12 +15,14 @@ import numpy as np
 import yaml
 
 from torch_atr.config import ConfigError
+from torch_atr.data.sequence import read_json_object
 from torch_atr.evaluation import (best_matches, frames_to_convergence, recognition_accuracy, tracking_errors,
                                   wrapped_abs)
 from torch_atr.io import atomic_write_csv, atomic_write_text
 from torch_atr.tracking.filter import TrackerConfig, TrackResult, column
 
 DEFAULT_SEQUENCE = "synthetic:vehicle=t_72,range=1000,frames=300,seed=0"
+METRICS_FORMAT = "torch_atr.track_metrics"  # metrics.json's "format": marks a run folder as ours
 
 # A frame is "on target" for frames_to_convergence when all three hold (the tracker issue's bars).
 CONVERGED_HORIZONTAL_M = 1.0
@@ -71,11 +73,19 @@ def run_summary(result: TrackResult, model, settle_frames: int) -> dict:
     ok = ((np.abs(column(rows, "x") - column(rows, "true_x")) < CONVERGED_HORIZONTAL_M)
           & (wrapped_abs(column(rows, "theta") - column(rows, "true_theta")) < CONVERGED_ASPECT_RAD)
           & np.array([r.get("class") == r.get("true_class") for r in rows]) & np.array(known))
-    summary = track_metrics(rows, model)
+    summary = {"format": METRICS_FORMAT, **track_metrics(rows, model)}
     summary["settled"] = track_metrics(rows, model, min(settle_frames, max(len(rows) - 1, 0)))
     summary["frames_to_convergence"] = frames_to_convergence(ok) if any(known) else None
     summary["frames_per_second"] = result.frames_per_second
     return summary
+
+
+def is_track_run(path: Path) -> bool:
+    """True when ``path`` is a metrics.json written by track.py (its format is ours)."""
+    try:
+        return read_json_object(path, "").get("format") == METRICS_FORMAT
+    except (OSError, ValueError):
+        return False
 
 
 def write_run(folder: Path, cfg: TrackConfig, result: TrackResult, metrics: dict) -> None:

@@ -1,0 +1,68 @@
+"""track.py end to end on a short simulated sequence: outputs, one-line user errors, no overwriting."""
+
+import csv
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+import track
+
+REPO = Path(__file__).resolve().parents[1]
+SHORT = "synthetic:vehicle=bmp_2,range=1000,frames=12,seed=3"
+
+
+@pytest.fixture(scope="module")
+def run(tmp_path_factory):
+    out = tmp_path_factory.mktemp("track") / "run"
+    metrics = track.main(["--sequence", SHORT, "--particles", "200", "--init", "truth", "--out", str(out),
+                          "--tensorboard", "--video", "tracker.filter.resample=residual"])
+    return out, metrics
+
+
+def test_outputs_are_written_and_consistent(run):
+    out, metrics = run
+    names = {p.name for p in out.iterdir()}
+    assert {"estimates.csv", "metrics.json", "config.yaml", "alpha_over_time.png", "errors_over_time.png",
+            "view_trajectory.png", "frames.png", "overlay.mp4"} <= names
+    assert any(n.startswith("events.out.tfevents") for n in names)
+    rows = list(csv.DictReader((out / "estimates.csv").open()))
+    assert len(rows) == 12 and {"x", "z", "theta", "alpha", "class", "nearest_1", "true_x", "ess"} <= set(rows[0])
+    saved = json.loads((out / "metrics.json").read_text())
+    assert saved["frames"] == 12 and saved["format"] == "torch_atr.track_metrics"
+    # The summary agrees with the table it summarises.
+    err = sum(abs(float(r["x"]) - float(r["true_x"])) for r in rows) / 12
+    assert saved["horizontal_error_m"] == pytest.approx(err, rel=1e-4)
+    assert saved["recognition_accuracy"] == pytest.approx(sum(r["class"] == "apc" for r in rows) / 12)
+    for key in ("horizontal_error_m", "range_error_m", "aspect_error_rad", "recognition_accuracy", "best_matches",
+                "overlap_ratio", "frames_per_second", "frames"):
+        assert saved[key] is not None and key in metrics
+    assert "resample: residual" in (out / "config.yaml").read_text()
+
+
+def test_an_existing_run_is_kept_unless_overwrite(run, tmp_path):
+    out, _ = run
+    with pytest.raises(OSError, match="--overwrite"):
+        track.main(["--sequence", SHORT, "--out", str(out), "--frames", "2"])
+    foreign = tmp_path / "notes"
+    foreign.mkdir()
+    (foreign / "notes.txt").write_text("mine")
+    with pytest.raises(OSError, match="not empty"):
+        track.main(["--sequence", SHORT, "--out", str(foreign), "--overwrite", "--frames", "2"])
+    assert (foreign / "notes.txt").read_text() == "mine"
+
+
+@pytest.mark.parametrize("args, message", [
+    (["tracker.filter.method=V"], "method='V'"),
+    (["--particles", "0"], "particles=0"),
+    (["--sequence", "synthetic:vehicle=nope"], "nope"),
+    (["--checkpoint", "missing.pt"], "missing.pt"),
+])
+def test_user_errors_are_one_line(tmp_path, args, message):
+    proc = subprocess.run([sys.executable, str(REPO / "track.py"), "--out", str(tmp_path / "x"), *args],
+                          capture_output=True, text=True, cwd=tmp_path)
+    assert proc.returncode == 2
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("track.py: error:") and message in lines[0], proc.stderr
