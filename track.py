@@ -23,6 +23,7 @@ from torch_atr.config import load_config
 from torch_atr.data import open_sequence
 from torch_atr.io import check_output_dir
 from torch_atr.model import GenerativeShapeModel
+from torch_atr.tracking.blob import BlobTracker
 from torch_atr.tracking.filter import Tracker
 from torch_atr.tracking.job import TrackConfig, is_track_run, run_summary, write_run
 from torch_atr.training import training_templates
@@ -62,13 +63,16 @@ def main(argv: list[str] | None = None) -> dict:
     # 1. The model, the sequence and (for Method IV) the training templates.
     model = GenerativeShapeModel.from_checkpoint(resolve(cfg.checkpoint), map_location=cfg.device)
     sequence = open_sequence(cfg.sequence)
-    if sequence.camera is None:
-        raise ValueError(f"{cfg.sequence}: the sequence has no camera calibration; give one "
-                         f"(video:FILE,calib=camera.json) to track in 3D")
     templates = training_templates(model) if cfg.tracker.filter.method == "IV" else None
 
-    # 2. Track: warm-up, initialisation and the particle filter over every frame.
-    tracker = Tracker(model, sequence.camera, cfg.tracker, device=cfg.device, seed=cfg.seed, templates=templates)
+    # 2. Track: warm-up, initialisation and the particle filter over every frame; without a camera,
+    # view and identity on the normalised blob (thesis 6.3).
+    options = dict(device=cfg.device, seed=cfg.seed, templates=templates)
+    if sequence.camera is None:
+        log.info("%s has no camera calibration: tracking view and identity on the blob, no 3D", sequence.name)
+        tracker = BlobTracker(model, cfg.tracker, **options)
+    else:
+        tracker = Tracker(model, sequence.camera, cfg.tracker, **options)
     result = tracker.run(sequence, cfg.frames)
     metrics = run_summary(result, model, SETTLE_FRAMES)
 

@@ -66,3 +66,22 @@ def test_user_errors_are_one_line(tmp_path, args, message):
     assert proc.returncode == 2
     lines = proc.stderr.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("track.py: error:") and message in lines[0], proc.stderr
+
+
+def test_an_uncalibrated_video_tracks_view_and_identity(tmp_path):
+    """video: without calib= has no camera: track.py falls back to the blob tracker (no 3D)."""
+    import cv2
+
+    from torch_atr.data import open_sequence
+
+    seq = open_sequence(SHORT)
+    path = tmp_path / "clip.avi"
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), 30.0, (640, 512), isColor=False)
+    for i in range(len(seq)):
+        writer.write((seq.frame(i) // 64).clip(0, 255).astype("uint8"))
+    writer.release()
+    out = tmp_path / "run"
+    metrics = track.main(["--sequence", f"video:{path}", "--particles", "100", "--out", str(out)])
+    rows = list(csv.DictReader((out / "estimates.csv").open()))
+    assert len(rows) == 12 and "x" not in rows[0] and {"theta", "phi", "alpha", "class"} <= set(rows[0])
+    assert metrics["horizontal_error_m"] is None and metrics["frames"] == 12

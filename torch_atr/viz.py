@@ -287,10 +287,12 @@ def error_figure(rows: list[dict], title: str):
     errors = [("horizontal |x̂ − x|", "m", np.abs(_rows_column(rows, "x") - _rows_column(rows, "true_x"))),
               ("range |ẑ − z|", "m", np.abs(_rows_column(rows, "z") - _rows_column(rows, "true_z"))),
               ("aspect |θ̂ − θ|", "rad", wrapped_abs(_rows_column(rows, "theta") - _rows_column(rows, "true_theta")))]
-    if not any(np.isfinite(e).any() for _, _, e in errors):
+    errors = [error for error in errors if np.isfinite(error[2]).any()]  # no x, z without a camera
+    if not errors:
         return None
     plt = _pyplot()
-    fig, axes = plt.subplots(3, 1, figsize=(9, 7), sharex=True)
+    fig, axes = plt.subplots(len(errors), 1, figsize=(9, 1.2 + 1.9 * len(errors)), sharex=True, squeeze=False)
+    axes = axes[:, 0]
     for ax, (name, unit, e) in zip(axes, errors):
         ax.plot(t, e, lw=1.0, label=f"{name}: mean {np.nanmean(e):.2f} {unit}")
         ax.set(ylabel=f"error ({unit})")

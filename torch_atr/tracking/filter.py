@@ -45,8 +45,8 @@ from torch_atr.tracking.estimates import circular_mean, class_posterior, weighte
 from torch_atr.tracking.initialise import (InitConfig, blind_hypotheses, blind_particles, truth_alpha,
                                            truth_particles)
 from torch_atr.tracking.motion import ALPHA, HEADING, SPEED, STATE_DIM, X, Y, Z, MotionConfig, predict
-from torch_atr.tracking.observation import (frame_distance, log_likelihood, observe, place_silhouette,
-                                            project_windows)
+from torch_atr.tracking.observation import (frame_distance, log_likelihood, observe, observe_windows,
+                                            place_silhouette, project_windows)
 from torch_atr.tracking.resampling import SCHEMES, effective_sample_size, resample
 
 log = logging.getLogger(__name__)
@@ -226,7 +226,7 @@ class Tracker:
         start = time.perf_counter()
         dt = self.dt if dt is None else dt
         if self.initialised and not self._fresh:
-            self.particles = predict(self.particles, dt, self.cfg.motion, self.generator)
+            self.particles = self._predict(dt)
         self._fresh = False
         near, box, side = self._predicted_region() if self.initialised else (None, None, math.inf)
         if mask is None:
@@ -268,6 +268,10 @@ class Tracker:
         self._frames += 1
         row["step_ms"] = 1e3 * (time.perf_counter() - start)
         return row
+
+    def _predict(self, dt: float) -> torch.Tensor:
+        """Eq. 5.1 and 5.3 for every particle. Returns (N, 6)."""
+        return predict(self.particles, dt, self.cfg.motion, self.generator)
 
     def _predicted_region(self) -> tuple[tuple[float, float] | None, tuple[float, float, float, float] | None,
                                          float]:
@@ -344,14 +348,18 @@ class Tracker:
         return torch.tensor([[row["x"], row["y"], row["z"], row["heading"], row["speed"], row["alpha"]]],
                             dtype=self.dtype, device=self.device)
 
+    def _estimate_window(self, row: dict) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor,
+                                                   torch.Tensor]:
+        """The estimate's (α, θ, φ), each (1,), and its window: centre uv (1, 2), side (1, 2) pixels."""
+        est = self._estimate_particle(row)
+        theta, phi = (torch.tensor([row[k]], dtype=self.dtype, device=self.device) for k in ("theta", "phi"))
+        uv, side = project_windows(self.camera, est[:, X:Z + 1], self.model.template.window_m)
+        return est[:, ALPHA], theta, phi, uv, side
+
     def silhouette_at(self, row: dict, shape: tuple[int, int]) -> torch.Tensor:
         """The estimate's reconstructed silhouette y(α̂, Θ̂) > 0 placed in the frame: (H, W) bool."""
-        est = self._estimate_particle(row)
-        theta = torch.tensor([row["theta"]], dtype=self.dtype, device=self.device)
-        phi = torch.tensor([row["phi"]], dtype=self.dtype, device=self.device)
-        y = self.model(est[:, ALPHA], theta, phi)[0]
-        uv, side = project_windows(self.camera, est[:, X:Z + 1], self.model.template.window_m)
-        return place_silhouette(y, uv[0], side[0], shape)
+        alpha, theta, phi, uv, side = self._estimate_window(row)
+        return place_silhouette(self.model(alpha, theta, phi)[0], uv[0], side[0], shape)
 
     def _overlap(self, mask: np.ndarray, row: dict) -> float:
         """Dice ξ (eq. 6.1) of the placed estimate and the segmented target mask."""
@@ -359,14 +367,12 @@ class Tracker:
 
     def _adapt(self, distance: tuple[torch.Tensor, tuple[int, int]], row: dict) -> None:
         """A few Adam steps on the kernel widths towards the observation at the estimate."""
-        est = self._estimate_particle(row)
-        z = observe(distance[0], self.camera, est[:, X:Z + 1], self.model.template, self.appearance.size,
-                    distance[1])
-        theta, phi = self._views(est)
+        alpha, theta, phi, uv, side = self._estimate_window(row)
+        z = observe_windows(distance[0], uv, side, self.model.template, self.appearance.size, distance[1])
         with torch.enable_grad():
             for _ in range(self.cfg.adapt.steps):
                 self._optimiser.zero_grad()
-                loss = (self.appearance(est[:, ALPHA], theta, phi) - z).square().mean()
+                loss = (self.appearance(alpha, theta, phi) - z).square().mean()
                 loss.backward()
                 self._optimiser.step()
 

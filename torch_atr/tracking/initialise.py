@@ -29,7 +29,7 @@ from torch_atr.config import ConfigError
 from torch_atr.pose import camera_centre, wrap_angle
 from torch_atr.tracking.appearance import ShapeAppearance
 from torch_atr.tracking.motion import ALPHA, HEADING, SPEED, STATE_DIM, X, Z
-from torch_atr.tracking.observation import log_likelihood, observe
+from torch_atr.tracking.observation import blob_windows, log_likelihood, observe, silhouette_boxes
 
 INIT_MODES = ("blind", "truth")
 
@@ -98,17 +98,6 @@ def truth_particles(position: torch.Tensor, heading: float, alpha: float, n: int
     return out
 
 
-def _boxes(silhouettes: torch.Tensor) -> torch.Tensor:
-    """(M, S, S) bool -> (M, 4) float64 [c0, r0, c1, r1] inclusive pixel bounds (NaN when empty)."""
-    idx = torch.arange(silhouettes.shape[-1], device=silhouettes.device, dtype=torch.float64)
-    bounds = []
-    for occupied in (silhouettes.any(dim=1), silhouettes.any(dim=2)):  # columns, rows: (M, S) each
-        bounds.append((torch.where(occupied, idx, math.inf).amin(1), torch.where(occupied, idx, -math.inf).amax(1)))
-    (c0, c1), (r0, r1) = bounds
-    box = torch.stack([c0, r0, c1, r1], dim=1)
-    return torch.where(box.isfinite(), box, math.nan)
-
-
 def ground_depth(camera: Camera, pixel: torch.Tensor, camera_height_m: float) -> float:
     """Depth (along the optical axis) at which the ray through ``pixel`` (2,) meets flat ground
     ``camera_height_m`` below the camera centre (world y = c_y − height); NaN if it never does."""
@@ -143,29 +132,22 @@ def blind_hypotheses(blob: torch.Tensor, distance: torch.Tensor, camera: Camera,
     if rows.numel() == 0:
         raise ValueError("blind initialisation needs a non-empty blob")
     blob_box = torch.stack([cols.min(), rows.min(), cols.max(), rows.max()]).to(dtype=dtype, device=device)
-    blob_size = blob_box[2:] - blob_box[:2] + 1  # (2,) width, height in image pixels
-    blob_centre = (blob_box[:2] + blob_box[2:]) / 2
     R, t, K = (camera.R.to(device, dtype), camera.t.to(device, dtype), camera.K.to(device, dtype))
-    ray = R.T @ camera.pixel_rays(blob_centre)  # world direction through the blob centre
+    ray = R.T @ camera.pixel_rays((blob_box[:2] + blob_box[2:]) / 2)  # world direction through the blob centre
     phi = torch.asin((-ray[1] / ray.norm()).clamp(-1, 1))  # elevation of the camera seen from the target
     alpha = torch.arange(cfg.alpha_steps, dtype=dtype, device=device) * (2 * math.pi / cfg.alpha_steps)
     theta = torch.arange(cfg.azimuth_steps, dtype=dtype, device=device) * (2 * math.pi / cfg.azimuth_steps)
     A, B, S = alpha.shape[0], theta.shape[0], model.template.size_px
     with torch.no_grad():
         shapes = model.reconstruct_grid(alpha.to(model.alphas), theta.to(model.alphas), phi.expand(B).to(model.alphas))
-    box = _boxes(shapes.reshape(A * B, S, S) > 0)  # (M, 4) template pixels
-    size_t = box[:, 2:] - box[:, :2] + 1  # (M, 2)
-    offset_t = (box[:, :2] + box[:, 2:]) / 2 - (S - 1) / 2  # silhouette box centre - window centre
+    boxes = silhouette_boxes(shapes.reshape(A * B, S, S) > 0).to(dtype)  # (M, 4) template pixels
+    # Range: from the ground under the blob's lowest row, else where the silhouette has the blob's size.
+    ground = ground_depth(camera, torch.stack([(blob_box[0] + blob_box[2]) / 2, blob_box[3] + 0.5]),
+                          camera_height_m) if math.isfinite(camera_height_m) else math.nan
     f = torch.stack([K[0, 0], K[1, 1]])
-    m = model.template.metres_per_px
-    # Range: from the ground under the blob's lowest row, or where the silhouette's size, f m size_t / z
-    # image pixels, is the blob's (geometric mean of width and height).
-    ground = ground_depth(camera, torch.stack([blob_centre[0], blob_box[3] + 0.5]), camera_height_m) \
-        if math.isfinite(camera_height_m) else math.nan
-    depth = (f * m * size_t / blob_size).prod(dim=1).sqrt()  # (M,)
-    if math.isfinite(ground):
-        depth = torch.where(depth.isfinite(), ground, depth)
-    centre_px = blob_centre - offset_t * (f * m / depth[:, None])  # (M, 2) window centre in the image
+    side = f * model.template.window_m / ground if math.isfinite(ground) else None
+    centre_px, side = blob_windows(boxes, blob_box, S, side)
+    depth = f[0] * model.template.window_m / side[:, 0]
     sensor = camera.pixel_rays(centre_px) * depth[:, None]  # (M, 3), z = depth
     position = (sensor - t) @ R  # world frame: Rᵀ (p_s − t)
     to_camera = camera_centre(camera).to(position) - position
@@ -175,7 +157,7 @@ def blind_hypotheses(blob: torch.Tensor, distance: torch.Tensor, camera: Camera,
     states[:, X:Z + 1] = position
     states[:, HEADING] = wrap_angle(th + bearing)  # θ = h − bearing
     states[:, ALPHA] = alpha.repeat_interleave(B)
-    valid = depth.isfinite() & (depth > 0)
+    valid = (depth > 0) & states.isfinite().all(dim=1)  # an empty silhouette places nothing
     states = torch.where(valid[:, None], states, 0.0)
     z = observe(distance, camera, states[:, X:Z + 1], model.template, appearance.size)
     with torch.no_grad():

@@ -43,9 +43,11 @@ class MotionConfig:
     sigma2_heading: float = 0.1  # rad² / s
     sigma2_speed: float = 1.0  # (m/s)² / s
     sigma2_alpha: float = 0.05  # rad² / s (the thesis: ~1; see the class docstring)
+    sigma2_elevation: float = 0.01  # rad² / s, of the view elevation φ (uncalibrated sequences only)
 
     def __post_init__(self) -> None:
-        for key in ("sigma2_x", "sigma2_y", "sigma2_z", "sigma2_heading", "sigma2_speed", "sigma2_alpha"):
+        for key in ("sigma2_x", "sigma2_y", "sigma2_z", "sigma2_heading", "sigma2_speed", "sigma2_alpha",
+                    "sigma2_elevation"):
             value = getattr(self, key)
             if not (math.isfinite(value) and 0 <= value <= 1e4):
                 raise ConfigError(f"motion.{key} must be a variance in [0, 1e4]; got {value!r}")

@@ -48,6 +48,47 @@ def project_windows(camera: Camera, centres: torch.Tensor, window_m: float) -> t
     return uv, side
 
 
+def silhouette_boxes(silhouettes: torch.Tensor) -> torch.Tensor:
+    """Bounding boxes of silhouettes: (M, S, S) bool -> (M, 4) [c0, r0, c1, r1] inclusive pixel
+    bounds, NaN for an empty silhouette; float32 on their device."""
+    check_shape("silhouettes", silhouettes, ("M", "S", "S"))
+    idx = torch.arange(silhouettes.shape[-1], device=silhouettes.device, dtype=torch.float32)
+    bounds = []
+    for occupied in (silhouettes.any(dim=1), silhouettes.any(dim=2)):  # columns, rows: (M, S) each
+        bounds.append((torch.where(occupied, idx, math.inf).amin(1), torch.where(occupied, idx, -math.inf).amax(1)))
+    (c0, c1), (r0, r1) = bounds
+    box = torch.stack([c0, r0, c1, r1], dim=1)
+    return torch.where(box.isfinite(), box, math.nan)
+
+
+def blob_windows(boxes: torch.Tensor, blob_box: torch.Tensor, size: int, side: torch.Tensor | None = None
+                 ) -> tuple[torch.Tensor, torch.Tensor]:
+    """Windows that lay each hypothesis's silhouette on a blob: its box onto the blob's box.
+
+    Args:
+        boxes: (M, 4) silhouette boxes [c0, r0, c1, r1] in pixels of an ``size`` × ``size``
+            template (:func:`silhouette_boxes`).
+        blob_box: (4,) the blob's box [u0, v0, u1, v1] in image pixels (inclusive).
+        size: the template's side in pixels (the boxes' pixels).
+        side: (2,) or (M, 2) window sizes in image pixels to use (e.g. from a known range);
+            default: those that give each silhouette the blob's size (geometric mean of the
+            width and height ratios, so the silhouette's aspect is kept).
+    Returns:
+        uv: (M, 2) window centres and side: (M, 2) window sizes, image pixels (NaN for an empty
+        silhouette); the dtype and device of ``boxes``.
+    """
+    check_shape("boxes", boxes, ("M", 4))
+    blob_box = blob_box.to(boxes)
+    size_t = boxes[:, 2:] - boxes[:, :2] + 1  # (M, 2) template pixels
+    if side is None:
+        ratio = ((blob_box[2:] - blob_box[:2] + 1) / size_t).prod(dim=1).sqrt()  # image px per template px
+        side = (size * ratio)[:, None].expand(-1, 2)
+    side = torch.as_tensor(side).to(boxes).expand(boxes.shape[0], 2)
+    offset_t = (boxes[:, :2] + boxes[:, 2:]) / 2 - (size - 1) / 2  # silhouette box centre − window centre
+    uv = (blob_box[:2] + blob_box[2:]) / 2 - offset_t * side / size
+    return uv, side
+
+
 def frame_distance(mask: np.ndarray, margin: float) -> tuple[torch.Tensor, tuple[int, int]]:
     """The signed distance of a frame's target mask in image pixels, on the region that matters.
 
@@ -104,27 +145,38 @@ def sample_windows(distance: torch.Tensor, uv: torch.Tensor, side: torch.Tensor,
     return torch.where(valid[:, None, None], out.reshape(N, L, L).to(uv.dtype), 0.0)
 
 
-def observe(distance: torch.Tensor, camera: Camera, centres: torch.Tensor, template: TemplateConfig,
-            size: int, origin: tuple[int, int] = (0, 0)) -> torch.Tensor:
-    """What particles at ``centres`` see: the frame's distance in template units (module docstring).
+def observe_windows(distance: torch.Tensor, uv: torch.Tensor, side: torch.Tensor, template: TemplateConfig,
+                    size: int, origin: tuple[int, int] = (0, 0), image_px: torch.Tensor | None = None
+                    ) -> torch.Tensor:
+    """The frame's distance in template units inside given windows (module docstring, steps 2-3).
 
     Args:
         distance: (H, W) the frame's signed distance in image pixels, positive on the foreground,
             or a region of it whose (0, 0) is the frame pixel ``origin`` (:func:`frame_distance`).
-        camera: the scene's camera.
-        centres: (N, 3) particle positions (vehicle centres) in the camera's world frame, metres.
-        template: the model's template geometry (S = ``size_px``, W = ``window_m``, τ = ``tau_px``).
+        uv: (N, 2) window centres and side: (N, 2) window sizes, pixels.
+        template: the model's template geometry (S = ``size_px``, τ = ``tau_px``).
         size: L, the likelihood resolution; S must be a multiple of L.
+        image_px: (N,) image pixels per template pixel; default that of a whole template window,
+            √(sᵤ s_v) / S (give it when the windows are parts of template windows).
     Returns:
-        (N, L, L) in [−1, 1], the dtype and device of ``centres``.
+        (N, L, L) in [−1, 1], the dtype and device of ``uv``.
     """
     if size < 1 or template.size_px % size:
         raise ValueError(f"Expected a likelihood size L dividing the template size {template.size_px}; got {size}")
-    uv, side = project_windows(camera, centres, template.window_m)
-    samples = sample_windows(distance.to(centres.device), uv, side, size, origin)  # image pixels
-    to_template = template.size_px / side.prod(dim=1).sqrt()  # (N,) template px per image px
+    samples = sample_windows(distance.to(uv.device), uv, side, size, origin)  # image pixels
+    if image_px is None:
+        image_px = side.prod(dim=1).sqrt() / template.size_px
+    to_template = 1.0 / image_px  # (N,) template px per image px
     to_template = torch.where(to_template.isfinite(), to_template, 0.0)
     return clip_distance(samples * to_template[:, None, None], template.tau_px)
+
+
+def observe(distance: torch.Tensor, camera: Camera, centres: torch.Tensor, template: TemplateConfig,
+            size: int, origin: tuple[int, int] = (0, 0)) -> torch.Tensor:
+    """What particles at ``centres`` (N, 3) world metres see: :func:`observe_windows` of their
+    windows placed by the camera (:func:`project_windows`). Returns (N, L, L) in [−1, 1]."""
+    uv, side = project_windows(camera, centres, template.window_m)
+    return observe_windows(distance, uv, side, template, size, origin)
 
 
 def place_silhouette(y: torch.Tensor, uv: torch.Tensor, side: torch.Tensor, shape: tuple[int, int]) -> torch.Tensor:

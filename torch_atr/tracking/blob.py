@@ -1,0 +1,170 @@
+"""Pose and identity without a camera (thesis 6.3, the cargo van): the window follows the blob.
+
+An uncalibrated video has no 3D: no position, range or heading. A particle of
+:class:`BlobTracker` is ``[θ, φ, α]``, the view and the identity, each a random walk (variances
+per second: ``motion.sigma2_heading`` for θ, ``motion.sigma2_elevation`` for φ, which is
+reflected into [0, π/2], and ``motion.sigma2_alpha``). Each frame the segmented blob fixes every
+particle's window: the particle's predicted silhouette (y > 0 at the likelihood resolution) is
+laid on the blob — its box scaled and shifted onto the blob's box (the blob normalised to the
+hypothesis) — and the frame's distance is compared there with eq. 5.2 as in the 3D filter,
+over the silhouette's box grown by τ, resampled to L × L. Comparing over the whole template window
+instead favours the smallest silhouettes (a car fills less of its 12 m window than a tank, so its
+boundary errors weigh less in the mean): every vehicle came out a car. The blind start scores a
+grid of (α, θ, φ) hypotheses the same way. Everything else (segmentation,
+weights, resampling, estimates, lost frames, outputs) is :class:`~torch_atr.tracking.Tracker`'s.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+
+from torch_atr.data.sequence import FrameTruth
+from torch_atr.pose import wrap_angle
+from torch_atr.tracking.estimates import circular_mean, class_posterior
+from torch_atr.tracking.filter import Tracker, TrackerConfig
+from torch_atr.tracking.motion import MotionConfig
+from torch_atr.tracking.observation import blob_windows, log_likelihood, observe_windows, silhouette_boxes
+from torch_atr.tracking.resampling import effective_sample_size
+
+THETA, PHI, ALPHA = range(3)
+ELEVATIONS_DEG = (0.0, 10.0, 20.0, 30.0, 40.0)  # the blind start's φ hypotheses (the training elevations)
+
+
+def wrap_views(particles: torch.Tensor) -> torch.Tensor:
+    """[θ, φ, α] particles (N, 3) with θ and α wrapped to [0, 2π) and φ reflected into [0, π/2]."""
+    out = particles.clone()
+    out[:, THETA], out[:, ALPHA] = wrap_angle(out[:, THETA]), wrap_angle(out[:, ALPHA])
+    half_pi = math.pi / 2
+    out[:, PHI] = half_pi - (half_pi - out[:, PHI].abs()).abs()  # reflect at 0 and at π/2
+    return out
+
+
+def predict_views(particles: torch.Tensor, dt: float, cfg: MotionConfig, generator: torch.Generator | None = None
+                  ) -> torch.Tensor:
+    """Random walks on θ, φ and α (eq. 5.3 for α) over ``dt`` seconds: particles (N, 3) -> (N, 3)."""
+    std = torch.tensor([cfg.sigma2_heading, cfg.sigma2_elevation, cfg.sigma2_alpha], dtype=torch.float64)
+    std = std.mul(dt).sqrt().to(particles)
+    return wrap_views(particles + torch.randn(particles.shape, generator=generator, dtype=particles.dtype,
+                                              device=particles.device) * std)
+
+
+class BlobTracker(Tracker):
+    """Tracking of view and identity on the normalised blob of an uncalibrated sequence (module
+    docstring). Same arguments as :class:`Tracker` without the camera; estimate rows carry θ, φ,
+    α, the class, the nearest vehicles, the class posterior, the ESS and the overlap, no x, y, z."""
+
+    def __init__(self, model, config: TrackerConfig | None = None, **kwargs):
+        super().__init__(model, None, config, **kwargs)
+        if self.cfg.adapt.every:
+            raise ValueError("adapt.every > 0 (kernel-width adaptation) needs a calibrated camera")
+        self._blob_box: torch.Tensor | None = None  # the last blob's box (4,), image pixels
+
+    def initialise(self, truth: FrameTruth) -> None:
+        """Particles around a truth's view (θ, φ) and its vehicle's α (or its class centre)."""
+        if not (math.isfinite(truth.theta) and math.isfinite(truth.phi)):
+            raise ValueError(f"Truth initialisation without a camera needs the view theta, phi; got "
+                             f"({truth.theta}, {truth.phi})")
+        from torch_atr.tracking.initialise import truth_alpha
+
+        alpha = truth_alpha(self.model, truth.vehicle, truth.vehicle_class, self.cfg.init.alpha)
+        n, std = self.cfg.filter.particles, self.cfg.init.heading_std_rad
+        noise = torch.randn(n, 3, generator=self.generator, dtype=self.dtype, device=self.device)
+        mean = torch.tensor([truth.theta, truth.phi, alpha], dtype=self.dtype, device=self.device)
+        self._reset_views(mean + noise * torch.tensor([std, std, 0.0], dtype=self.dtype, device=self.device))
+
+    def _reset_views(self, particles: torch.Tensor) -> None:
+        self.particles = wrap_views(particles)
+        self.log_weights = torch.full((particles.shape[0],), -math.log(particles.shape[0]), dtype=self.dtype,
+                                      device=self.device)
+        self._fresh = True
+
+    def _predict(self, dt: float) -> torch.Tensor:
+        return predict_views(self.particles, dt, self.cfg.motion, self.generator)
+
+    def _predicted_region(self):
+        """The last blob's centre and box (the blob moves little between frames), and its window."""
+        if self._blob_box is None:
+            return None, None, math.inf
+        box = self._blob_box.tolist()
+        side = max(box[2] - box[0], box[3] - box[1]) + 1
+        return ((box[0] + box[2]) / 2, (box[1] + box[3]) / 2), tuple(box), 4.0 * side
+
+    def _windows(self, particles: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """Predicted shapes y (N, L, L) and their windows laid on the current blob (uv, side: (N, 2))."""
+        y = self.appearance(particles[:, ALPHA], particles[:, THETA], particles[:, PHI])
+        boxes = silhouette_boxes(y > 0)
+        uv, side = blob_windows(boxes, self._blob_box.to(boxes), self.appearance.size)
+        return y, uv, side
+
+    def _set_blob(self, distance: tuple[torch.Tensor, tuple[int, int]]) -> None:
+        """The blob's box from its distance map (positive inside), in frame pixels."""
+        rows, cols = torch.nonzero(distance[0] > 0, as_tuple=True)
+        u0, v0 = distance[1]
+        self._blob_box = torch.stack([cols.min() + u0, rows.min() + v0, cols.max() + u0, rows.max() + v0]).to(
+            self.dtype)
+
+    def _log_likelihood(self, distance, particles: torch.Tensor) -> torch.Tensor:
+        """Eq. 5.2 over each particle's silhouette box grown by τ (module docstring). Returns (N,)."""
+        self._set_blob(distance)
+        y, uv, side = self._windows(particles)
+        L, template = self.appearance.size, self.model.template
+        margin = template.tau_px * L / template.size_px  # τ in L-pixels
+        boxes = silhouette_boxes(y > 0)
+        centre = (boxes[:, :2] + boxes[:, 2:]) / 2  # (N, 2) in L-pixel indices
+        extent = boxes[:, 2:] - boxes[:, :2] + 1 + 2 * margin  # (N, 2) L-pixels
+        steps = (torch.arange(L, dtype=y.dtype, device=y.device) + 0.5) / L - 0.5
+        u, v = centre[:, 0:1] + steps * extent[:, 0:1], centre[:, 1:2] + steps * extent[:, 1:2]  # (N, L) indices
+        grid = torch.stack(torch.broadcast_tensors(((u + 0.5) * (2 / L) - 1)[:, None, :],
+                                                   ((v + 0.5) * (2 / L) - 1)[:, :, None]), dim=-1)
+        y_box = F.grid_sample(y[:, None], torch.nan_to_num(grid), padding_mode="border", align_corners=False)[:, 0]
+        scale = side / L  # image px per L-pixel
+        z = observe_windows(distance[0], uv + (centre - (L - 1) / 2) * scale, extent * scale, template, L,
+                            distance[1], image_px=side.prod(dim=1).sqrt() / template.size_px)
+        log_lik = log_likelihood(z.to(y_box), y_box, self.cfg.filter.sigma)
+        return torch.where(log_lik.isfinite(), log_lik, -math.inf).to(self.dtype)
+
+    def _initialise_blind(self, mask: np.ndarray, distance) -> None:
+        """A grid of (α, θ, φ) hypotheses laid on the first blob; particles around the best."""
+        cfg = self.cfg.init
+        alpha = torch.arange(cfg.alpha_steps, dtype=self.dtype, device=self.device) * (2 * math.pi / cfg.alpha_steps)
+        theta = torch.arange(cfg.azimuth_steps, dtype=self.dtype, device=self.device) * (
+            2 * math.pi / cfg.azimuth_steps)
+        phi = torch.tensor(ELEVATIONS_DEG, dtype=self.dtype, device=self.device).deg2rad()
+        grid = torch.cartesian_prod(theta, phi, alpha)  # (M, 3) [θ, φ, α]
+        self._set_blob(distance)
+        log_lik = self._log_likelihood(distance, grid)
+        best = log_lik.argsort(descending=True)[:max(1, min(cfg.hypotheses, int(log_lik.isfinite().sum())))]
+        n = self.cfg.filter.particles
+        pick = best[torch.arange(n, device=self.device) % best.shape[0]]
+        noise = torch.randn(n, 3, generator=self.generator, dtype=self.dtype, device=self.device)
+        half_steps = torch.tensor([math.pi / cfg.azimuth_steps, math.radians(5.0), math.pi / cfg.alpha_steps],
+                                  dtype=self.dtype, device=self.device)
+        self._reset_views(grid[pick] + noise * half_steps)
+        self._fresh = False  # weighed on this very frame
+
+    def _estimate(self) -> dict:
+        model, p = self.model, self.particles
+        w = self.log_weights.exp().to(torch.float64)
+        p64 = p.to(torch.float64)
+        theta, theta_r = circular_mean(p64[:, THETA], w)
+        alpha, alpha_r = circular_mean(p64[:, ALPHA], w)
+        alpha_t = alpha.to(self.dtype).reshape(1)
+        posterior = class_posterior(model.classify(p[:, ALPHA]), w, len(model.class_names))
+        nearest = model.nearest_vehicles(alpha_t, 2)[0].tolist()
+        best = p64[int(w.argmax())]
+        row = {"theta": theta, "phi": (w * p64[:, PHI]).sum(), "alpha": alpha, "theta_concentration": theta_r,
+               "alpha_concentration": alpha_r, "class": model.class_names[int(model.classify(alpha_t))],
+               "nearest_1": model.vehicle_names[nearest[0]], "nearest_2": model.vehicle_names[nearest[1]],
+               **{f"p_{name}": posterior[c] for c, name in enumerate(model.class_names)},
+               "best_theta": best[THETA], "best_phi": best[PHI], "best_alpha": best[ALPHA],
+               "ess": effective_sample_size(w)}
+        return {k: float(v) if isinstance(v, torch.Tensor) else v for k, v in row.items()}
+
+    def _estimate_window(self, row: dict):
+        est = torch.tensor([[row["theta"], row["phi"], row["alpha"]]], dtype=self.dtype, device=self.device)
+        _, uv, side = self._windows(est)
+        return est[:, ALPHA], est[:, THETA], est[:, PHI], uv, side
