@@ -1,9 +1,10 @@
 import math
+from pathlib import Path
 
 import pytest
 import torch
 
-from torch_atr.evaluation import per_class_mean, rbf_mapping_iou
+from torch_atr.evaluation import alpha_grid_iou, per_class_mean, rbf_mapping_iou
 from torch_atr.model.rbf import RBFViewMapping
 
 
@@ -31,3 +32,23 @@ def test_rbf_mapping_iou_equals_explicit_mappings_applied_at_new_views():
     expected = ((pred > 0) & masks_out).sum((2, 3)) / ((pred > 0) | masks_out).sum((2, 3)).clamp_min(1)
     got = rbf_mapping_iou(rbf, signed, theta, phi, masks_out, theta_out, phi_out, 1e-3)
     torch.testing.assert_close(got, expected.float(), check_dtype=False)
+
+
+def test_alpha_grid_iou_equals_a_loop_over_alpha_of_the_model_silhouette():
+    from torch_atr.model import GenerativeShapeModel
+    from torch_atr.shape import iou
+
+    model = GenerativeShapeModel.from_checkpoint(Path(__file__).resolve().parents[1] / "checkpoints" / "default.pt")
+    theta = torch.tensor([0.3, 2.0, 4.0], dtype=torch.float64)
+    phi = torch.tensor([0.1, 0.3, 0.0], dtype=torch.float64)
+    masks = torch.stack([model.silhouette(model.alphas[k].expand(3), theta, phi) for k in (0, 30)])  # (2, 3, H, W)
+    masks[1, 2] = False  # an empty view
+    got = alpha_grid_iou(model, masks, theta, phi, grid=7)
+    assert got.shape == (2, 7, 3)
+    for a in range(7):
+        alpha = torch.full((3,), 2 * math.pi * a / 7, dtype=torch.float64)
+        recon = model.silhouette(alpha, theta, phi)
+        for b in range(2):
+            torch.testing.assert_close(got[b, a], iou(recon, masks[b]).to(got), atol=1e-6, rtol=0)
+    with pytest.raises(ValueError, match="masks"):
+        alpha_grid_iou(model, masks[0], theta, phi)
