@@ -23,7 +23,7 @@ from torch_atr.vehicles import CLASS_NAMES, Vehicle, load_catalog, load_heldout_
 from torch_atr.vehicles.build import _clip, build_catalog
 from torch_atr.vehicles.catalog import CATALOG_DIR, MESHES_ENV, default_meshes_root, read_manifest
 from torch_atr.vehicles.geometry import frustum_xy, prism_xz, signed_area, triangulate, volume
-from torch_atr.vehicles.loader import body_rotation
+from torch_atr.vehicles.loader import body_rotation, thick_bounds
 from torch_atr.vehicles.specs import TEST, TRAIN, Road
 
 SPECS = {s.name: s for s in TRAIN + TEST}
@@ -405,6 +405,37 @@ def test_mesh_file_axes_and_scale(tmp_path, up, forward, scale, ext):
     x = v.mesh.vertices
     assert x[np.argmax(x[:, 0]), 2] > 1.2  # the nose block is at the front, on top
     assert x[np.argmax(x[:, 1]), 2] < 0.5  # the low fin is on the left (+Y)
+
+
+def _with_antenna_and_mirror() -> trimesh.Trimesh:
+    """A 4 x 1.8 x 1.5 m box body on the ground, a 1.2 m whip antenna (2 cm thick) on its roof and a
+    mirror plate (2 cm thick, 0.2 m wide and 0.15 m high) sticking 0.25 m out of its left side."""
+    body = trimesh.creation.box(extents=(4.0, 1.8, 1.5)).apply_translation((0.0, 0.0, 0.75))
+    whip = trimesh.creation.cylinder(radius=0.01, height=1.2, sections=8).apply_translation((-1.5, 0.5, 1.5 + 0.6))
+    mirror = trimesh.creation.box(extents=(0.02, 0.35, 0.15)).apply_translation((1.0, 0.9 + 0.075, 1.0))
+    return trimesh.util.concatenate([body, whip, mirror])
+
+
+def test_thin_protrusions_are_trimmed_from_mesh_files(tmp_path):
+    _with_antenna_and_mirror().export(tmp_path / "v.obj")
+    v = load_vehicle(tmp_path / "v.obj")
+    # The whip goes, to within one 1 cm slab (it would raise the box centre by 0.6 m); the mirror plate stays.
+    np.testing.assert_allclose(v.mesh.extents, [4.0, 1.8 + 0.25, 1.5], atol=0.0101)
+    assert len(v.mesh.faces) > 12 + 12  # body and mirror boxes, and the whip's stub
+    kept = load_vehicle(tmp_path / "v.obj", min_thickness=0.0)
+    np.testing.assert_allclose(kept.mesh.extents, [4.0, 2.05, 2.7], atol=1e-6)
+    # The same whip 10 cm thick is a mast, not a wire: it stays.
+    assert load_vehicle(tmp_path / "v.obj", min_thickness=0.01).mesh.extents[2] == pytest.approx(2.7, abs=1e-6)
+    with pytest.raises(ValueError, match="min_thickness"):
+        load_vehicle(tmp_path / "v.obj", min_thickness=-1.0)
+
+
+def test_thick_bounds_leave_the_catalog_untouched(catalog):
+    """No catalog vehicle has a thin protrusion: the trimmed box is the whole box (so URDFs, taken as
+    written, and mesh files are centred by one rule)."""
+    for v in catalog["train"] + catalog["test"]:
+        box = thick_bounds(v.mesh.vertices, np.asarray(v.mesh.faces), 0.05)
+        np.testing.assert_allclose(box, v.mesh.bounds, atol=1e-9, err_msg=v.name)
 
 
 def test_body_rotation_is_proper():
