@@ -22,7 +22,7 @@ from scipy.spatial import ConvexHull
 from torch_atr.vehicles import CLASS_NAMES, Vehicle, load_catalog, load_heldout_meshes, load_vehicle
 from torch_atr.vehicles.build import _clip, build_catalog
 from torch_atr.vehicles.catalog import CATALOG_DIR, MESHES_ENV, default_meshes_root, read_manifest
-from torch_atr.vehicles.geometry import frustum_xy, prism_xz, signed_area, triangulate, volume
+from torch_atr.vehicles.geometry import fillet, frustum_xy, prism_xz, signed_area, sweep, triangulate, volume
 from torch_atr.vehicles.loader import body_rotation, thick_bounds
 from torch_atr.vehicles.specs import TEST, TRAIN, Road
 
@@ -97,18 +97,22 @@ def test_extents_match_published(by_name, name):
     # Length and width are built straight from the spec (the x / y placements use them), so they
     # mostly check the assembly; height (deck + turret or roof) and anything that could stick
     # out (cupolas, extras, guns, wheels) are what this really tests.
+    # A road vehicle's published width leaves out its door mirrors; the mesh has them.
     spec, v = SPECS[name], by_name[name]
     length = spec.gun_length if getattr(spec, "gun_length", None) else spec.length
+    width = spec.width
+    if isinstance(spec, Road):
+        width = max(width, (spec.cab[0] if spec.cab else width) + 2 * spec.mirror)
     lo, hi = v.mesh.bounds
     ext = hi - lo
-    np.testing.assert_allclose(ext, [length, spec.width, spec.height], rtol=TOL, err_msg=name)
+    np.testing.assert_allclose(ext, [length, width, spec.height], rtol=TOL, err_msg=name)
     assert lo[2] == pytest.approx(0.0, abs=1e-9)  # on the ground
     np.testing.assert_allclose((lo + hi)[:2] / 2, 0.0, atol=1e-9)  # footprint centred
 
 
 @pytest.mark.parametrize("name", sorted(n for n, s in SPECS.items() if isinstance(s, Road)))
 def test_wheelbase_and_track_from_urdf(name):
-    """Wheel cylinders in the URDF XML sit at the published wheelbase and track."""
+    """Wheel cylinders on the ground in the URDF XML sit at the published wheelbase and track."""
     spec = SPECS[name]
     split = "train" if spec in TRAIN else "test"
     root = ET.parse(CATALOG_DIR / split / name / f"{name}.urdf").getroot()
@@ -116,7 +120,9 @@ def test_wheelbase_and_track_from_urdf(name):
     for vis in root.iter("visual"):
         cyl = vis.find("geometry/cylinder")
         if cyl is not None and float(cyl.get("radius")) == pytest.approx(spec.wheel_d / 2):
-            centres.append([float(t) for t in vis.find("origin").get("xyz").split()])
+            centre = [float(t) for t in vis.find("origin").get("xyz").split()]
+            if centre[2] == pytest.approx(spec.wheel_d / 2):  # not a spare wheel
+                centres.append(centre)
     c = np.array(centres)
     assert len(c) == 4
     assert np.ptp(c[:, 0]) == pytest.approx(spec.wheelbase, abs=1e-3)
@@ -600,6 +606,36 @@ def test_loft_volumes_match_convex_hull(seed):
     v, f = prism_xz(profile, 0.8, y0=0.5)
     assert volume(v, f) == pytest.approx(ConvexHull(v).volume, rel=1e-9)
     assert v[:, 1].min() == pytest.approx(-0.3) and v[:, 1].max() == pytest.approx(1.3)
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_sweep_volume_matches_convex_hull(seed):
+    """Scaled copies of one convex ring along x (sizes concave in x, centres on a line): the side quads
+    are planar trapezoids and the swept solid is the rings' convex hull."""
+    rng = np.random.default_rng(seed)
+    ang = np.sort(rng.uniform(0, 2 * np.pi, 9))
+    ring = np.stack([np.cos(ang), 0.6 * np.sin(ang)], 1)
+    rings = [np.c_[np.full(9, x), ring * s + [0.0, 0.2 * x]] for x, s in ((0.0, 0.5), (0.7, 1.0), (2.0, 0.9), (2.5, 0.3))]
+    v, f = sweep(rings)
+    m = trimesh.Trimesh(v, f, process=False)
+    assert m.is_watertight and m.is_winding_consistent
+    assert volume(v, f) == pytest.approx(ConvexHull(np.concatenate(rings)).volume, rel=1e-9)
+    assert volume(*sweep(rings[::-1])) > 0  # either direction comes out oriented outwards
+    with pytest.raises(ValueError, match=r"shape \(S>=2, n>=3, 3\)"):
+        sweep(rings[:1])
+
+
+def test_fillet_arcs_are_tangent_circles_of_the_radius():
+    pts = [(0.0, 0.0), (2.0, 0.0), (2.0, 1.0), (4.0, 3.0)]
+    out = np.array(fillet(pts, [0.3, 0.0], arc=5))
+    assert len(out) == 2 + 5 + 1  # end points, one arc, one sharp corner
+    arc = out[1:6]
+    np.testing.assert_allclose(np.linalg.norm(arc - [1.7, 0.3], axis=1), 0.3, atol=1e-12)  # centre (1.7, 0.3)
+    np.testing.assert_allclose(arc[[0, -1]], [[1.7, 0.0], [2.0, 0.3]], atol=1e-12)  # tangent points
+    np.testing.assert_allclose(out[6], (2.0, 1.0))  # radius 0 keeps the corner
+    # A radius too large for the segments shrinks to fit 0.45 of the shorter one.
+    tight = np.array(fillet([(0.0, 0.0), (1.0, 0.0), (1.0, 1.0)], 5.0))
+    np.testing.assert_allclose(tight[[1, -2]], [[0.55, 0.0], [1.0, 0.45]], atol=1e-12)
 
 
 # ------------------------------------------------------------------------------------------
