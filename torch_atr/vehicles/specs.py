@@ -9,9 +9,9 @@ usual tabulations of them (Jane's, Wikipedia infoboxes), without a live look-up,
 runs, shape fractions, rounding, door-mirror reach) is estimated from side-view drawings and
 photographs; it shapes the silhouette, not the headline dimensions that tests check.
 
-Each class spans the real range of its kind, not one archetype (docs/recognition.md): tanks
-from Second World War medium and heavy tanks to Cold War and current tanks and a
-self-propelled howitzer (SENSIAC's tank class holds a howitzer and an anti-aircraft gun); SUVs from 4.2 m, 1.6 m high
+Each class spans the real range of its kind, not one archetype (docs/recognition.md): six tanks
+of six kinds: a light tank, Second World War medium and heavy tanks, Cold War and current
+main battle tanks and a self-propelled howitzer (SENSIAC's tank class holds a howitzer and an anti-aircraft gun); SUVs from 4.2 m, 1.6 m high
 subcompact crossovers to 5.1 m, 2 m high body-on-frame SUVs; cars from a 3.5 m city car to
 4.9 m saloons; vans from minivans to one-box, high-roof and cutaway box vans.
 
@@ -267,15 +267,6 @@ TANKS = (
                       gun=Gun(0.2, trunnion=(1.6, 0.42), mantlet=(0.5, 0.9, 0.4), evacuator=0.55)),
         extras=(_cupola(-0.3, 0.6, 0.6, 0.99, 0.2),),
     ),
-    Tracked(
-        "leopard_2a6", "Leopard 2A6", "tank", "Krauss-Maffei Wegmann data sheet",
-        length=7.72, width=3.75, height=3.0, gun_length=10.97,
-        deck=1.5, nose=0.95, glacis=1.3, road_wheels=7, wheel_d=0.7, track_w=0.635, contact=4.95,
-        turret=Turret(ring=3.8, front=2.0, rear=2.3, width=3.6, height=0.98, nose=0.15, slope=1.0, taper=0.1,
-                      gun=Gun(0.2, trunnion=(1.4, 0.5), mantlet=(0.5, 0.8, 0.45), evacuator=0.6)),
-        extras=(Extra("turret", "box", (0.45, 0.45, 0.6), (0.3, 0.95, 1.2)),  # PERI R17 sight head
-                _cupola(-0.4, -0.7, 0.6, 1.1, 0.2)),
-    ),
     # An early Cold War tank: a low hull, five large road wheels without return rollers, a cast dome turret.
     Tracked(
         "t_55", "T-55A", "tank", "Jane's Armour and Artillery",
@@ -310,6 +301,16 @@ TANKS = (
                       gun=Gun(0.22, trunnion=(1.5, 0.7), elevation=(-3.0, 75.0), mantlet=(0.5, 0.8, 0.6),
                               evacuator=0.45, brake=True)),
         extras=(_cupola(-0.5, 0.8, 0.7, 1.64, 0.2),),
+    ),
+    # A light tank: a small hull, five small road wheels, a small turret near the rear.
+    Tracked(
+        "fv101_scorpion", "FV101 Scorpion", "tank", "Alvis / British Army equipment data",
+        length=4.52, width=2.235, height=2.102, gun_length=4.79,
+        deck=1.45, nose=0.75, glacis=1.3, road_wheels=5, wheel_d=0.55, track_w=0.432, contact=2.46,
+        lower_glacis=0.45, belly=0.35, rear_slope=0.05, skirts=False,
+        turret=Turret(ring=2.85, front=0.75, rear=0.85, width=1.75, height=0.55, nose=0.5, slope=0.3, taper=0.2,
+                      gun=Gun(0.11, trunnion=(0.6, 0.28), elevation=(-10.0, 35.0), mantlet=(0.3, 0.45, 0.3))),
+        extras=(_cupola(-0.3, 0.4, 0.5, 0.65, 0.15),),
     ),
     # A Second World War medium tank: a tall narrow hull (radial engine) with sponsons over the tracks,
     # six small road wheels in three bogies, a cast round turret with a short gun.
@@ -353,20 +354,21 @@ APCS = (
         turret=Turret(ring=2.55, front=0.7, rear=0.7, width=1.4, height=0.41, round=True, slope=0.25, taper=0.25,
                       gun=Gun(0.07, trunnion=(0.55, 0.22), length=1.6, elevation=(-4.0, 60.0), mantlet=(0.3, 0.3, 0.25))),
     ),
-    Wheeled(
-        "stryker", "M1126 Stryker ICV", "apc", "General Dynamics Land Systems / US Army fact file",
-        length=6.95, width=2.72, height=2.64, axles=(1.3, 2.5, 4.45, 5.65),
-        wheel_d=1.12, tyre_w=0.37, track=2.3, deck=2.05, nose=1.2, glacis=1.6, lower_glacis=0.5,
-        belly=0.5, rear_slope=0.1, side_slope=0.15,
-        turret=Turret(ring=3.3, front=0.45, rear=0.45, width=0.8, height=0.45, nose=0.8, slope=0.1, taper=0.05,
-                      gun=Gun(0.06, trunnion=(0.3, 0.3), length=1.3, elevation=(-20.0, 60.0), mantlet=(0.4, 0.3, 0.25))),
-        extras=(Extra("turret", "box", (0.3, 0.3, 0.16), (-0.1, -0.2, 0.51)),),  # sight head
+    # A tracked infantry fighting vehicle with a two-man turret (the class is half tracked, half wheeled).
+    Tracked(
+        "cv90", "CV9040 (Strf 9040)", "apc", "BAE Systems Hagglunds data sheet",
+        length=6.47, width=3.1, height=2.7, gun_length=None,
+        deck=1.9, nose=1.0, glacis=1.2, road_wheels=7, wheel_d=0.6, track_w=0.53, contact=3.9,
+        lower_glacis=0.5, belly=0.45, rear_slope=0.1, skirts=True,
+        turret=Turret(ring=3.2, front=1.1, rear=1.2, width=2.3, height=0.8, nose=0.6, slope=0.4, taper=0.15,
+                      gun=Gun(0.1, trunnion=(0.9, 0.35), length=2.4, elevation=(-8.0, 50.0), mantlet=(0.4, 0.5, 0.35))),
     ),
+    # A 4 x 4 armoured personnel carrier: wheeled APCs run from 4 x 4 to 8 x 8.
     Wheeled(
-        "boxer", "Boxer (GTK, APC)", "apc", "ARTEC (KMW / Rheinmetall) data sheet",
-        length=7.93, width=2.99, height=2.37, axles=(1.5, 3.0, 4.95, 6.45),
-        wheel_d=1.2, tyre_w=0.4, track=2.5, deck=2.37, nose=1.2, glacis=1.0, lower_glacis=0.6,
-        belly=0.5, rear_slope=0.15, side_slope=0.12,
+        "vab", "Renault VAB (4 x 4)", "apc", "Renault Trucks Defense data / Jane's",
+        length=5.98, width=2.49, height=2.06, axles=(1.45, 4.45),
+        wheel_d=1.05, tyre_w=0.33, track=2.04, deck=2.06, nose=1.1, glacis=1.0, lower_glacis=0.7,
+        belly=0.45, rear_slope=0.15, side_slope=0.15,
     ),
     Wheeled(
         "lav_25", "LAV-25", "apc", "General Dynamics Land Systems / USMC fact file",
