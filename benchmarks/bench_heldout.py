@@ -1,6 +1,7 @@
 """Recognition of real vehicles the model never saw: a static α search on the held-out meshes.
 
     python benchmarks/bench_heldout.py [--checkpoint checkpoints/default.pt] [--grid 720] [--json OUT]
+        [--figure docs/recognition_failures.png] [--catalog-dir DIR] [--min-thickness 0.05]
 
 Each held-out mesh (``torch_atr/vehicles/heldout.yaml``, files under ``shared/data/meshes``) is
 rendered at 30 azimuths every 12° at 5° elevation, in the model's template window. For 720
@@ -16,6 +17,15 @@ training vehicles nearest their best α, and not counted. Manifest entries with 
 geometry are counted once: two meshes are the same when their 30 silhouettes agree at mean
 IoU >= 0.98 (the manifest lists one Quaternius tank twice, as a GLB and as an OBJ).
 
+``--figure`` draws the meshes that are wrong in most single views beside the training
+vehicles nearest their best α and nearest their best α within the true class (templates of
+the catalog under ``--catalog-dir``). The state before issue 10 (docs/recognition_before.png)::
+
+    git show 82d7482:checkpoints/default.pt > /tmp/old.pt && mkdir -p /tmp/old
+    git archive 82d7482 torch_atr/vehicles/catalog | tar -x -C /tmp/old
+    python benchmarks/bench_heldout.py --checkpoint /tmp/old.pt --min-thickness 0 \
+        --catalog-dir /tmp/old/torch_atr/vehicles/catalog/train --figure docs/recognition_before.png
+
 Prints the per-mesh rows, then the per-class table (meshes on their true class, single views
 on their true class, mean best IoU), the total over distinct geometries ("all 25") and over
 every manifest entry as issue 10 counted them ("all entries 26").
@@ -29,6 +39,7 @@ import logging
 import math
 from pathlib import Path
 
+import numpy as np
 import torch
 
 from torch_atr.evaluation import alpha_grid_iou
@@ -36,7 +47,9 @@ from torch_atr.model import GenerativeShapeModel
 from torch_atr.render import render_templates
 from torch_atr.shape import iou
 from torch_atr.vehicles import CLASS_NAMES, load_heldout_meshes
-from torch_atr.vehicles.catalog import read_manifest
+from torch_atr.vehicles.catalog import CATALOG_DIR, read_manifest
+from torch_atr.vehicles.loader import MIN_THICKNESS_M
+from torch_atr.viz import save_figures
 
 log = logging.getLogger("bench_heldout")
 
@@ -63,17 +76,20 @@ def duplicates(masks: torch.Tensor) -> dict[int, int]:
 
 
 def evaluate(model: GenerativeShapeModel, meshes: list, paths: list[str], grid: int) -> list[dict]:
-    """One result row per mesh (manifest order): classes found per view and for the whole vehicle."""
+    """One result row per mesh (manifest order): classes found per view and for the whole vehicle,
+    and the training vehicle nearest the best α within the true class ("nearest_in_class")."""
     theta, phi = views()
     masks = torch.stack([render_templates(v, theta, phi, model.template) for v in meshes])  # (B, V, H, W)
     table = alpha_grid_iou(model, masks, theta, phi, grid)  # (B, A, V)
     alpha = torch.arange(grid, dtype=torch.float64) * (2 * math.pi / grid)
     alpha_class = model.classify(alpha).cpu()  # (A,)
+    vehicle_class = torch.tensor(model.vehicle_classes)  # (K,)
     same = duplicates(masks)
     rows = []
     for b, (vehicle, path) in enumerate(zip(meshes, paths)):
         per_view = table[b].argmax(dim=0)  # (V,) best α index of each view
-        best = table[b].mean(dim=1).argmax().item()
+        score = table[b].mean(dim=1)  # (A,)
+        best = score.argmax().item()
         nearest = model.nearest_vehicles(alpha[best:best + 1], 2)[0].tolist()
         row = {
             "path": path, "class": vehicle.cls, "alpha": round(alpha[best].item(), 4),
@@ -84,10 +100,59 @@ def evaluate(model: GenerativeShapeModel, meshes: list, paths: list[str], grid: 
             "duplicate_of": paths[same[b]] if b in same else None,
         }
         if vehicle.cls in CLASS_NAMES:
+            c = CLASS_NAMES.index(vehicle.cls)
             row["correct"] = row["classified"] == vehicle.cls
-            row["views_correct"] = sum(c == vehicle.cls for c in row["view_classes"]) / len(per_view)
+            row["views_correct"] = sum(k == vehicle.cls for k in row["view_classes"]) / len(per_view)
+            in_class = score.masked_fill(alpha_class != c, -1.0).argmax().item()
+            gap = model.identity.circular_distances(alpha[in_class:in_class + 1].to(model.alphas))[0].cpu()  # (K,)
+            row["nearest_in_class"] = model.vehicle_names[gap.masked_fill(vehicle_class != c, math.inf).argmin().item()]
         rows.append(row)
     return rows
+
+
+def failure_figure(rows: list[dict], meshes: list, catalog_dir: Path, model: GenerativeShapeModel, title: str):
+    """Meshes wrong in most single views, each beside the training vehicle nearest its best α and the one
+    of its true class nearest its best α in that class: overlaid templates at three views. Returns a Figure."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.patches import Patch
+
+    from torch_atr.vehicles import load_vehicle
+
+    shown = [(r, m) for r, m in zip(rows, meshes)
+             if r["class"] in CLASS_NAMES and r["duplicate_of"] is None and r["views_correct"] < 0.5]
+    shown.sort(key=lambda rm: (CLASS_NAMES.index(rm[0]["class"]), rm[0]["path"]))
+    cls_of = dict(zip(model.vehicle_names, (CLASS_NAMES[c] for c in model.vehicle_classes)))
+    degrees = (0.0, 36.0, 84.0)
+    theta = torch.deg2rad(torch.tensor(degrees, dtype=torch.float64))
+    phi = torch.full_like(theta, math.radians(ELEVATION_DEG))
+    colours = np.array([[1.0, 1.0, 1.0], [0.95, 0.5, 0.1], [0.15, 0.45, 0.9], [0.25, 0.25, 0.25]])
+    fig, axes = plt.subplots(max(len(shown), 1), 2 * len(degrees), figsize=(2.0 * 2 * len(degrees), 1.5 * len(shown) + 1.2),
+                             squeeze=False)
+    crop = slice(12, 52)  # the central 7.5 m of the 12 m window
+    for i, (row, mesh) in enumerate(shown):
+        real = render_templates(mesh, theta, phi, model.template)
+        for j, name in enumerate((row["nearest"][0], row["nearest_in_class"])):
+            train = render_templates(load_vehicle(catalog_dir / name / f"{name}.urdf"), theta, phi, model.template)
+            for v, deg in enumerate(degrees):
+                ax = axes[i, j * len(degrees) + v]
+                code = real[v].long() + 2 * train[v].long()  # 0 neither, 1 real only, 2 training only, 3 both
+                ax.imshow(colours[code.numpy()][crop, crop], interpolation="nearest")
+                ax.set_xticks([])
+                ax.set_yticks([])
+                if i == 0:
+                    ax.set_title(f"{'nearest α found' if j == 0 else 'nearest in true class'}\nθ = {deg:g}°", fontsize=8)
+                if v == 0:
+                    ax.set_xlabel(f"{name} ({cls_of[name]})", fontsize=7, loc="left")
+        axes[i, 0].set_ylabel(f"{Path(row['path']).stem}\n{row['class']} → {row['classified']}\n"
+                              f"views on class {row['views_correct']:.2f}", fontsize=7)
+    fig.legend(handles=[Patch(color=colours[1], label="real mesh only"), Patch(color=colours[2], label="training vehicle only"),
+                        Patch(color=colours[3], label="both")], loc="lower center", ncol=3, fontsize=8)
+    fig.suptitle(title, fontsize=10)
+    fig.tight_layout(rect=(0, 0.04, 1, 0.97))
+    return fig
 
 
 def summary(rows: list[dict]) -> dict[str, dict]:
@@ -109,11 +174,16 @@ def main() -> None:
     parser.add_argument("--meshes", default=None, help="held-out meshes folder (default: shared/data/meshes)")
     parser.add_argument("--grid", type=int, default=720, help="number of α values searched")
     parser.add_argument("--json", type=Path, default=None, help="also write the rows and the summary here")
+    parser.add_argument("--figure", type=Path, default=None, help="draw the meshes wrong in most views here (PNG)")
+    parser.add_argument("--catalog-dir", type=Path, default=CATALOG_DIR / "train",
+                        help="the checkpoint's training vehicles, <dir>/<name>/<name>.urdf (for --figure)")
+    parser.add_argument("--min-thickness", type=float, default=MIN_THICKNESS_M,
+                        help="thinner protrusions are trimmed from the meshes (0: keep them, as before issue 10)")
     args = parser.parse_args()
     logging.basicConfig(level=logging.INFO, format="%(message)s")
     model = GenerativeShapeModel.from_checkpoint(args.checkpoint)
     entries = read_manifest()
-    meshes = load_heldout_meshes(args.meshes, entries)
+    meshes = load_heldout_meshes(args.meshes, entries, args.min_thickness)
     rows = evaluate(model, meshes, [e.path for e in entries], args.grid)
 
     log.info("%-46s %-8s %-8s %5s %6s  %s", "mesh", "class", "found", "IoU", "views", "nearest training vehicles")
@@ -128,6 +198,13 @@ def main() -> None:
         label, bold = (f"{name} {s['meshes']}", "**") if name.startswith("all") else (name, "")
         log.info("| %s%s%s | %s%d/%d%s | %s%.3f%s | %.3f |", bold, label, bold, bold, s["correct"], s["meshes"], bold,
                  bold, s["views_correct"], bold, s["best_mean_iou"])
+    if args.figure is not None:
+        path = Path(args.checkpoint).resolve()
+        shown_path = path.relative_to(REPO) if path.is_relative_to(REPO) else path.name
+        fig = failure_figure(rows, meshes, args.catalog_dir, model,
+                             f"Held-out real meshes wrong in most single views (static α search, {shown_path}): "
+                             f"overlaid 64 x 64 templates, central 7.5 m, 5° elevation")
+        save_figures({args.figure.stem: fig}, args.figure.parent)
     if args.json is not None:
         args.json.write_text(json.dumps({"checkpoint": str(args.checkpoint), "rows": rows, "summary": table}, indent=1))
 

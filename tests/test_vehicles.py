@@ -686,6 +686,17 @@ def test_heldout_subset_loads_in_body_frame():
 
 
 @needs_meshes
+def test_heldout_antenna_no_longer_sets_the_box():
+    """The Chrono G-class carries a 1.7 m whip antenna (SOURCES.md: z-extent 3.1 m)."""
+    entries = [e for e in read_manifest() if e.path == "suv/chrono_gclass_gd250_chassis.obj"]
+    (kept,) = load_heldout_meshes(entries=entries, min_thickness=0.0)
+    (trimmed,) = load_heldout_meshes(entries=entries)
+    assert kept.mesh.extents[2] == pytest.approx(3.12, abs=0.01)
+    assert trimmed.mesh.extents[2] == pytest.approx(1.5, abs=0.02)  # the body without wheels
+    np.testing.assert_allclose(trimmed.mesh.extents[:2], kept.mesh.extents[:2], atol=1e-6)
+
+
+@needs_meshes
 def test_heldout_root_from_environment(tmp_path, monkeypatch):
     entry = next(e for e in read_manifest() if e.path == "van/gazebo_ambulance.obj")
     (tmp_path / "van").mkdir()

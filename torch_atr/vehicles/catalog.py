@@ -17,7 +17,7 @@ from pathlib import Path
 
 import yaml
 
-from torch_atr.vehicles.loader import CLASS_NAMES, Vehicle, body_rotation, load_vehicle
+from torch_atr.vehicles.loader import CLASS_NAMES, MIN_THICKNESS_M, Vehicle, body_rotation, load_vehicle
 from torch_atr.vehicles.specs import SPLITS
 
 PACKAGE_DIR = Path(__file__).resolve().parent
@@ -188,18 +188,22 @@ def default_meshes_root() -> Path:
     return Path(env) if env else PACKAGE_DIR.parents[2] / "shared" / "data" / "meshes"
 
 
-def load_heldout_meshes(root: str | Path | None = None, entries: list[HeldoutEntry] | None = None) -> list[Vehicle]:
+def load_heldout_meshes(root: str | Path | None = None, entries: list[HeldoutEntry] | None = None,
+                        min_thickness: float = MIN_THICKNESS_M) -> list[Vehicle]:
     """Load the held-out meshes (manifest order) into the body frame.
 
     Args:
         root: the meshes folder; default :func:`default_meshes_root`.
         entries: a subset of :func:`read_manifest` to load; default all of them.
+        min_thickness: thinner protrusions are trimmed (:func:`~torch_atr.vehicles.load_vehicle`);
+            0 keeps them, as before issue 10.
     """
     root = default_meshes_root() if root is None else Path(root)
     if not root.is_dir():
         raise FileNotFoundError(f"held-out meshes folder not found: {root} (set {MESHES_ENV} to override)")
     entries = read_manifest() if entries is None else entries
     return [
-        load_vehicle(root / e.path, up_axis=e.up, forward_axis=e.forward, scale=e.scale, cls=e.cls)
+        load_vehicle(root / e.path, up_axis=e.up, forward_axis=e.forward, scale=e.scale, cls=e.cls,
+                     min_thickness=min_thickness)
         for e in entries
     ]
