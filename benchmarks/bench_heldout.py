@@ -21,9 +21,9 @@ IoU >= 0.98 (the manifest lists one Quaternius tank twice, as a GLB and as an OB
 vehicles nearest their best α and nearest their best α within the true class (templates of
 the catalog under ``--catalog-dir``). The state before issue 10 (docs/recognition_before.png)::
 
-    git show 82d7482:checkpoints/default.pt > /tmp/old.pt && mkdir -p /tmp/old
+    mkdir -p /tmp/old && git show 82d7482:checkpoints/default.pt > /tmp/old/default_82d7482.pt
     git archive 82d7482 torch_atr/vehicles/catalog | tar -x -C /tmp/old
-    python benchmarks/bench_heldout.py --checkpoint /tmp/old.pt --min-thickness 0 \
+    python benchmarks/bench_heldout.py --checkpoint /tmp/old/default_82d7482.pt --min-thickness 0 \
         --catalog-dir /tmp/old/torch_atr/vehicles/catalog/train --figure docs/recognition_before.png
 
 Prints the per-mesh rows, then the per-class table (meshes on their true class, single views
@@ -129,8 +129,8 @@ def failure_figure(rows: list[dict], meshes: list, catalog_dir: Path, model: Gen
     theta = torch.deg2rad(torch.tensor(degrees, dtype=torch.float64))
     phi = torch.full_like(theta, math.radians(ELEVATION_DEG))
     colours = np.array([[1.0, 1.0, 1.0], [0.95, 0.5, 0.1], [0.15, 0.45, 0.9], [0.25, 0.25, 0.25]])
-    fig, axes = plt.subplots(max(len(shown), 1), 2 * len(degrees), figsize=(2.0 * 2 * len(degrees), 1.5 * len(shown) + 1.2),
-                             squeeze=False)
+    ncol = 2 * len(degrees)
+    fig, axes = plt.subplots(max(len(shown), 1), ncol, figsize=(2.0 * ncol, 1.5 * len(shown) + 1.2), squeeze=False)
     crop = slice(12, 52)  # the central 7.5 m of the 12 m window
     for i, (row, mesh) in enumerate(shown):
         real = render_templates(mesh, theta, phi, model.template)
@@ -143,13 +143,15 @@ def failure_figure(rows: list[dict], meshes: list, catalog_dir: Path, model: Gen
                 ax.set_xticks([])
                 ax.set_yticks([])
                 if i == 0:
-                    ax.set_title(f"{'nearest α found' if j == 0 else 'nearest in true class'}\nθ = {deg:g}°", fontsize=8)
+                    which = "nearest α found" if j == 0 else "nearest in true class"
+                    ax.set_title(f"{which}\nθ = {deg:g}°", fontsize=8)
                 if v == 0:
                     ax.set_xlabel(f"{name} ({cls_of[name]})", fontsize=7, loc="left")
         axes[i, 0].set_ylabel(f"{Path(row['path']).stem}\n{row['class']} → {row['classified']}\n"
                               f"views on class {row['views_correct']:.2f}", fontsize=7)
-    fig.legend(handles=[Patch(color=colours[1], label="real mesh only"), Patch(color=colours[2], label="training vehicle only"),
-                        Patch(color=colours[3], label="both")], loc="lower center", ncol=3, fontsize=8)
+    legend = [Patch(color=colours[k], label=label)
+              for k, label in ((1, "real mesh only"), (2, "training vehicle only"), (3, "both"))]
+    fig.legend(handles=legend, loc="lower center", ncol=3, fontsize=8)
     fig.suptitle(title, fontsize=10)
     fig.tight_layout(rect=(0, 0.04, 1, 0.97))
     return fig

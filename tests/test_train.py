@@ -92,7 +92,8 @@ def test_catalog_manifest_errors_name_the_entry(tmp_path):
     manifest = folder / "catalog.yaml"
     good = manifest.read_text()
     for line, message in [
-        ("  - {file: camry_cm.obj, class: sedan, length: 4.88, name: c2}", r"vehicles\[4\] \(camry_cm.obj\): class 'sedan'"),
+        ("  - {file: camry_cm.obj, class: sedan, length: 4.88, name: c2}",
+         r"vehicles\[4\] \(camry_cm.obj\): class 'sedan'"),
         ("  - {file: gone.obj, class: car, scale: 1.0}", r"vehicles\[4\] \(gone.obj\): vehicle file not found"),
         ("  - {file: camry_cm.obj, class: car, length: 4.88, scale: 0.01}", r"vehicles\[4\].*exactly one of 'length'"),
         ("  - {file: camry_cm.obj, class: car, scale: -1}", r"vehicles\[4\].*scale must be a positive number"),
@@ -119,5 +120,6 @@ def test_bad_config_key_and_type_are_named(tmp_path):
 def test_default_training_meets_the_quality_bars(tmp_path):
     _, report = _run(tmp_path)
     assert report["train_iou"]["all"] >= 0.95 and min(report["train_iou"].values()) >= 0.9
-    assert report["held_out_iou"]["all"] >= 0.85
+    assert report["held_out_iou"]["all"] >= 0.93  # half-step views
     assert report["identity_self_match"]["all"]
+    assert report["test_split_correct"] >= 7  # of the 8 SENSIAC-like vehicles on their class

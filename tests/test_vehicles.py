@@ -615,7 +615,8 @@ def test_sweep_volume_matches_convex_hull(seed):
     rng = np.random.default_rng(seed)
     ang = np.sort(rng.uniform(0, 2 * np.pi, 9))
     ring = np.stack([np.cos(ang), 0.6 * np.sin(ang)], 1)
-    rings = [np.c_[np.full(9, x), ring * s + [0.0, 0.2 * x]] for x, s in ((0.0, 0.5), (0.7, 1.0), (2.0, 0.9), (2.5, 0.3))]
+    sizes = ((0.0, 0.5), (0.7, 1.0), (2.0, 0.9), (2.5, 0.3))  # (x, scale)
+    rings = [np.c_[np.full(9, x), ring * s + [0.0, 0.2 * x]] for x, s in sizes]
     v, f = sweep(rings)
     m = trimesh.Trimesh(v, f, process=False)
     assert m.is_watertight and m.is_winding_consistent

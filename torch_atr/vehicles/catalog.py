@@ -101,7 +101,8 @@ def read_catalog_manifest(folder: str | Path) -> list[CatalogEntry]:
             raise ValueError(f"{where}: expected a mapping; got {item!r}")
         unknown, missing = sorted(set(item) - set(_ENTRY_KEYS)), sorted({"file", "class"} - set(item))
         if unknown or missing:
-            raise ValueError(f"{where}: unknown keys {unknown} / missing keys {missing}; keys are {sorted(_ENTRY_KEYS)}")
+            raise ValueError(f"{where}: unknown keys {unknown} / missing keys {missing}; "
+                             f"keys are {sorted(_ENTRY_KEYS)}")
         if ("length" in item) == ("scale" in item):
             raise ValueError(f"{where}: give exactly one of 'length' (metres) and 'scale' (file units -> metres)")
         kw = {_ENTRY_KEYS[k]: v for k, v in item.items()}

@@ -9,11 +9,14 @@ usual tabulations of them (Jane's, Wikipedia infoboxes), without a live look-up,
 runs, shape fractions, rounding, door-mirror reach) is estimated from side-view drawings and
 photographs; it shapes the silhouette, not the headline dimensions that tests check.
 
-Each class spans the real range of its kind, not one archetype (docs/recognition.md): six tanks
-of six kinds: a light tank, Second World War medium and heavy tanks, Cold War and current
-main battle tanks and a self-propelled howitzer (SENSIAC's tank class holds a howitzer and an anti-aircraft gun); SUVs from 4.2 m, 1.6 m high
-subcompact crossovers to 5.1 m, 2 m high body-on-frame SUVs; cars from a 3.5 m city car to
-4.9 m saloons; vans from minivans to one-box, high-roof and cutaway box vans.
+Each class spans the real range of its kind, not one archetype (docs/recognition.md):
+- tanks, one of each kind: a light tank, Second World War medium and heavy tanks, Cold War and
+  current main battle tanks and a self-propelled howitzer (SENSIAC's tank class holds a
+  howitzer and an anti-aircraft gun);
+- APCs half tracked, half wheeled, from 4 x 4 to 8 x 8;
+- SUVs from 4.2 m, 1.6 m high subcompact crossovers to 5.1 m, 2 m high body-on-frame SUVs;
+- cars from a 3.5 m city car to 4.9 m saloons;
+- vans from minivans to one-box, high-roof and cutaway box vans.
 
 Conventions for the numbers below (metres, degrees):
 - ``s`` positions are measured backwards from the front of the hull / body;
