@@ -188,12 +188,17 @@ def main() -> None:
     meshes = load_heldout_meshes(args.meshes, entries, args.min_thickness)
     rows = evaluate(model, meshes, [e.path for e in entries], args.grid)
 
+    known = sorted((r for r in rows if r["class"] in CLASS_NAMES), key=lambda r: (r["class"], r["path"]))
+    unknown = sorted((r for r in rows if r["class"] not in CLASS_NAMES), key=lambda r: r["path"])
     log.info("%-46s %-8s %-8s %5s %6s  %s", "mesh", "class", "found", "IoU", "views", "nearest training vehicles")
-    for r in sorted(rows, key=lambda r: (r["class"] not in CLASS_NAMES, r["class"], r["path"])):
-        views_txt = f"{r['views_correct']:.2f}" if "views_correct" in r else "-"
+    for r in known:
         note = f"  (same geometry as {r['duplicate_of']}: not counted)" if r["duplicate_of"] else ""
-        log.info("%-46s %-8s %-8s %5.3f %6s  %s%s", r["path"], r["class"], r["classified"], r["best_mean_iou"],
-                 views_txt, ", ".join(r["nearest"]), note)
+        log.info("%-46s %-8s %-8s %5.3f %6.2f  %s%s", r["path"], r["class"], r["classified"], r["best_mean_iou"],
+                 r["views_correct"], ", ".join(r["nearest"]), note)
+    log.info("out of the trained classes (not counted): class found and nearest training vehicles")
+    for r in unknown:
+        log.info("%-46s %-8s %-8s %5.3f %6s  %s", r["path"], r["class"], r["classified"], r["best_mean_iou"], "-",
+                 ", ".join(r["nearest"]))
     table = summary(rows)
     log.info("\n| class | meshes on true class | single views on true class | best mean IoU |\n|---|---|---|---|")
     for name, s in table.items():
