@@ -1,8 +1,9 @@
 """Train the shape-based generative model (thesis chapter 4 and 6.1).
 
     python train.py [--config configs/default.yaml] [--overwrite] [key=value ...]
+    python train.py catalog=PATH    # train on your own models: PATH/catalog.yaml lists them
 
-Steps: render the training split at the configured views and encode the silhouettes by the
+Steps: render the training vehicles at the configured views and encode the silhouettes by the
 clipped signed distance; fit the RBF view mappings, tune the kernel widths on held-out views
 (optional), decompose the mapping tensor (HOSVD) and build the identity manifold; measure the
 reconstructions; log pictures to TensorBoard; write the checkpoint (atomically) with the
@@ -35,7 +36,7 @@ from torch_atr.model import GenerativeShapeModel
 from torch_atr.model.generative import is_checkpoint
 from torch_atr.model.rbf import RBFViewMapping
 from torch_atr.training import REPORT_FORMAT, TrainConfig, is_train_report, non_finite_keys, render_set
-from torch_atr.vehicles import CLASS_NAMES, load_catalog
+from torch_atr.vehicles import CLASS_NAMES, load_catalog, load_catalog_folder
 
 log = logging.getLogger("train")
 
@@ -64,8 +65,9 @@ def main(argv: list[str] | None = None) -> dict:
         log.info("%s: %.1f s", stage, now - clock)
         clock = now
 
-    # 1. The training split rendered at the training, validation and held-out views.
-    vehicles = load_catalog("train")
+    # 1. The training vehicles (the shipped split, or a folder of your own models) rendered at the
+    # training, validation and held-out views.
+    vehicles = load_catalog("train") if cfg.catalog == "train" else load_catalog_folder(cfg.catalog)
     names, classes = [v.name for v in vehicles], [CLASS_NAMES.index(v.cls) for v in vehicles]
     theta, phi = cfg.views.grid()
     masks, signed = render_set(vehicles, theta, phi, cfg.template, "training views")

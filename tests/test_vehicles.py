@@ -22,8 +22,8 @@ from scipy.spatial import ConvexHull
 from torch_atr.vehicles import CLASS_NAMES, Vehicle, load_catalog, load_heldout_meshes, load_vehicle
 from torch_atr.vehicles.build import _clip, build_catalog
 from torch_atr.vehicles.catalog import CATALOG_DIR, MESHES_ENV, default_meshes_root, read_manifest
-from torch_atr.vehicles.geometry import frustum_xy, prism_xz, signed_area, triangulate, volume
-from torch_atr.vehicles.loader import body_rotation
+from torch_atr.vehicles.geometry import fillet, frustum_xy, prism_xz, signed_area, sweep, triangulate, volume
+from torch_atr.vehicles.loader import body_rotation, thick_bounds
 from torch_atr.vehicles.specs import TEST, TRAIN, Road
 
 SPECS = {s.name: s for s in TRAIN + TEST}
@@ -97,18 +97,22 @@ def test_extents_match_published(by_name, name):
     # Length and width are built straight from the spec (the x / y placements use them), so they
     # mostly check the assembly; height (deck + turret or roof) and anything that could stick
     # out (cupolas, extras, guns, wheels) are what this really tests.
+    # A road vehicle's published width leaves out its door mirrors; the mesh has them.
     spec, v = SPECS[name], by_name[name]
     length = spec.gun_length if getattr(spec, "gun_length", None) else spec.length
+    width = spec.width
+    if isinstance(spec, Road):
+        width = max(width, (spec.cab[0] if spec.cab else width) + 2 * spec.mirror)
     lo, hi = v.mesh.bounds
     ext = hi - lo
-    np.testing.assert_allclose(ext, [length, spec.width, spec.height], rtol=TOL, err_msg=name)
+    np.testing.assert_allclose(ext, [length, width, spec.height], rtol=TOL, err_msg=name)
     assert lo[2] == pytest.approx(0.0, abs=1e-9)  # on the ground
     np.testing.assert_allclose((lo + hi)[:2] / 2, 0.0, atol=1e-9)  # footprint centred
 
 
 @pytest.mark.parametrize("name", sorted(n for n, s in SPECS.items() if isinstance(s, Road)))
 def test_wheelbase_and_track_from_urdf(name):
-    """Wheel cylinders in the URDF XML sit at the published wheelbase and track."""
+    """Wheel cylinders on the ground in the URDF XML sit at the published wheelbase and track."""
     spec = SPECS[name]
     split = "train" if spec in TRAIN else "test"
     root = ET.parse(CATALOG_DIR / split / name / f"{name}.urdf").getroot()
@@ -116,7 +120,9 @@ def test_wheelbase_and_track_from_urdf(name):
     for vis in root.iter("visual"):
         cyl = vis.find("geometry/cylinder")
         if cyl is not None and float(cyl.get("radius")) == pytest.approx(spec.wheel_d / 2):
-            centres.append([float(t) for t in vis.find("origin").get("xyz").split()])
+            centre = [float(t) for t in vis.find("origin").get("xyz").split()]
+            if centre[2] == pytest.approx(spec.wheel_d / 2):  # not a spare wheel
+                centres.append(centre)
     c = np.array(centres)
     assert len(c) == 4
     assert np.ptp(c[:, 0]) == pytest.approx(spec.wheelbase, abs=1e-3)
@@ -407,6 +413,37 @@ def test_mesh_file_axes_and_scale(tmp_path, up, forward, scale, ext):
     assert x[np.argmax(x[:, 1]), 2] < 0.5  # the low fin is on the left (+Y)
 
 
+def _with_antenna_and_mirror() -> trimesh.Trimesh:
+    """A 4 x 1.8 x 1.5 m box body on the ground, a 1.2 m whip antenna (2 cm thick) on its roof and a
+    mirror plate (2 cm thick, 0.2 m wide and 0.15 m high) sticking 0.25 m out of its left side."""
+    body = trimesh.creation.box(extents=(4.0, 1.8, 1.5)).apply_translation((0.0, 0.0, 0.75))
+    whip = trimesh.creation.cylinder(radius=0.01, height=1.2, sections=8).apply_translation((-1.5, 0.5, 1.5 + 0.6))
+    mirror = trimesh.creation.box(extents=(0.02, 0.35, 0.15)).apply_translation((1.0, 0.9 + 0.075, 1.0))
+    return trimesh.util.concatenate([body, whip, mirror])
+
+
+def test_thin_protrusions_are_trimmed_from_mesh_files(tmp_path):
+    _with_antenna_and_mirror().export(tmp_path / "v.obj")
+    v = load_vehicle(tmp_path / "v.obj")
+    # The whip goes, to within one 1 cm slab (it would raise the box centre by 0.6 m); the mirror plate stays.
+    np.testing.assert_allclose(v.mesh.extents, [4.0, 1.8 + 0.25, 1.5], atol=0.0101)
+    assert len(v.mesh.faces) > 12 + 12  # body and mirror boxes, and the whip's stub
+    kept = load_vehicle(tmp_path / "v.obj", min_thickness=0.0)
+    np.testing.assert_allclose(kept.mesh.extents, [4.0, 2.05, 2.7], atol=1e-6)
+    # The same whip 10 cm thick is a mast, not a wire: it stays.
+    assert load_vehicle(tmp_path / "v.obj", min_thickness=0.01).mesh.extents[2] == pytest.approx(2.7, abs=1e-6)
+    with pytest.raises(ValueError, match="min_thickness"):
+        load_vehicle(tmp_path / "v.obj", min_thickness=-1.0)
+
+
+def test_thick_bounds_leave_the_catalog_untouched(catalog):
+    """No catalog vehicle has a thin protrusion: the trimmed box is the whole box (so URDFs, taken as
+    written, and mesh files are centred by one rule)."""
+    for v in catalog["train"] + catalog["test"]:
+        box = thick_bounds(v.mesh.vertices, np.asarray(v.mesh.faces), 0.05)
+        np.testing.assert_allclose(box, v.mesh.bounds, atol=1e-9, err_msg=v.name)
+
+
 def test_body_rotation_is_proper():
     for up in AXIS_VEC:
         for fw in AXIS_VEC:
@@ -571,6 +608,37 @@ def test_loft_volumes_match_convex_hull(seed):
     assert v[:, 1].min() == pytest.approx(-0.3) and v[:, 1].max() == pytest.approx(1.3)
 
 
+@pytest.mark.parametrize("seed", [0, 1])
+def test_sweep_volume_matches_convex_hull(seed):
+    """Scaled copies of one convex ring along x (sizes concave in x, centres on a line): the side quads
+    are planar trapezoids and the swept solid is the rings' convex hull."""
+    rng = np.random.default_rng(seed)
+    ang = np.sort(rng.uniform(0, 2 * np.pi, 9))
+    ring = np.stack([np.cos(ang), 0.6 * np.sin(ang)], 1)
+    sizes = ((0.0, 0.5), (0.7, 1.0), (2.0, 0.9), (2.5, 0.3))  # (x, scale)
+    rings = [np.c_[np.full(9, x), ring * s + [0.0, 0.2 * x]] for x, s in sizes]
+    v, f = sweep(rings)
+    m = trimesh.Trimesh(v, f, process=False)
+    assert m.is_watertight and m.is_winding_consistent
+    assert volume(v, f) == pytest.approx(ConvexHull(np.concatenate(rings)).volume, rel=1e-9)
+    assert volume(*sweep(rings[::-1])) > 0  # either direction comes out oriented outwards
+    with pytest.raises(ValueError, match=r"shape \(S>=2, n>=3, 3\)"):
+        sweep(rings[:1])
+
+
+def test_fillet_arcs_are_tangent_circles_of_the_radius():
+    pts = [(0.0, 0.0), (2.0, 0.0), (2.0, 1.0), (4.0, 3.0)]
+    out = np.array(fillet(pts, [0.3, 0.0], arc=5))
+    assert len(out) == 2 + 5 + 1  # end points, one arc, one sharp corner
+    arc = out[1:6]
+    np.testing.assert_allclose(np.linalg.norm(arc - [1.7, 0.3], axis=1), 0.3, atol=1e-12)  # centre (1.7, 0.3)
+    np.testing.assert_allclose(arc[[0, -1]], [[1.7, 0.0], [2.0, 0.3]], atol=1e-12)  # tangent points
+    np.testing.assert_allclose(out[6], (2.0, 1.0))  # radius 0 keeps the corner
+    # A radius too large for the segments shrinks to fit 0.45 of the shorter one.
+    tight = np.array(fillet([(0.0, 0.0), (1.0, 0.0), (1.0, 1.0)], 5.0))
+    np.testing.assert_allclose(tight[[1, -2]], [[0.55, 0.0], [1.0, 0.45]], atol=1e-12)
+
+
 # ------------------------------------------------------------------------------------------
 # Held-out meshes
 # ------------------------------------------------------------------------------------------
@@ -616,6 +684,17 @@ def test_heldout_subset_loads_in_body_frame():
     m113 = vehicles[[e.path for e in entries].index("apc/chrono_M113_chassis.obj")]
     # M113: the long sloped glacis is at the front, the rear plate is vertical.
     assert _max_height(m113, 2.2, 2.7) < _max_height(m113, -2.7, -2.2) - 0.3
+
+
+@needs_meshes
+def test_heldout_antenna_no_longer_sets_the_box():
+    """The Chrono G-class carries a 1.7 m whip antenna (SOURCES.md: z-extent 3.1 m)."""
+    entries = [e for e in read_manifest() if e.path == "suv/chrono_gclass_gd250_chassis.obj"]
+    (kept,) = load_heldout_meshes(entries=entries, min_thickness=0.0)
+    (trimmed,) = load_heldout_meshes(entries=entries)
+    assert kept.mesh.extents[2] == pytest.approx(3.12, abs=0.01)
+    assert trimmed.mesh.extents[2] == pytest.approx(1.5, abs=0.02)  # the body without wheels
+    np.testing.assert_allclose(trimmed.mesh.extents[:2], kept.mesh.extents[:2], atol=1e-6)
 
 
 @needs_meshes

@@ -4,7 +4,8 @@ Body frame (METHOD.md): +X forward, +Y left, +Z up, metres, origin at the centre
 footprint on the ground. Other modules use ``vehicle.name``, ``vehicle.cls`` and ``vehicle.mesh``.
 """
 
-from torch_atr.vehicles.catalog import load_catalog, load_catalog_vehicle, load_heldout_meshes
+from torch_atr.vehicles.catalog import load_catalog, load_catalog_folder, load_catalog_vehicle, load_heldout_meshes
 from torch_atr.vehicles.loader import CLASS_NAMES, Vehicle, load_vehicle
 
-__all__ = ["CLASS_NAMES", "Vehicle", "load_vehicle", "load_catalog", "load_catalog_vehicle", "load_heldout_meshes"]
+__all__ = ["CLASS_NAMES", "Vehicle", "load_vehicle", "load_catalog", "load_catalog_folder", "load_catalog_vehicle",
+           "load_heldout_meshes"]

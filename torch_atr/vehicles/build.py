@@ -7,6 +7,13 @@ it; DIR defaults to the package's ``catalog`` folder, whose files are committed.
 is a pure function of the specs (fixed topology, 0.1 mm text), so rebuilding reproduces the
 shipped files byte for byte.
 
+Road vehicles are swept through rounded cross-sections along a filleted side profile
+(:func:`_road_body`), with wheels, door mirrors and, per spec, roof rails, a tailgate spare
+wheel, a pickup bed or a van's box body. Military hulls are prisms of their side profile over
+track runs or wheels, with faceted or domed turrets. Nothing thinner than 5 cm sticks out (no
+whip antennas): such parts are below a template pixel and would only move the bounding-box
+centre that templates are centred on (:func:`torch_atr.vehicles.loader.thick_bounds`).
+
 Frames: each URDF's root link ``hull`` is already the body frame at the rest pose (+X
 forward, +Y left, +Z up; the bounding box, gun forward, is centred on x = y = 0 and the tracks
 or tyres touch z = 0). Articulated vehicles have a ``turret`` link on the continuous joint
@@ -24,15 +31,18 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable, Sequence
 
+import numpy as np
+
 from torch_atr.io import atomic_write_text
 from torch_atr.vehicles.catalog import CATALOG_DIR
-from torch_atr.vehicles.geometry import Part, ellipse, fmt, frustum_xy, obj_text, prism_xz
+from torch_atr.vehicles.geometry import Part, ellipse, fillet, fmt, frustum_xy, obj_text, prism_xz, sweep
 from torch_atr.vehicles.specs import SPLITS, Extra, Road, Spec, Tracked, Turret, Wheeled
 
 log = logging.getLogger(__name__)
 
 _AXIS_RPY = {"x": (0.0, math.pi / 2, 0.0), "y": (math.pi / 2, 0.0, 0.0), "z": (0.0, 0.0, 0.0)}
 _GUN_EFFORT, _GUN_VELOCITY = 1.0e4, 0.7  # N m, rad/s: nominal, URDF requires them
+_DOME_U = (0.0, 0.45, 0.75, 0.92, 1.0)  # height fractions of a round turret's rings
 
 
 @dataclass
@@ -107,7 +117,13 @@ def _turret(t: Turret, length: float) -> tuple[_Link, _Link]:
     # Roof: the front edge set back by `slope`, the sides and rear drawn in by `taper`.
     roof = [(px * (1 - t.slope / t.front) if px > 0 else px * (1 - t.taper / t.rear), py * (1 - t.taper / hw))
             for px, py in floor]
-    turret.lofts.append(("turret", frustum_xy(floor, -0.03, roof, t.height)))
+    if t.round:  # a cast dome: rings drawn in towards the roof along a quarter circle of the height
+        f, r = np.array(floor), np.array(roof)
+        rings = [np.c_[f + (r - f) * (1 - math.sqrt(1 - u * u)), np.full(len(f), z)]
+                 for u, z in zip(_DOME_U, (-0.03, *(u * t.height for u in _DOME_U[1:])))]
+        turret.lofts.append(("turret", sweep(rings)))
+    else:
+        turret.lofts.append(("turret", frustum_xy(floor, -0.03, roof, t.height)))
 
     g = t.gun
     gun.box(g.mantlet, (0.0, 0.0, 0.0))
@@ -215,25 +231,113 @@ def _wheeled(spec: Wheeled) -> tuple[list[_Link], str]:
     return _military(spec, hull, x)
 
 
+_CAP_V = (0.0, 0.45, 0.75, 0.92)  # height fractions (belt -> top) of the cap points of a road-body section
+_SPARE_W = 0.25  # depth of a tailgate spare wheel, metres
+# Sill (rocker panel) height / published ground clearance, estimated from side views: about 0.22 m for
+# a car, 0.3 m for a crossover, 0.37 m for a full-size SUV, 0.4-0.45 m under a pickup's cab.
+_SILL_PER_CLEARANCE = 1.6
+
+
+def _section(z0: float, belt: float, top: float, wb: float, wr: float, e: float, c: float) -> list[tuple[float, float]]:
+    """Cross-section (y, z) of a road body, 13 points: a flat bottom at ``z0`` with its corners
+    chamfered by ``c``, vertical sides up to the ``belt``, and a cap up to ``top`` whose
+    half-width is the tumblehome line (``wb`` at the belt, ``wr`` at the top) times the
+    superellipse (1 - v^e)^(1/e) of the height fraction v: e = 2 gives a round roof, e = 8 a
+    flat one with tight shoulders."""
+    right = [(wb - c, z0), (wb, z0 + c)]
+    right += [((wb + (wr - wb) * v) * (1 - v ** e) ** (1 / e), belt + v * (top - belt)) for v in _CAP_V]
+    return right + [(0.0, top)] + [(-y, z) for y, z in reversed(right)]
+
+
+def _road_body(spec: Road, length: float, width: float, height: float) -> tuple[Part, Callable[[float], tuple]]:
+    """Body (or a box van's cab) of a road vehicle, swept along s through rounded sections.
+
+    The side profile (bumpers, bonnet, windshield, roof, tailgate or boot, from the spec's
+    Shape fractions of ``length`` and ``height``) has its corners filleted; at each station the
+    section (:func:`_section`) spans the profile's bottom and top, the glasshouse tapers to the
+    roof (``roof_w``) and the plan view rounds off at the bumper corners. ``Shape.round`` sets
+    the fillets, the shoulders (superellipse exponent 8 -> 2) and the plan corners.
+    Returns the part in (s, y, z) coordinates and a function s -> (belt, top, half-width of the
+    roof line) at that station, for the parts placed on the body.
+    """
+    sh, rnd = spec.shape, spec.shape.round
+    H = height - spec.rails
+    z0, zn, zb, zd = spec.clearance, sh.nose * H, sh.belt * H, sh.deck * H
+    f = 0.05 + 0.07 * rnd  # the bonnet's leading edge is chamfered by f
+    top = [(0.0, zn - f), (f, zn), (sh.windshield * length, zb), (sh.roof[0] * length, H),
+           (sh.roof[1] * length, H * (1.0 - sh.drop))]
+    s_tail = sh.tail * length
+    if s_tail < length - 0.15:  # a separate boot (three-box sedan)
+        top += [(s_tail, zb), (length - 0.1, zd), (length, zd - 0.15)]
+    elif s_tail < length - 0.02:
+        top += [(s_tail, zb), (length, zb)]
+    else:
+        top += [(length, zb)]
+    # The roof's corners (windshield header, roof end) round with Shape.round; the bonnet edge and the
+    # cowl stay tight: a blunt, high bonnet is what sets an SUV's nose apart from a car's.
+    r = 0.04 + 0.3 * rnd
+    top = fillet(top, [0.05, 0.05, r, r] + [0.1] * (len(top) - 6))
+    sill = _SILL_PER_CLEARANCE * z0  # the body's lower edge between the wheels, above the lowest point
+    bottom = [(0.0, sill + 0.08), (0.3, sill), (length - 0.3, sill), (length, sill + 0.12)]
+    top_s, top_z = np.array(top).T
+    bot_s, bot_z = np.array(bottom).T
+    rc = 0.12 + 0.3 * rnd  # plan-view corner radius
+    e, c, crown = 2.0 + 6.0 * (1.0 - rnd), 0.04 + 0.06 * rnd, 0.03 + 0.07 * rnd
+
+    def station(s: float) -> tuple[float, float, float, float, float]:
+        """(bottom, belt, top, body half-width, roof-line half-width) at s."""
+        t, b = float(np.interp(s, top_s, top_z)), float(np.interp(s, bot_s, bot_z))
+        belt = max(min(zb, t - crown), b + c + 0.02)
+        t = max(t, belt + 0.01)
+        d = min(s, length - s)
+        wb = width / 2 - (rc - math.sqrt(max(rc * rc - (rc - d) ** 2, 0.0)) if d < rc else 0.0)
+        frac = min(max((t - zb) / (H - zb), 0.0), 1.0)
+        return b, belt, t, wb, wb * (1.0 - (1.0 - sh.roof_w) * frac)
+
+    stations = sorted({round(float(v), 3) for v in (*top_s, *bot_s, rc / 3, rc * 2 / 3, length - rc / 3,
+                                                      length - rc * 2 / 3) if 0.0 <= v <= length})
+    stations = [v for k, v in enumerate(stations) if k == 0 or v - stations[k - 1] >= 0.03]
+    stations[-1] = length
+    rings = []
+    for s in stations:
+        b, belt, t, wb, wr = station(s)
+        rings.append([(s, y, z) for y, z in _section(b, belt, t, wb, wr, e, c)])
+
+    def at(s: float) -> tuple[float, float, float]:
+        _, belt, t, wb, wr = station(s)
+        return belt, t, (wb + (wr - wb) * _CAP_V[-1]) * (1 - _CAP_V[-1] ** e) ** (1 / e)
+
+    return sweep(rings), at
+
+
 def _road(spec: Road) -> tuple[list[_Link], str]:
-    """Lower body (side profile), greenhouse with tumblehome, wheels, and a pickup's open bed."""
+    """Swept body (:func:`_road_body`), wheels, door mirrors, and the optional roof rails, tailgate
+    spare wheel, pickup bed or van box."""
     L, W, H, sh = spec.length, spec.width, spec.height, spec.shape
     x = _body_x(L)
     hull = _Link("hull")
-    body = L - spec.bed - 0.03 if spec.bed else L  # a pickup's cab ends where its bed starts
-    z0, zn, zb, zd = spec.clearance, sh.nose * H, sh.belt * H, sh.deck * H
-    s_ws, s_tail = sh.windshield * body, sh.tail * body
-    top = [(s_ws, zb)]
-    if s_tail < body - 0.15:  # a separate boot (three-box sedan)
-        top += [(s_tail, zb), (body - 0.1, zd), (body, zd - 0.15)]
-    else:
-        top += [(body, zb)]
-    profile = [(0.0, z0 + 0.25), (0.0, zn - 0.1), (0.08, zn), *top, (body, z0 + 0.3), (body - 0.3, z0), (0.3, z0)]
-    hull.lofts.append(("body", prism_xz(_clean([(x(s), z) for s, z in profile]), W / 2)))
-    cabin = [(s_ws, zb - 0.02), (sh.roof[0] * body, H), (sh.roof[1] * body, H), (min(s_tail, body), zb - 0.02)]
-    w_belt, w_roof = W / 2 - 0.04, sh.roof_w * W / 2
-    hull.lofts.append(("greenhouse", prism_xz([(x(s), z) for s, z in cabin], [w_belt, w_roof, w_roof, w_belt])))
+    rear = spec.bed or spec.box
+    body = L - rear - 0.03 if rear else L - (_SPARE_W if spec.spare else 0.0)  # the cab ends where a bed or box starts
+    cab_w, cab_h = spec.cab if spec.cab is not None else (W, H)
+    (verts, faces), at = _road_body(spec, body, cab_w, cab_h)
+    verts = verts.copy()
+    verts[:, 0] = [x(s) for s in verts[:, 0]]  # s -> x mirrors the part: flip the faces to keep them outwards
+    hull.lofts.append(("body", (verts, np.ascontiguousarray(faces[:, ::-1]))))
     _wheels(hull, spec, (spec.front, spec.front + spec.wheelbase), x)
+    z0, zb = spec.clearance, sh.belt * (cab_h - spec.rails)
+    if spec.mirror > 0:  # door mirrors just behind the windshield base
+        s_m = sh.windshield * body + 0.15
+        for side in (1, -1):
+            hull.box((0.1, spec.mirror + 0.06, 0.16), (x(s_m), side * (cab_w / 2 + spec.mirror / 2 - 0.03), zb + 0.12))
+    if spec.rails > 0:  # two rails along the roof, their tops at the published height
+        s0, s1 = sh.roof[0] * body + 0.1, sh.roof[1] * body - 0.1
+        belt, roof, y_edge = at((s0 + s1) / 2)
+        z_cap = belt + _CAP_V[-1] * (roof - belt)  # the roof's edge, where the rails stand
+        for side in (1, -1):
+            hull.box((s1 - s0, 0.05, cab_h - z_cap), (x((s0 + s1) / 2), side * (y_edge - 0.05), (cab_h + z_cap) / 2))
+    if spec.spare:
+        hull.cylinder(spec.wheel_d / 2, _SPARE_W + 0.02, (x(body + _SPARE_W / 2 - 0.01), 0.0,
+                                                           zb - spec.wheel_d / 2 + 0.15), "x")
     if spec.bed:
         s0, floor, rail = body + 0.03, spec.wheel_d + 0.08, zb
         mid, length = x((s0 + L) / 2), L - s0
@@ -243,6 +347,10 @@ def _road(spec: Road) -> tuple[list[_Link], str]:
         for side in (1, -1):
             hull.box((length, 0.06, rail - bottom), (mid, side * (W / 2 - 0.03), (rail + bottom) / 2))  # sides
         hull.box((0.06, W - 0.12, rail - bottom - 0.05), (x(L - 0.03), 0.0, (rail + bottom + 0.05) / 2))  # tailgate
+    if spec.box:
+        s0, floor = body + 0.03, spec.wheel_d + 0.1
+        hull.box((L - s0, W, H - floor), (x((s0 + L) / 2), 0.0, (H + floor) / 2))
+        hull.box((L - s0, 0.9, floor - z0 - 0.1), (x((s0 + L) / 2), 0.0, (floor + z0 + 0.1) / 2))  # frame
     _extras({"hull": hull}, spec.extras, x)
     return [hull], ""
 

@@ -1,8 +1,10 @@
 """Closed polyhedral parts for the catalog builder, with explicit (deterministic) topology.
 
-Every part is a *loft*: two rings of ``n`` corresponding vertices joined by side quads and
-closed by two caps triangulated by ear clipping, oriented outwards. No convex hull or boolean
-operation is involved, so the same numbers always give the same vertices and faces.
+Every part is a *loft* (two rings of ``n`` corresponding vertices joined by side quads and
+closed by two caps triangulated by ear clipping) or a *sweep* (a sequence of such rings,
+capped by fans), oriented outwards. No convex hull or boolean operation is involved, so the
+same numbers always give the same vertices and faces. :func:`fillet` rounds the corners of
+the side profiles the builder sweeps.
 """
 
 from __future__ import annotations
@@ -124,6 +126,75 @@ def frustum_xy(bottom: Sequence[tuple[float, float]], z0: float, top: Sequence[t
     ring0 = np.concatenate([b, np.full((len(b), 1), z0)], 1)
     ring1 = np.concatenate([t, np.full((len(t), 1), z1)], 1)
     return loft(ring0, ring1, b)
+
+
+def sweep(rings: Sequence[Sequence[Sequence[float]]] | np.ndarray) -> Part:
+    """Join a sequence of rings of corresponding vertices into a closed solid.
+
+    Consecutive rings are joined by quads (vertex i of one ring to vertex i of the next); each
+    end ring is closed by a fan from its centroid, so the end rings must be planar polygons
+    that are star-shaped about their centroid (convex ones are).
+
+    Args:
+        rings: (S, n, 3) vertices, S >= 2 rings of n >= 3 vertices, either winding.
+
+    Returns:
+        (vertices (S·n + 2, 3), faces (2·n·S, 3)) oriented with outward normals (positive volume).
+    """
+    rings = np.asarray(rings, dtype=np.float64)
+    if rings.ndim != 3 or rings.shape[0] < 2 or rings.shape[1] < 3 or rings.shape[2] != 3:
+        raise ValueError(f"Expected rings of shape (S>=2, n>=3, 3); got {rings.shape}")
+    S, n, _ = rings.shape
+    i = np.arange(n)
+    j = (i + 1) % n
+    a = (np.arange(S - 1) * n)[:, None]  # (S-1, 1) first vertex of each ring but the last
+    sides = np.concatenate([np.stack([a + i, a + j, a + n + j], -1), np.stack([a + i, a + n + j, a + n + i], -1)])
+    c0, c1 = S * n, S * n + 1  # the two centroids
+    caps = [np.stack([np.full(n, c0), j, i], 1), np.stack([np.full(n, c1), (S - 1) * n + i, (S - 1) * n + j], 1)]
+    faces = np.concatenate([sides.reshape(-1, 3), *caps])
+    verts = np.concatenate([rings.reshape(-1, 3), rings[0].mean(axis=0, keepdims=True),
+                            rings[-1].mean(axis=0, keepdims=True)])
+    if volume(verts, faces) < 0:
+        faces = faces[:, ::-1]
+    return verts, np.ascontiguousarray(faces)
+
+
+def fillet(points: Sequence[tuple[float, float]], radius: float | Sequence[float], arc: int = 3
+           ) -> list[tuple[float, float]]:
+    """Round the interior corners of an open polyline by circular arcs.
+
+    Each interior corner becomes ``arc`` points on the arc tangent to both of its segments; the
+    radius shrinks where a segment is too short for it (to 0.45 of the shorter one). End
+    points and straight corners are kept.
+
+    Args:
+        points: m >= 2 points (x, y) of the polyline.
+        radius: one radius for every corner, or m - 2 radii (0 keeps a corner sharp).
+    Returns:
+        the rounded polyline's points.
+    """
+    p = np.asarray(points, dtype=np.float64)
+    radii = np.broadcast_to(np.asarray(radius, dtype=np.float64), (max(len(p) - 2, 0),))
+    out = [tuple(p[0])]
+    for k, radius in enumerate(radii, start=1):
+        d0, d1 = p[k - 1] - p[k], p[k + 1] - p[k]
+        l0, l1 = np.linalg.norm(d0), np.linalg.norm(d1)
+        u0, u1 = d0 / l0, d1 / l1
+        half = 0.5 * np.arccos(np.clip(u0 @ u1, -1.0, 1.0))  # half the corner's interior angle
+        if abs(np.pi / 2 - half) < 1e-6 or radius <= 0:  # a straight or a sharp corner
+            out.append(tuple(p[k]))
+            continue
+        r = min(radius, 0.45 * min(l0, l1) * np.tan(half))
+        t = r / np.tan(half)  # corner -> tangent points
+        centre = p[k] + (u0 + u1) / np.linalg.norm(u0 + u1) * (r / np.sin(half))
+        a0, a1 = p[k] + u0 * t - centre, p[k] + u1 * t - centre
+        ang0, ang1 = np.arctan2(a0[1], a0[0]), np.arctan2(a1[1], a1[0])
+        sweep_angle = (ang1 - ang0 + np.pi) % (2 * np.pi) - np.pi  # the short way round
+        for f in np.linspace(0.0, 1.0, arc):
+            ang = ang0 + f * sweep_angle
+            out.append((centre[0] + r * np.cos(ang), centre[1] + r * np.sin(ang)))
+    out.append(tuple(p[-1]))
+    return out
 
 
 def ellipse(cx: float, cy: float, rx: float, ry: float, n: int) -> np.ndarray:

@@ -6,8 +6,17 @@ the gun forward are the published figures for the stated model and body; the ``s
 says whose. They were compiled from reference knowledge of manufacturers' data sheets and the
 usual tabulations of them (Jane's, Wikipedia infoboxes), without a live look-up, so expect
 +-1-2 % against a particular brochure. Everything else (deck heights, turret sizes, glacis
-runs, shape fractions) is estimated from side-view drawings and photographs; it shapes the
-silhouette, not the headline dimensions that tests check.
+runs, shape fractions, rounding, door-mirror reach) is estimated from side-view drawings and
+photographs; it shapes the silhouette, not the headline dimensions that tests check.
+
+Each class spans the real range of its kind, not one archetype (docs/recognition.md):
+- tanks, one of each kind: a light tank, Second World War medium and heavy tanks, Cold War and
+  current main battle tanks and a self-propelled howitzer (SENSIAC's tank class holds a
+  howitzer and an anti-aircraft gun);
+- APCs half tracked, half wheeled, from 4 x 4 to 8 x 8;
+- SUVs from 4.2 m, 1.6 m high subcompact crossovers to 5.1 m, 2 m high body-on-frame SUVs;
+- cars from a 3.5 m city car to 4.9 m saloons;
+- vans from minivans to one-box, high-roof and cutaway box vans.
 
 Conventions for the numbers below (metres, degrees):
 - ``s`` positions are measured backwards from the front of the hull / body;
@@ -20,6 +29,7 @@ Rodeo) is held out from TRAIN: no name appears in both.
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 from torch_atr.vehicles.loader import CLASS_NAMES
@@ -159,18 +169,34 @@ class Shape:
     roof: tuple[float, float]  # roof start, roof end
     tail: float  # rear-glass base (sedan: start of the boot)
     deck: float  # boot lid / tail top height
-    roof_w: float = 0.84  # roof half-width / body half-width
+    roof_w: float = 0.84  # half-width of the tumblehome line at the roof / body half-width
+    round: float = 0.6  # 0: boxy (a Defender) .. 1: rounded (a modern hatchback); see build._road_body
+    drop: float = 0.0  # the roof falls by this fraction of the height from its start to its end
+
+    def __post_init__(self) -> None:
+        if not (0.0 <= self.round <= 1.0 and 0.0 <= self.drop < 1.0 - self.belt):
+            raise ValueError(f"Shape.round must be in [0, 1] and Shape.drop in [0, 1 - belt); got {self.round}, "
+                             f"{self.drop}")
 
 
 # Body styles (adjusted per vehicle with dataclasses.replace where it differs).
-SEDAN = Shape(nose=0.52, belt=0.68, windshield=0.34, roof=(0.47, 0.68), tail=0.83, deck=0.72, roof_w=0.78)
-HATCH = Shape(nose=0.50, belt=0.64, windshield=0.30, roof=(0.45, 0.88), tail=0.975, deck=0.64, roof_w=0.80)
-SUV = Shape(nose=0.55, belt=0.60, windshield=0.32, roof=(0.45, 0.965), tail=0.99, deck=0.60, roof_w=0.86)
-MINIVAN = Shape(nose=0.48, belt=0.54, windshield=0.21, roof=(0.40, 0.965), tail=0.99, deck=0.54, roof_w=0.86)
-ONE_BOX = Shape(nose=0.50, belt=0.52, windshield=0.11, roof=(0.25, 0.985), tail=0.995, deck=0.52, roof_w=0.9)
-CREW_CAB = Shape(nose=0.58, belt=0.66, windshield=0.40, roof=(0.55, 0.97), tail=1.0, deck=0.66, roof_w=0.86)
-EXT_CAB = Shape(nose=0.58, belt=0.66, windshield=0.46, roof=(0.62, 0.97), tail=1.0, deck=0.66, roof_w=0.86)
-REG_CAB = Shape(nose=0.58, belt=0.66, windshield=0.52, roof=(0.71, 0.97), tail=1.0, deck=0.66, roof_w=0.86)
+SEDAN = Shape(nose=0.52, belt=0.68, windshield=0.34, roof=(0.47, 0.68), tail=0.83, deck=0.72, roof_w=0.78, round=0.85)
+HATCH = Shape(nose=0.50, belt=0.64, windshield=0.30, roof=(0.45, 0.88), tail=0.975, deck=0.64, roof_w=0.80, round=0.85,
+              drop=0.04)
+SUV = Shape(nose=0.55, belt=0.60, windshield=0.32, roof=(0.45, 0.965), tail=0.99, deck=0.60, roof_w=0.86, round=0.5)
+# A compact crossover: car-like rounding on an SUV's ride height, the roof falling to a raked tailgate.
+CROSSOVER = Shape(nose=0.55, belt=0.62, windshield=0.31, roof=(0.46, 0.9), tail=0.985, deck=0.62, roof_w=0.8,
+                  round=0.85, drop=0.05)
+MINIVAN = Shape(nose=0.48, belt=0.54, windshield=0.21, roof=(0.40, 0.965), tail=0.99, deck=0.54, roof_w=0.86,
+                round=0.8)
+ONE_BOX = Shape(nose=0.50, belt=0.52, windshield=0.11, roof=(0.25, 0.985), tail=0.995, deck=0.52, roof_w=0.9,
+                round=0.45)
+# Cab-over van (forward control): no bonnet, a near-vertical front up to the windshield.
+CAB_OVER = Shape(nose=0.42, belt=0.50, windshield=0.04, roof=(0.16, 0.99), tail=0.995, deck=0.50, roof_w=0.9,
+                 round=0.3)
+CREW_CAB = Shape(nose=0.58, belt=0.66, windshield=0.40, roof=(0.55, 0.97), tail=1.0, deck=0.66, roof_w=0.86, round=0.4)
+EXT_CAB = Shape(nose=0.58, belt=0.66, windshield=0.46, roof=(0.62, 0.97), tail=1.0, deck=0.66, roof_w=0.86, round=0.4)
+REG_CAB = Shape(nose=0.58, belt=0.66, windshield=0.52, roof=(0.71, 0.97), tail=1.0, deck=0.66, roof_w=0.86, round=0.4)
 
 
 @dataclass(frozen=True)
@@ -192,6 +218,11 @@ class Road:
     bed: float = 0.0  # pickup bed length (0: none)
     clearance: float = 0.18
     tyre_w: float = 0.24
+    mirror: float = 0.12  # reach of each door mirror beyond the body side (not in the published width)
+    rails: float = 0.0  # roof-rail height (0: none); the published height includes them
+    spare: bool = False  # a spare wheel on the tailgate; the published length includes it
+    box: float = 0.0  # box van: length of the closed box body behind the cab (0: none)
+    cab: tuple[float, float] | None = None  # box van: (width, height) of the cab; the box is width x height
     extras: tuple[Extra, ...] = ()
 
     def __post_init__(self) -> None:
@@ -200,6 +231,10 @@ class Road:
             raise ValueError(f"{self.name}: front overhang + wheelbase must be shorter than the length")
         if (self.bed > 0) != (self.cls == "pickup"):
             raise ValueError(f"{self.name}: exactly the pickups have a bed")
+        if (self.box > 0) != (self.cab is not None) or (self.box > 0 and self.cls != "minivan"):
+            raise ValueError(f"{self.name}: a box body (box > 0) needs a cab size, and only vans have one")
+        if self.cab is not None and not (0 < self.cab[0] <= self.width and 0 < self.cab[1] < self.height):
+            raise ValueError(f"{self.name}: the cab {self.cab} must be no wider and lower than the box")
 
 
 Spec = Tracked | Wheeled | Road
@@ -235,46 +270,61 @@ TANKS = (
                       gun=Gun(0.2, trunnion=(1.6, 0.42), mantlet=(0.5, 0.9, 0.4), evacuator=0.55)),
         extras=(_cupola(-0.3, 0.6, 0.6, 0.99, 0.2),),
     ),
+    # An early Cold War tank: a low hull, five large road wheels without return rollers, a cast dome turret.
     Tracked(
-        "leopard_2a6", "Leopard 2A6", "tank", "Krauss-Maffei Wegmann data sheet",
-        length=7.72, width=3.75, height=3.0, gun_length=10.97,
-        deck=1.5, nose=0.95, glacis=1.3, road_wheels=7, wheel_d=0.7, track_w=0.635, contact=4.95,
-        turret=Turret(ring=3.8, front=2.0, rear=2.3, width=3.6, height=0.98, nose=0.15, slope=1.0, taper=0.1,
-                      gun=Gun(0.2, trunnion=(1.4, 0.5), mantlet=(0.5, 0.8, 0.45), evacuator=0.6)),
-        extras=(Extra("turret", "box", (0.45, 0.45, 0.6), (0.3, 0.95, 1.2)),  # PERI R17 sight head
-                _cupola(-0.4, -0.7, 0.6, 1.1, 0.2)),
+        "t_55", "T-55A", "tank", "Jane's Armour and Artillery",
+        length=6.45, width=3.27, height=2.35, gun_length=9.0,
+        deck=1.6, nose=0.95, glacis=1.15, road_wheels=5, wheel_d=0.81, track_w=0.58, contact=3.84,
+        lower_glacis=0.5, belly=0.42, skirts=False,
+        turret=Turret(ring=2.5, front=1.15, rear=1.15, width=2.25, height=0.75, round=True, slope=0.4, taper=0.45,
+                      gun=Gun(0.14, trunnion=(0.95, 0.3), elevation=(-5.0, 18.0), mantlet=(0.35, 0.5, 0.35),
+                              evacuator=0.9)),
+        extras=(_cupola(-0.2, -0.5, 0.55, 0.72, 0.2),),
     ),
+    # A Second World War heavy tank: a tall box hull with a vertical front plate and a superstructure over
+    # the tracks, interleaved road wheels, a box turret with a short thick gun and muzzle brake.
     Tracked(
-        "challenger_2", "Challenger 2", "tank", "BAE Systems / British Army equipment data",
-        length=8.33, width=3.52, height=2.49, gun_length=11.55,
-        deck=1.55, nose=1.0, glacis=1.3, road_wheels=6, wheel_d=0.72, track_w=0.635, contact=5.0,
-        turret=Turret(ring=4.0, front=1.9, rear=2.5, width=3.4, height=0.8, nose=0.7, slope=0.35, taper=0.15,
-                      gun=Gun(0.22, trunnion=(1.5, 0.4), mantlet=(0.5, 0.9, 0.45), evacuator=0.5)),
-        extras=(_cupola(-0.3, 0.65, 0.7, 0.94, 0.2), Extra("turret", "box", (0.4, 0.4, 0.25), (0.4, -0.9, 0.815))),
+        "tiger_i", "Panzerkampfwagen VI Tiger I (Ausf. E)", "tank", "Jentz & Doyle, Germany's Tiger Tanks",
+        length=6.316, width=3.547, height=3.0, gun_length=8.45,
+        deck=1.9, nose=1.55, glacis=0.85, road_wheels=8, wheel_d=0.8, track_w=0.725, contact=3.6,
+        lower_glacis=0.45, belly=0.47, rear_slope=0.1, skirts=False,
+        turret=Turret(ring=2.9, front=1.2, rear=1.5, width=2.8, height=0.85, nose=0.85, slope=0.15, taper=0.08,
+                      gun=Gun(0.17, trunnion=(1.25, 0.45), elevation=(-8.0, 15.0), mantlet=(0.45, 1.1, 0.7),
+                              brake=True)),
+        extras=(_cupola(-0.6, 0.7, 0.75, 1.1, 0.3),),
     ),
+    # A self-propelled howitzer (SENSIAC's tank class holds the 2S3 and the ZSU-23-4): a large box turret
+    # over the rear two thirds of the hull and a long barrel with a muzzle brake.
     Tracked(
-        "merkava_iv", "Merkava Mk IV", "tank", "IDF / MANTAK published data",
-        length=7.6, width=3.72, height=2.66, gun_length=9.04,
-        deck=1.65, nose=1.05, glacis=2.3, road_wheels=6, wheel_d=0.79, track_w=0.64, contact=4.5,
-        turret=Turret(ring=4.7, front=2.6, rear=2.5, width=3.0, height=0.85, nose=0.12, slope=1.4, taper=0.2,
-                      gun=Gun(0.2, trunnion=(1.3, 0.45), mantlet=(0.4, 0.6, 0.4), evacuator=0.5)),
-        extras=(_cupola(-0.6, 0.6, 0.55, 1.01, 0.2),),
+        "m109_paladin", "M109A6 Paladin", "tank", "BAE Systems (United Defense) / US Army fact file",
+        length=6.19, width=3.15, height=3.24, gun_length=9.12,
+        deck=1.6, nose=1.0, glacis=1.0, road_wheels=7, wheel_d=0.61, track_w=0.38, contact=3.96,
+        lower_glacis=0.55, belly=0.45, rear_slope=0.05, skirts=False,
+        turret=Turret(ring=4.0, front=1.7, rear=2.1, width=3.0, height=1.45, nose=0.85, slope=0.35, taper=0.1,
+                      gun=Gun(0.22, trunnion=(1.5, 0.7), elevation=(-3.0, 75.0), mantlet=(0.5, 0.8, 0.6),
+                              evacuator=0.45, brake=True)),
+        extras=(_cupola(-0.5, 0.8, 0.7, 1.64, 0.2),),
     ),
+    # A light tank: a small hull, five small road wheels, a small turret near the rear.
     Tracked(
-        "leclerc", "Leclerc", "tank", "Nexter (GIAT Industries) data sheet",
-        length=6.88, width=3.71, height=2.53, gun_length=9.87,
-        deck=1.5, nose=0.95, glacis=1.2, road_wheels=6, wheel_d=0.7, track_w=0.635, contact=4.3,
-        turret=Turret(ring=3.3, front=1.7, rear=2.6, width=3.4, height=0.88, nose=0.75, slope=0.3, taper=0.1,
-                      gun=Gun(0.2, trunnion=(1.4, 0.45), mantlet=(0.5, 0.8, 0.45))),
-        extras=(_cupola(-0.3, 0.65, 0.5, 1.03, 0.2), Extra("turret", "box", (0.35, 0.4, 0.3), (0.5, -0.8, 0.88))),
+        "fv101_scorpion", "FV101 Scorpion", "tank", "Alvis / British Army equipment data",
+        length=4.52, width=2.235, height=2.102, gun_length=4.79,
+        deck=1.45, nose=0.75, glacis=1.3, road_wheels=5, wheel_d=0.55, track_w=0.432, contact=2.46,
+        lower_glacis=0.45, belly=0.35, rear_slope=0.05, skirts=False,
+        turret=Turret(ring=2.85, front=0.75, rear=0.85, width=1.75, height=0.55, nose=0.5, slope=0.3, taper=0.2,
+                      gun=Gun(0.11, trunnion=(0.6, 0.28), elevation=(-10.0, 35.0), mantlet=(0.3, 0.45, 0.3))),
+        extras=(_cupola(-0.3, 0.4, 0.5, 0.65, 0.15),),
     ),
+    # A Second World War medium tank: a tall narrow hull (radial engine) with sponsons over the tracks,
+    # six small road wheels in three bogies, a cast round turret with a short gun.
     Tracked(
-        "type_99", "ZTZ-99 (Type 99)", "tank", "NORINCO / PLA published data",
-        length=7.6, width=3.5, height=2.37, gun_length=11.0,
-        deck=1.4, nose=0.9, glacis=1.5, road_wheels=6, wheel_d=0.75, track_w=0.6, contact=4.6,
-        turret=Turret(ring=3.7, front=2.3, rear=2.0, width=3.3, height=0.85, nose=0.2, slope=0.9, taper=0.15,
-                      gun=Gun(0.2, trunnion=(1.4, 0.42), mantlet=(0.5, 0.7, 0.4), evacuator=0.45)),
-        extras=(_cupola(-0.4, -0.6, 0.5, 0.97, 0.2),),
+        "m4_sherman", "M4A1 Sherman (75 mm)", "tank", "US Army TM 9-731B / Hunnicutt, Sherman",
+        length=5.84, width=2.62, height=2.74, gun_length=6.1,
+        deck=1.95, nose=1.0, glacis=1.3, road_wheels=6, wheel_d=0.51, track_w=0.42, contact=3.7,
+        lower_glacis=0.6, belly=0.43, rear_slope=0.1, skirts=False,
+        turret=Turret(ring=2.6, front=1.0, rear=1.2, width=2.0, height=0.65, round=True, slope=0.35, taper=0.3,
+                      gun=Gun(0.12, trunnion=(0.85, 0.3), elevation=(-10.0, 25.0), mantlet=(0.35, 0.7, 0.45))),
+        extras=(_cupola(-0.4, 0.45, 0.6, 0.79, 0.2),),
     ),
 )
 
@@ -307,20 +357,21 @@ APCS = (
         turret=Turret(ring=2.55, front=0.7, rear=0.7, width=1.4, height=0.41, round=True, slope=0.25, taper=0.25,
                       gun=Gun(0.07, trunnion=(0.55, 0.22), length=1.6, elevation=(-4.0, 60.0), mantlet=(0.3, 0.3, 0.25))),
     ),
-    Wheeled(
-        "stryker", "M1126 Stryker ICV", "apc", "General Dynamics Land Systems / US Army fact file",
-        length=6.95, width=2.72, height=2.64, axles=(1.3, 2.5, 4.45, 5.65),
-        wheel_d=1.12, tyre_w=0.37, track=2.3, deck=2.05, nose=1.2, glacis=1.6, lower_glacis=0.5,
-        belly=0.5, rear_slope=0.1, side_slope=0.15,
-        turret=Turret(ring=3.3, front=0.45, rear=0.45, width=0.8, height=0.45, nose=0.8, slope=0.1, taper=0.05,
-                      gun=Gun(0.06, trunnion=(0.3, 0.3), length=1.3, elevation=(-20.0, 60.0), mantlet=(0.4, 0.3, 0.25))),
-        extras=(Extra("turret", "box", (0.3, 0.3, 0.16), (-0.1, -0.2, 0.51)),),  # sight head
+    # A tracked infantry fighting vehicle with a two-man turret (the class is half tracked, half wheeled).
+    Tracked(
+        "cv90", "CV9040 (Strf 9040)", "apc", "BAE Systems Hagglunds data sheet",
+        length=6.47, width=3.1, height=2.7, gun_length=None,
+        deck=1.9, nose=1.0, glacis=1.2, road_wheels=7, wheel_d=0.6, track_w=0.53, contact=3.9,
+        lower_glacis=0.5, belly=0.45, rear_slope=0.1, skirts=True,
+        turret=Turret(ring=3.2, front=1.1, rear=1.2, width=2.3, height=0.8, nose=0.6, slope=0.4, taper=0.15,
+                      gun=Gun(0.1, trunnion=(0.9, 0.35), length=2.4, elevation=(-8.0, 50.0), mantlet=(0.4, 0.5, 0.35))),
     ),
+    # A 4 x 4 armoured personnel carrier: wheeled APCs run from 4 x 4 to 8 x 8.
     Wheeled(
-        "boxer", "Boxer (GTK, APC)", "apc", "ARTEC (KMW / Rheinmetall) data sheet",
-        length=7.93, width=2.99, height=2.37, axles=(1.5, 3.0, 4.95, 6.45),
-        wheel_d=1.2, tyre_w=0.4, track=2.5, deck=2.37, nose=1.2, glacis=1.0, lower_glacis=0.6,
-        belly=0.5, rear_slope=0.15, side_slope=0.12,
+        "vab", "Renault VAB (4 x 4)", "apc", "Renault Trucks Defense data / Jane's",
+        length=5.98, width=2.49, height=2.06, axles=(1.45, 4.45),
+        wheel_d=1.05, tyre_w=0.33, track=2.04, deck=2.06, nose=1.1, glacis=1.0, lower_glacis=0.7,
+        belly=0.45, rear_slope=0.15, side_slope=0.15,
     ),
     Wheeled(
         "lav_25", "LAV-25", "apc", "General Dynamics Land Systems / USMC fact file",
@@ -359,23 +410,27 @@ SUVS = (
     Road("toyota_land_cruiser_200", "Toyota Land Cruiser 200 (2008)", "suv", "Toyota specifications",
          length=4.95, width=1.98, height=1.88, wheelbase=2.85, front=0.93, wheel_d=0.79, track=1.64,
          shape=SUV, clearance=0.23, tyre_w=0.27),
-    Road("jeep_grand_cherokee", "Jeep Grand Cherokee (WK2, 2011)", "suv", "Chrysler (Jeep) specifications",
-         length=4.822, width=1.943, height=1.781, wheelbase=2.915, front=0.88, wheel_d=0.75, track=1.62,
-         shape=SUV, clearance=0.21, tyre_w=0.26),
-    Road("chevrolet_tahoe", "Chevrolet Tahoe (GMT900, 2007)", "suv", "General Motors specifications",
+    Road("toyota_rav4", "Toyota RAV4 (XA40, 2013, with roof rails)", "suv", "Toyota specifications",
+         length=4.57, width=1.845, height=1.705, wheelbase=2.66, front=0.93, wheel_d=0.72, track=1.57,
+         shape=CROSSOVER, clearance=0.19, tyre_w=0.23, rails=0.045),
+    Road("chevrolet_tahoe", "Chevrolet Tahoe (GMT900, 2007, with roof rails)", "suv", "General Motors specifications",
          length=5.131, width=2.007, height=1.953, wheelbase=2.946, front=0.98, wheel_d=0.79, track=1.73,
-         shape=SUV, clearance=0.23, tyre_w=0.27),
-    Road("range_rover", "Range Rover (L322, 2002)", "suv", "Land Rover specifications",
-         length=4.95, width=1.956, height=1.863, wheelbase=2.88, front=0.93, wheel_d=0.76, track=1.63,
-         shape=SUV, clearance=0.22, tyre_w=0.26),
-    Road("mitsubishi_pajero", "Mitsubishi Pajero (V80, 2007, LWB)", "suv", "Mitsubishi specifications",
-         length=4.9, width=1.875, height=1.9, wheelbase=2.78, front=0.9, wheel_d=0.76, track=1.57,
-         shape=SUV, clearance=0.23, tyre_w=0.26),
-    Road("land_rover_defender_110", "Land Rover Defender 110 (1990, Station Wagon)", "suv",
+         shape=SUV, clearance=0.23, tyre_w=0.27, rails=0.06),
+    Road("nissan_qashqai", "Nissan Qashqai (J11, 2014)", "suv", "Nissan specifications",
+         length=4.377, width=1.806, height=1.59, wheelbase=2.646, front=0.9, wheel_d=0.69, track=1.565,
+         shape=dataclasses.replace(CROSSOVER, round=0.95), clearance=0.18, tyre_w=0.22),
+    # A subcompact crossover: SUVs run down to 4.1-4.3 m (Renegade, Juke, Kona, CX-3) at 1.55-1.7 m high.
+    Road("jeep_renegade", "Jeep Renegade (BU, 2015, with roof rails)", "suv", "FCA (Jeep) specifications",
+         length=4.236, width=1.805, height=1.697, wheelbase=2.57, front=0.89, wheel_d=0.69, track=1.545,
+         shape=Shape(nose=0.56, belt=0.6, windshield=0.3, roof=(0.44, 0.95), tail=0.99, deck=0.6, roof_w=0.85,
+                     round=0.55),
+         clearance=0.2, tyre_w=0.22, rails=0.03),
+    Road("land_rover_defender_110", "Land Rover Defender 110 (1990, Station Wagon, spare wheel on the door)", "suv",
          "Land Rover specifications",
          length=4.639, width=1.79, height=2.035, wheelbase=2.794, front=0.7, wheel_d=0.78, track=1.49,
-         shape=Shape(nose=0.5, belt=0.55, windshield=0.27, roof=(0.31, 0.99), tail=0.995, deck=0.55, roof_w=0.93),
-         clearance=0.25, tyre_w=0.24),
+         shape=Shape(nose=0.5, belt=0.55, windshield=0.27, roof=(0.31, 0.99), tail=0.995, deck=0.55, roof_w=0.93,
+                     round=0.15),
+         clearance=0.25, tyre_w=0.24, spare=True),
 )
 
 CARS = (
@@ -384,23 +439,27 @@ CARS = (
          shape=SEDAN, clearance=0.14),
     Road("honda_civic", "Honda Civic sedan (10th gen., 2016)", "car", "Honda specifications",
          length=4.63, width=1.799, height=1.416, wheelbase=2.698, front=0.93, wheel_d=0.65, track=1.55,
-         shape=Shape(nose=0.5, belt=0.67, windshield=0.33, roof=(0.47, 0.64), tail=0.86, deck=0.71, roof_w=0.78),
+         shape=Shape(nose=0.5, belt=0.67, windshield=0.33, roof=(0.47, 0.64), tail=0.86, deck=0.71, roof_w=0.78,
+                     round=0.85),
          clearance=0.13),
     Road("bmw_3_series", "BMW 3 Series sedan (F30, 2012)", "car", "BMW specifications",
          length=4.624, width=1.811, height=1.429, wheelbase=2.81, front=0.78, wheel_d=0.66, track=1.54,
-         shape=Shape(nose=0.53, belt=0.68, windshield=0.37, roof=(0.5, 0.7), tail=0.84, deck=0.72, roof_w=0.78),
-         clearance=0.14),
-    Road("mercedes_e_class", "Mercedes-Benz E-Class sedan (W213, 2016)", "car", "Daimler specifications",
-         length=4.923, width=1.852, height=1.468, wheelbase=2.939, front=0.84, wheel_d=0.68, track=1.6,
-         shape=Shape(nose=0.53, belt=0.68, windshield=0.36, roof=(0.49, 0.69), tail=0.84, deck=0.72, roof_w=0.78),
+         shape=Shape(nose=0.53, belt=0.68, windshield=0.37, roof=(0.5, 0.7), tail=0.84, deck=0.72, roof_w=0.78,
+                     round=0.85),
          clearance=0.14),
     Road("vw_golf", "Volkswagen Golf (Mk7, 2013, 5-door)", "car", "Volkswagen specifications",
          length=4.255, width=1.799, height=1.452, wheelbase=2.637, front=0.88, wheel_d=0.63, track=1.54,
          shape=HATCH, clearance=0.14),
     Road("ford_focus", "Ford Focus hatchback (Mk3, 2011)", "car", "Ford specifications",
          length=4.358, width=1.823, height=1.484, wheelbase=2.648, front=0.92, wheel_d=0.64, track=1.56,
-         shape=Shape(nose=0.5, belt=0.64, windshield=0.31, roof=(0.47, 0.86), tail=0.965, deck=0.64, roof_w=0.8),
+         shape=Shape(nose=0.5, belt=0.64, windshield=0.31, roof=(0.47, 0.86), tail=0.965, deck=0.64, roof_w=0.8,
+                     round=0.85, drop=0.04),
          clearance=0.14),
+    Road("vw_up", "Volkswagen up! (2011, 5-door)", "car", "Volkswagen specifications",
+         length=3.54, width=1.641, height=1.478, wheelbase=2.42, front=0.6, wheel_d=0.59, track=1.43,
+         shape=Shape(nose=0.5, belt=0.62, windshield=0.22, roof=(0.4, 0.9), tail=0.985, deck=0.62, roof_w=0.82,
+                     round=0.85, drop=0.03),
+         clearance=0.14, tyre_w=0.17),
 )
 
 MINIVANS = (
@@ -410,19 +469,25 @@ MINIVANS = (
     Road("toyota_sienna", "Toyota Sienna (XL30, 2011)", "minivan", "Toyota specifications",
          length=5.085, width=1.985, height=1.75, wheelbase=3.03, front=0.96, wheel_d=0.72, track=1.72,
          shape=MINIVAN, clearance=0.16, tyre_w=0.25),
-    Road("chrysler_pacifica", "Chrysler Pacifica (RU, 2017)", "minivan", "FCA specifications",
-         length=5.172, width=2.022, height=1.777, wheelbase=3.089, front=1.0, wheel_d=0.72, track=1.74,
-         shape=MINIVAN, clearance=0.14, tyre_w=0.25),
-    Road("kia_sedona", "Kia Sedona (YP, 2015)", "minivan", "Kia specifications",
-         length=5.115, width=1.985, height=1.755, wheelbase=3.06, front=0.98, wheel_d=0.72, track=1.72,
-         shape=MINIVAN, clearance=0.17, tyre_w=0.25),
     Road("vw_multivan", "Volkswagen Multivan (T6, 2015)", "minivan", "Volkswagen Commercial Vehicles specifications",
          length=4.904, width=1.904, height=1.97, wheelbase=3.0, front=0.88, wheel_d=0.7, track=1.63,
          shape=ONE_BOX, clearance=0.18, tyre_w=0.24),
-    Road("mercedes_v_class", "Mercedes-Benz V-Class (W447, 2014, long)", "minivan", "Daimler specifications",
-         length=5.14, width=1.928, height=1.88, wheelbase=3.2, front=0.88, wheel_d=0.7, track=1.66,
-         shape=Shape(nose=0.5, belt=0.53, windshield=0.15, roof=(0.3, 0.985), tail=0.995, deck=0.53, roof_w=0.9),
-         clearance=0.17, tyre_w=0.24),
+    # The van class reaches past minivans: a cab-over van, a high-roof panel van and a cutaway box van.
+    Road("toyota_hiace", "Toyota HiAce (H200, 2004, long body, standard roof)", "minivan", "Toyota specifications",
+         length=4.695, width=1.695, height=1.98, wheelbase=2.57, front=0.98, wheel_d=0.69, track=1.47,
+         shape=CAB_OVER, clearance=0.18, tyre_w=0.2, mirror=0.15),
+    Road("mercedes_sprinter", "Mercedes-Benz Sprinter (W906, 2006, 316 CDI, medium wheelbase, high roof)", "minivan",
+         "Daimler specifications",
+         length=5.91, width=1.993, height=2.72, wheelbase=3.665, front=0.995, wheel_d=0.71, track=1.71,
+         shape=Shape(nose=0.36, belt=0.4, windshield=0.16, roof=(0.27, 0.99), tail=0.995, deck=0.4, roof_w=0.92,
+                     round=0.35),
+         clearance=0.18, tyre_w=0.235, mirror=0.22),
+    Road("ford_e350_cutaway", "Ford E-350 Super Duty cutaway (2008, 158 in wheelbase, 12 ft box body)", "minivan",
+         "Ford specifications; box: a Type III ambulance / 12 ft cube-van body",
+         length=6.7, width=2.39, height=2.77, wheelbase=4.01, front=0.98, wheel_d=0.76, track=1.74,
+         shape=Shape(nose=0.5, belt=0.55, windshield=0.42, roof=(0.62, 1.0), tail=1.0, deck=0.55, roof_w=0.88,
+                     round=0.4),
+         clearance=0.2, tyre_w=0.23, mirror=0.22, box=3.67, cab=(2.01, 2.1)),
 )
 
 TRAIN: tuple[Spec, ...] = TANKS + APCS + PICKUPS + SUVS + CARS + MINIVANS
