@@ -100,14 +100,20 @@ def normalise_ir(frame: np.ndarray, lo: float, hi: float) -> np.ndarray:
     """
     if not isinstance(frame, np.ndarray) or frame.ndim != 2:
         raise ValueError(f"Expected frame to have shape (H, W); got {getattr(frame, 'shape', type(frame).__name__)}")
-    return _to_uint8(_scale_ir(frame, lo, hi))
+    return _affine_uint8(frame, *_ir_scale(lo, hi))
 
 
-def _scale_ir(frame: np.ndarray, lo: float, hi: float) -> np.ndarray:
-    """(frame − lo) · 255 / (hi − lo) as float32: the uint8 scale before rounding."""
+def _ir_scale(lo: float, hi: float) -> tuple[float, float]:
+    """(k, c) of the map x -> k·x + c taking ``lo`` to 0 and ``hi`` to 255."""
     if not hi > lo:
         raise ValueError(f"Expected lo < hi; got lo={lo}, hi={hi}")
-    return (frame.astype(np.float32) - np.float32(lo)) * np.float32(255.0 / (hi - lo))
+    k = 255.0 / (hi - lo)
+    return k, -k * lo
+
+
+def _affine_uint8(grey: np.ndarray, k: float, c: float) -> np.ndarray:
+    """round(k·grey + c) saturated to uint8 in one pass (OpenCV's addWeighted with a zero second term)."""
+    return cv2.addWeighted(grey, k, grey, 0.0, c, dtype=cv2.CV_8U)
 
 
 def _check_mask(mask) -> np.ndarray:
@@ -153,20 +159,28 @@ def select_blob(mask: np.ndarray, near: tuple[float, float] | None = None, min_a
             raise ValueError(f"Expected near to be a pixel (u, v); got {near!r}") from exc
         if not (np.isfinite(u) and np.isfinite(v)):
             raise ValueError(f"Expected near to be finite; got {near!r}")
-    n, labels, stats, _ = cv2.connectedComponentsWithStats(m.astype(np.uint8), connectivity=8)
+    points = cv2.findNonZero(m.view(np.uint8))  # foreground (x, y): (P, 1, 2) or (P, 2), or None
+    out = np.zeros_like(m)
+    if points is None:
+        return out
+    x0, y0, w, h = cv2.boundingRect(points)  # components are found inside the foreground's box only
+    n, labels, stats, _ = cv2.connectedComponentsWithStats(m[y0:y0 + h, x0:x0 + w].view(np.uint8), connectivity=8)
     areas = stats[:, cv2.CC_STAT_AREA]
-    valid = np.flatnonzero(areas >= max(min_area, 1))
-    valid = valid[valid > 0]  # label 0 is the background
-    if valid.size == 0:
-        return np.zeros_like(m)
+    valid = areas >= max(min_area, 1)
+    valid[0] = False  # label 0 is the background
+    if not valid.any():
+        return out
     if near is None:
-        keep = valid[np.argmax(areas[valid])]
-    else:
-        rows, cols = np.nonzero(np.isin(labels, valid))
-        d2 = (cols - u) ** 2 + (rows - v) ** 2
-        i = np.argmin(d2)
-        keep = labels[rows[i], cols[i]]
-    return labels == keep
+        keep = int(np.argmax(np.where(valid, areas, -1)))
+    else:  # the foreground pixel of a valid component nearest to (u, v)
+        xy = points.reshape(-1, 2)
+        cols, rows = xy[:, 0] - x0, xy[:, 1] - y0
+        own = labels[rows, cols]
+        ok = valid[own]
+        d2 = (cols[ok] + x0 - u) ** 2 + (rows[ok] + y0 - v) ** 2
+        keep = own[ok][np.argmin(d2)]
+    out[y0:y0 + h, x0:x0 + w] = labels == keep
+    return out
 
 
 Box = tuple[float, float, float, float]  # (u0, v0, u1, v1) pixels, inclusive corners
@@ -209,13 +223,16 @@ def fit_gain(frame: np.ndarray, background: np.ndarray, valid: np.ndarray) -> tu
     for _ in range(2):
         if x.size < 3 or x.std() < 1e-6:
             return 1.0, 0.0
-        a, b = np.polyfit(x, y, 1)
+        mx, my = x.mean(), y.mean()
+        a = float(((x - mx) * (y - my)).mean() / ((x - mx) ** 2).mean())  # least squares, closed form
+        b = float(my - a * mx)
         residual = np.abs(y - (a * x + b))
-        keep = residual <= np.quantile(residual, 1 - _GAIN_TRIM)
+        keep = residual <= np.partition(residual, int((1 - _GAIN_TRIM) * (residual.size - 1)))[
+            int((1 - _GAIN_TRIM) * (residual.size - 1))]
         x, y = x[keep], y[keep]
     if not (np.isfinite(a) and np.isfinite(b) and a > 1e-3):
         return 1.0, 0.0
-    return float(a), float(b)
+    return a, b
 
 
 class ForegroundSegmenter:
@@ -235,22 +252,28 @@ class ForegroundSegmenter:
         self._background: np.ndarray | None = None  # MOG2's background image, refreshed when it learns
         self._frames = 0
 
-    def _prepare(self, frame) -> np.ndarray:
-        """(H, W) or (H, W, 3) frame -> (H, W) float32 grey on the uint8 scale, checked against
-        the warm-up frames; non-finite pixels become 0."""
+    def _grey(self, frame) -> np.ndarray:
+        """(H, W) or (H, W, 3) frame -> (H, W) grey of its dtype, checked against the warm-up frames;
+        float frames get their non-finite pixels set to 0."""
         grey = to_grey("frame", frame, _DTYPES)
         if (grey.shape, grey.dtype) != self._kind:
             raise ValueError(f"Expected a frame of size {self._kind[0]} and dtype {self._kind[1]} like the "
                              f"warm-up frames; got shape {frame.shape}, dtype {frame.dtype}")
-        grey = np.nan_to_num(grey.astype(np.float32), nan=0.0, posinf=0.0, neginf=0.0)
-        return grey if self.levels is None else _scale_ir(grey, *self.levels)
+        if grey.dtype.kind == "f" and not np.isfinite(grey).all():
+            grey = np.nan_to_num(grey, nan=0.0, posinf=0.0, neginf=0.0)
+        return grey
+
+    def _to_uint8_scale(self, a: float = 1.0, b: float = 0.0) -> tuple[float, float]:
+        """(k, c) with uint8 value = k·grey + c: the IR levels' map, then the gain (x − b) / a undone."""
+        k, c = (1.0, 0.0) if self.levels is None else _ir_scale(*self.levels)
+        return k / a, (c - b) / a
 
     def display(self, frame: np.ndarray) -> np.ndarray:
         """The frame as the segmenter compares it: (H, W) uint8 grey (IR mapped by the warm-up
         levels, before gain compensation)."""
         if self._kind is None:
             raise RuntimeError("ForegroundSegmenter: call warm_up(frames) first")
-        return _to_uint8(self._prepare(frame))
+        return _affine_uint8(self._grey(frame), *self._to_uint8_scale())
 
     def warm_up(self, frames: Iterable[np.ndarray]) -> None:
         """Learn the background from target-free frames (a fresh model each call).
@@ -282,10 +305,12 @@ class ForegroundSegmenter:
             logger.debug("IR normalisation: [%.1f, %.1f] -> [0, 255]", *self.levels)
         self._mog = cv2.createBackgroundSubtractorMOG2(history=cfg.history, varThreshold=cfg.var_threshold,
                                                        detectShadows=cfg.detect_shadows)
-        for grey in greys:
-            self._mog.apply(_to_uint8(self._prepare(grey)), learningRate=-1)
+        for i, grey in enumerate(greys):
+            self._mog.apply(self.display(grey), learningRate=-1)
         self._background = self._mog.getBackgroundImage()
         self.gain, self._frames = (1.0, 0.0), 0
+        H, W = self._kind[0]
+        self._samples = np.ix_(np.arange(0, H, _GAIN_STRIDE), np.arange(0, W, _GAIN_STRIDE))  # the gain fit's grid
 
     def __call__(self, frame: np.ndarray, near: tuple[float, float] | None = None,
                  exclude: Box | None = None) -> np.ndarray:
@@ -302,14 +327,15 @@ class ForegroundSegmenter:
         if self._mog is None:
             raise RuntimeError("ForegroundSegmenter: call warm_up(frames) before segmenting frames")
         cfg = self.cfg
-        grey = self._prepare(frame)
-        target = _box_mask(grey.shape, exclude)
-        if cfg.compensate_gain:
-            grid = np.zeros(grey.shape, dtype=bool)
-            grid[::_GAIN_STRIDE, ::_GAIN_STRIDE] = True
-            self.gain = fit_gain(grey, self._background, grid & ~target)
-            grey = (grey - np.float32(self.gain[1])) / np.float32(self.gain[0])
-        image = _to_uint8(grey)
+        grey = self._grey(frame)
+        k, c = self._to_uint8_scale()
+        if cfg.compensate_gain:  # on a fixed grid of pixels outside the target box
+            rows, cols = self._samples
+            keep = ~_box_mask(grey.shape, exclude)[self._samples]
+            x = self._background[self._samples][keep]
+            self.gain = fit_gain(grey[rows, cols][keep] * k + c, x, np.ones(x.shape, dtype=bool))
+            k, c = self._to_uint8_scale(*self.gain)
+        image = _affine_uint8(grey, k, c)
         # A positive rate learns only in the selective update below; −1 is OpenCV's automatic
         # rate on every whole frame.
         learn = cfg.learning_rate > 0 and self._frames % cfg.learning_interval == 0
@@ -319,7 +345,7 @@ class ForegroundSegmenter:
         if learn:  # selective update: the background image stands in where the target may be
             grown = cv2.dilate(raw.astype(np.uint8), cv2.getStructuringElement(
                 cv2.MORPH_ELLIPSE, (2 * _FOREGROUND_MARGIN_PX + 1,) * 2)).astype(bool)
-            image = np.where(target | grown, self._background, image)
+            image = np.where(_box_mask(grey.shape, exclude) | grown, self._background, image)
             self._mog.apply(image, learningRate=cfg.learning_rate)
             self._background = self._mog.getBackgroundImage()
         fraction = mask.mean()
@@ -329,7 +355,3 @@ class ForegroundSegmenter:
             logger.debug("foreground covers %.0f %% of the frame (a global change?)", 100 * fraction)
         return mask
 
-
-def _to_uint8(grey: np.ndarray) -> np.ndarray:
-    """Float grey on the uint8 scale -> uint8, rounded and clipped to [0, 255]."""
-    return np.clip(np.rint(grey), 0, 255).astype(np.uint8)

@@ -26,16 +26,18 @@ def rbf_features(u: torch.Tensor, centres_u: torch.Tensor, widths: torch.Tensor)
     (≈ 4 % of the shipped model's entries for random views), which slowed the Ψ-first matmul of
     the reconstruction 5×; the truncation changes the shipped model's y by < 1e-8.
 
-    u: (N, 3) view vectors; centres_u: (Nc, 3) centre view vectors u(Υₗ); widths: (Nc,) sₗ > 0.
-    Returns (N, Nc + 4): [κ(‖u − u(Υ₁)‖), …, κ(‖u − u(Υ_Nc)‖), 1, u].
+    u: (N, 3) unit view vectors; centres_u: (Nc, 3) unit centre view vectors u(Υₗ); widths: (Nc,)
+    sₗ > 0. Returns (N, Nc + 4): [κ(‖u − u(Υ₁)‖), …, κ(‖u − u(Υ_Nc)‖), 1, u].
     """
     check_shape("u", u, ("N", 3))
     check_shape("centres_u", centres_u, ("Nc", 3))
     check_shape("widths", widths, (centres_u.shape[0],))
-    # ‖u − c‖² = ‖u‖² + ‖c‖² − 2 u·c as one matmul; clamp the rounding below zero.
-    r2 = ((u * u).sum(-1, keepdim=True) + (centres_u * centres_u).sum(-1) - 2.0 * u @ centres_u.T).clamp_min(0.0)
-    exponent = r2 / (2.0 * widths * widths)  # (N, Nc)
-    kernel = torch.exp(-exponent).masked_fill(exponent > _MAX_EXPONENT, 0.0)
+    # For unit vectors ‖u − c‖² = 2 − 2 u·c, so −r² / (2s²) = (u·c − 1) / s²: one addmm. The
+    # exponent is clamped just below the floor before exp: exp of large negative numbers (underflow
+    # to denormals) ran 80x slower than of the clamped ones on this CPU.
+    inv = 1.0 / (widths * widths)  # (Nc,)
+    exponent = torch.addmm(-inv, u, centres_u.T * inv).clamp(-_MAX_EXPONENT - 1.0, 0.0)  # (N, Nc)
+    kernel = torch.exp(exponent).masked_fill(exponent < -_MAX_EXPONENT, 0.0)
     return torch.cat((kernel, torch.ones_like(u[:, :1]), u), dim=-1)
 
 

@@ -52,8 +52,8 @@ class ShapeAppearance(nn.Module):
             (:func:`~torch_atr.training.render_set` renders them).
 
     Buffers: ``windows`` (K, P, 4r), for each spline span s the control-point core
-    [𝒜'_s … 𝒜'_{s+3}] arranged for one matmul; ``basis`` (L², r) the pixel basis pooled to L;
-    ``templates`` (K, V, L²) pooled (Method IV) or None.
+    [𝒜'_s … 𝒜'_{s+3}] arranged for one matmul; ``basis`` (L², r) the pixel basis B pooled to L;
+    ``gram`` (r, r) BᵀB; ``templates`` (K, V, L²) pooled (Method IV) or None.
     """
 
     def __init__(self, model: GenerativeShapeModel, method: str = "I", size: int = 32,
@@ -74,6 +74,7 @@ class ShapeAppearance(nn.Module):
             basis = pool_images(model.core.pixel_basis.T.reshape(r, S, S), self.size).reshape(r, -1).T
         self.register_buffer("windows", windows.contiguous())
         self.register_buffer("basis", basis.contiguous())  # (L², r)
+        self.register_buffer("gram", (basis.T @ basis).contiguous())  # (r, r) BᵀB, for ‖y‖² = cᵀ G c
         if method == "IV":
             if templates is None:
                 raise ValueError("Method IV needs the training templates (K, V, S, S); see training.render_set")
@@ -105,14 +106,31 @@ class ShapeAppearance(nn.Module):
         grouped by spline span. Returns (N, r)."""
         psi = self.model.rbf(theta, phi)  # (N, P)
         first, weights = self.model.identity.local_basis(alpha)
-        r = self.basis.shape[1]
-        out = torch.empty(alpha.shape[0], r, dtype=self.windows.dtype, device=self.windows.device)
-        order = torch.argsort(first)
+        N, r = alpha.shape[0], self.basis.shape[1]
+        order = torch.argsort(first)  # particles grouped by span: one contiguous slice per group
         spans, counts = torch.unique_consecutive(first[order], return_counts=True)
-        for s, members in zip(spans.tolist(), order.split(counts.tolist())):  # ≤ K groups
-            local = (psi[members] @ self.windows[s]).view(-1, SPLINE_POINTS, r)  # (n, 4, r)
-            out[members] = torch.einsum("nj,njr->nr", weights[members], local)
+        groups = psi[order].split(counts.tolist())
+        local = torch.cat([group @ self.windows[s] for s, group in zip(spans.tolist(), groups)])  # ≤ K groups
+        out = torch.empty(N, r, dtype=psi.dtype, device=psi.device)
+        out[order] = (weights[order].unsqueeze(-1) * local.view(N, SPLINE_POINTS, r)).sum(1)  # Σⱼ bⱼ 𝒜'_{s+j} Ψ
         return out
+
+    def squared_errors(self, z: torch.Tensor, alpha: torch.Tensor, theta: torch.Tensor, phi: torch.Tensor
+                       ) -> torch.Tensor:
+        """Σ (zⱼ − yⱼ)² over the L × L pixels of each particle, without forming yⱼ (Methods I–III).
+
+        With y = B c on the pooled basis, ‖z − y‖² = ‖z‖² − 2 (Bᵀz)·c + cᵀ (BᵀB) c: one read of z
+        for Bᵀz instead of forming y (N × L²) and three passes over z − y. Method IV compares the
+        templates directly.
+
+        z: (N, L, L) observed signed distances; alpha, theta, phi: (N,). Returns (N,).
+        """
+        if self.method == "IV":
+            return (z - self(alpha, theta, phi).to(z)).square().sum(dim=(1, 2))
+        alpha, theta, phi = (q.to(self.windows) for q in (alpha, theta, phi))
+        c = self.coords(*self.snap(alpha, theta, phi)[:3])  # (N, r)
+        flat = z.reshape(z.shape[0], -1).to(c)
+        return flat.square().sum(1) - 2 * ((flat @ self.basis) * c).sum(1) + ((c @ self.gram) * c).sum(1)
 
     def forward(self, alpha: torch.Tensor, theta: torch.Tensor, phi: torch.Tensor) -> torch.Tensor:
         """Predicted templates y for alpha, theta, phi: (N,) radians (any float dtype). Returns

@@ -39,7 +39,6 @@ from torch_atr.data.sequence import FrameTruth, Sequence
 from torch_atr.model import GenerativeShapeModel
 from torch_atr.pose import VehiclePose, view_of_pose, wrap_angle
 from torch_atr.segmentation import ForegroundSegmenter, SegmentationConfig
-from torch_atr.shape import dice
 from torch_atr.tracking.appearance import METHODS, ShapeAppearance
 from torch_atr.tracking.estimates import circular_mean, class_posterior, weighted_mean_cov
 from torch_atr.tracking.initialise import (InitConfig, blind_hypotheses, blind_particles, truth_alpha,
@@ -275,19 +274,20 @@ class Tracker:
 
     def _predicted_region(self) -> tuple[tuple[float, float] | None, tuple[float, float, float, float] | None,
                                          float]:
-        """The predicted target centre (u, v), the box (u0, v0, u1, v1) holding the windows of the
-        central 98 % of the particles, and the largest window side, in pixels."""
+        """The predicted target centre (u, v), the box (u0, v0, u1, v1) holding the particles' windows
+        (their weighted spread: 3σ of the centres plus half the largest window), and the largest
+        window side, in pixels."""
         uv, side = project_windows(self.camera, self.particles[:, X:Z + 1], self.model.template.window_m)
         w = self.log_weights.exp()
         finite = (uv.isfinite() & side.isfinite()).all(dim=1)
         if not finite.any():
             return None, None, math.inf
-        lo = (uv - side / 2)[finite]
-        hi = (uv + side / 2)[finite]
-        q = torch.tensor([0.01, 0.99], dtype=uv.dtype, device=uv.device)
-        box = (torch.quantile(lo, q[0], dim=0), torch.quantile(hi, q[1], dim=0))
-        centre = (w[finite, None] * uv[finite]).sum(0) / w[finite].sum().clamp_min(1e-30)
-        return tuple(centre.tolist()), (*box[0].tolist(), *box[1].tolist()), float(side[finite].max())
+        w = w[finite] / w[finite].sum().clamp_min(1e-30)
+        uv, side = uv[finite], side[finite]
+        centre = (w[:, None] * uv).sum(0)
+        spread = 3 * (w[:, None] * (uv - centre).square()).sum(0).sqrt() + side.max(0).values / 2
+        box = torch.cat([centre - spread, centre + spread])  # the windows of the weighted particles (3σ)
+        return tuple(centre.tolist()), tuple(box.tolist()), float(side.max())
 
     def _views(self, particles: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """View Θ of each particle: from its centre to the camera, in its body frame."""
@@ -299,10 +299,10 @@ class Tracker:
         """Eq. 5.2 per particle against the frame's (distance, origin); −inf where it is not finite.
         Returns (N,)."""
         theta, phi = self._views(particles)
-        y = self.appearance(particles[:, ALPHA], theta, phi)
         z = observe(distance[0], self.camera, particles[:, X:Z + 1], self.model.template, self.appearance.size,
                     distance[1])
-        log_lik = log_likelihood(z.to(y), y, self.cfg.filter.sigma)
+        sse = self.appearance.squared_errors(z, particles[:, ALPHA], theta, phi)
+        log_lik = -sse / (z[0].numel() * 2.0 * self.cfg.filter.sigma ** 2)  # eq. 5.2: −mean((z − y)²) / 2σ²
         return torch.where(log_lik.isfinite(), log_lik, -math.inf).to(self.dtype)
 
     def _initialise_blind(self, mask: np.ndarray, distance: tuple[torch.Tensor, tuple[int, int]]) -> None:
@@ -357,13 +357,27 @@ class Tracker:
         return est[:, ALPHA], theta, phi, uv, side
 
     def silhouette_at(self, row: dict, shape: tuple[int, int]) -> torch.Tensor:
-        """The estimate's reconstructed silhouette y(α̂, Θ̂) > 0 placed in the frame: (H, W) bool."""
+        """The estimate's predicted silhouette placed in the frame: (H, W) bool.
+
+        The shape is the method's, at the likelihood resolution (what the filter compared); the
+        bilinear placement of its signed distance draws a smooth contour between its pixels.
+        """
         alpha, theta, phi, uv, side = self._estimate_window(row)
-        return place_silhouette(self.model(alpha, theta, phi)[0], uv[0], side[0], shape)
+        return place_silhouette(self.appearance(alpha, theta, phi)[0], uv[0], side[0], shape)
 
     def _overlap(self, mask: np.ndarray, row: dict) -> float:
-        """Dice ξ (eq. 6.1) of the placed estimate and the segmented target mask."""
-        return float(dice(self.silhouette_at(row, mask.shape).cpu(), torch.from_numpy(mask)))
+        """Dice ξ (eq. 6.1) of the placed estimate and the segmented target mask: 2|F ∩ H| / (|F| + |H|),
+        the intersection and the placed silhouette counted inside its window only."""
+        alpha, theta, phi, uv, side = self._estimate_window(row)
+        if not bool(uv.isfinite().all() and side.isfinite().all()):
+            return 0.0
+        H, W = mask.shape
+        (u0, v0), (u1, v1) = (uv[0] - side[0] / 2).floor().long().tolist(), (uv[0] + side[0] / 2).ceil().long().tolist()
+        c0, r0, c1, r1 = min(max(u0, 0), W), min(max(v0, 0), H), min(max(u1 + 1, 0), W), min(max(v1 + 1, 0), H)
+        placed = place_silhouette(self.appearance(alpha, theta, phi)[0], uv[0] - uv.new_tensor([c0, r0]), side[0],
+                                  (r1 - r0, c1 - c0)).cpu().numpy()
+        total = int(placed.sum()) + int(mask.sum())
+        return 2.0 * int((placed & mask[r0:r1, c0:c1]).sum()) / total if total else 1.0
 
     def _adapt(self, distance: tuple[torch.Tensor, tuple[int, int]], row: dict) -> None:
         """A few Adam steps on the kernel widths towards the observation at the estimate."""
@@ -377,6 +391,7 @@ class Tracker:
                 self._optimiser.step()
 
     # --- a whole sequence -------------------------------------------------------------------
+    @torch.no_grad()
     def run(self, sequence: Sequence, frames: int | None = None, snapshots: int = 6, progress: bool = True
             ) -> TrackResult:
         """Track a sequence: warm up the background, initialise (``cfg.init.mode``), step every frame.

@@ -27,7 +27,7 @@ import torch.nn.functional as F
 from torch_atr._checks import check_shape
 from torch_atr.camera import Camera
 from torch_atr.config import TemplateConfig
-from torch_atr.shape import clip_distance, signed_distance_px
+from torch_atr.shape import signed_distance_px
 
 
 def project_windows(camera: Camera, centres: torch.Tensor, window_m: float) -> tuple[torch.Tensor, torch.Tensor]:
@@ -131,18 +131,22 @@ def sample_windows(distance: torch.Tensor, uv: torch.Tensor, side: torch.Tensor,
     check_shape("side", side, (uv.shape[0], 2))
     H, W = distance.shape
     N, L = uv.shape[0], int(size)
-    steps = (torch.arange(L, dtype=uv.dtype, device=uv.device) + 0.5) / L - 0.5  # (L,) in (−½, ½)
     valid = (uv.isfinite() & side.isfinite()).all(dim=1)
-    uv = torch.where(valid[:, None], uv - uv.new_tensor(origin), 0.0)
-    side = torch.where(valid[:, None], side, 0.0)
-    u = uv[:, 0:1] + steps * side[:, 0:1]  # (N, L) pixel columns
-    v = uv[:, 1:2] + steps * side[:, 1:2]  # (N, L) pixel rows
-    # grid_sample with align_corners=False: normalised −1 is the left edge of pixel 0.
-    gx = ((u + 0.5) * (2.0 / W) - 1.0).unsqueeze(1).expand(N, L, L)
-    gy = ((v + 0.5) * (2.0 / H) - 1.0).unsqueeze(2).expand(N, L, L)
-    grid = torch.stack([gx, gy], dim=-1).reshape(1, N * L, L, 2).to(distance.dtype)
-    out = F.grid_sample(distance[None, None], grid, mode="bilinear", padding_mode="border", align_corners=False)
-    return torch.where(valid[:, None, None], out.reshape(N, L, L).to(uv.dtype), 0.0)
+    all_valid = bool(valid.all())
+    if not all_valid:
+        uv, side = torch.where(valid[:, None], uv, 0.0), torch.where(valid[:, None], side, 0.0)
+    # grid_sample's normalised coordinates (align_corners=False): −1 is the left edge of pixel 0, so
+    # pixel u is (2u + 1) / W − 1; the L cell centres of a window of side s sit at u_c + s·((k + ½)/L − ½).
+    steps = (torch.arange(L, dtype=uv.dtype, device=uv.device) + 0.5) / L - 0.5  # (L,)
+    size = uv.new_tensor([W, H])
+    cells = (2 * (uv - uv.new_tensor(origin) + steps[:, None, None] * side) + 1) / size - 1  # (L, N, 2)
+    gx = cells[:, :, 0].T.to(distance.dtype)  # (N, L): columns
+    gy = cells[:, :, 1].T.to(distance.dtype)  # (N, L): rows
+    grid = torch.stack([gx[:, None, :].expand(N, L, L), gy[:, :, None].expand(N, L, L)], dim=-1)  # (N, L, L, 2)
+    # One batch item per window, the image broadcast (not copied), so grid_sample runs in parallel.
+    out = F.grid_sample(distance[None, None].expand(N, 1, H, W), grid, mode="bilinear", padding_mode="border",
+                        align_corners=False)[:, 0].to(uv.dtype)
+    return out if all_valid else torch.where(valid[:, None, None], out, 0.0)
 
 
 def observe_windows(distance: torch.Tensor, uv: torch.Tensor, side: torch.Tensor, template: TemplateConfig,
@@ -166,9 +170,9 @@ def observe_windows(distance: torch.Tensor, uv: torch.Tensor, side: torch.Tensor
     samples = sample_windows(distance.to(uv.device), uv, side, size, origin)  # image pixels
     if image_px is None:
         image_px = side.prod(dim=1).sqrt() / template.size_px
-    to_template = 1.0 / image_px  # (N,) template px per image px
-    to_template = torch.where(to_template.isfinite(), to_template, 0.0)
-    return clip_distance(samples * to_template[:, None, None], template.tau_px)
+    per_tau = 1.0 / (image_px * template.tau_px)  # (N,) τ-units per image px
+    per_tau = torch.where(per_tau.isfinite(), per_tau, 0.0)
+    return (samples * per_tau[:, None, None]).clamp_(-1.0, 1.0)  # clip_distance in one pass
 
 
 def observe(distance: torch.Tensor, camera: Camera, centres: torch.Tensor, template: TemplateConfig,

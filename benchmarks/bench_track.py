@@ -1,0 +1,197 @@
+"""Tracking speed: frames per second of the batched filter against particle count, a per-particle
+reference of Table 5.1 written here, and where the time goes.
+
+Frames of a simulated sequence (the held-out T-72 at 1000 m by night) are made first, so the
+simulator is not timed. Each run starts from the truth (the thesis's start) and steps through
+the frames; the first ``--skip`` frames are not counted. A step includes everything a live
+tracker does per frame: segmentation (MOG2 with the tracker's feedback), the frame's distance,
+prediction, views, predicted shapes (Method I), windows, likelihoods, estimates, overlap and
+resampling. The reference does one step of Table 5.1 the straightforward way — a Python loop over
+particles, each with its own prediction, view, model query (full size, pooled), window and
+likelihood — on the same frames, segmentation included; the speed-up is the ratio of the two
+medians at the same particle count, measured in this run.
+
+    python benchmarks/bench_track.py [--particles 250 500 1000 2000 4000 8000 16000] [--frames 60]
+        [--device cpu] [--checkpoint checkpoints/default.pt] [--json OUT]
+"""
+
+from __future__ import annotations
+
+import argparse
+import cProfile
+import json
+import logging
+import math
+import pstats
+import statistics
+import time
+from pathlib import Path
+
+import torch
+import torch.nn.functional as F
+
+from torch_atr.config import load_config
+from torch_atr.data.synthetic import SceneConfig, SyntheticSequence
+from torch_atr.io import atomic_write_text
+from torch_atr.model import GenerativeShapeModel
+from torch_atr.pose import VehiclePose, view_of_pose
+from torch_atr.shape import signed_distance_px
+from torch_atr.tracking import Tracker, TrackerConfig
+from torch_atr.tracking.motion import MotionConfig
+
+log = logging.getLogger("bench_track")
+SHIPPED = Path(__file__).resolve().parents[1] / "checkpoints" / "default.pt"
+
+# Functions whose cumulative time makes the profile (name in the cProfile table -> stage).
+STAGES = {"__call__": "segmentation (MOG2, gain, blob)", "frame_distance": "frame distance (EDT near the blob)",
+          "_predict": "prediction (eq. 5.1, 5.3)", "_predicted_region": "predicted region",
+          "_views": "views Θ of the particles", "forward": "predicted shapes (Method I)",
+          "observe": "windows and samples", "log_likelihood": "likelihoods (eq. 5.2)",
+          "_estimate": "estimates", "_overlap": "overlap (placed silhouette)", "resample": "resampling"}
+
+
+def tracker_fps(model, seq, frames, n: int, device: str, skip: int) -> tuple[float, list[float]]:
+    """Median frames per second of the batched tracker with n particles, and the step times (s)."""
+    cfg = load_config(TrackerConfig, None, [f"filter.particles={n}", "init.mode=truth"])
+    tracker = Tracker(model, seq.camera, cfg, device=device, seed=0)
+    tracker.warm_up(seq.warmup_frames(50))
+    tracker.initialise(seq.truth(0))
+    times = []
+    for frame in frames:
+        start = time.perf_counter()
+        tracker.step(frame)
+        if device.startswith("cuda"):
+            torch.cuda.synchronize()
+        times.append(time.perf_counter() - start)
+    return 1.0 / statistics.median(times[skip:]), times[skip:]
+
+
+def reference_step(model, camera, mask, particles: list[list[float]], motion: MotionConfig, dt: float,
+                   sigma: float, L: int, g: torch.Generator) -> list[list[float]]:
+    """One step of Table 5.1 a particle at a time: predict, weigh, normalise, estimate, resample."""
+    D = signed_distance_px(mask)[None, None]
+    H, W = mask.shape
+    tpl = model.template
+    std = motion.std_per_step(dt).tolist()
+    log_w = []
+    moved = []
+    for x, y, z, h, v, a in particles:  # 1.1: draw X_t ~ p(X_t | X_{t-1}), α_t ~ p(α_t | α_{t-1})
+        w = torch.randn(6, generator=g).tolist()
+        p = [x + v * math.sin(h) * dt + std[0] * w[0], y + std[1] * w[1], z + v * math.cos(h) * dt + std[2] * w[2],
+             (h + std[3] * w[3]) % (2 * math.pi), v + std[4] * w[4], (a + std[5] * w[5]) % (2 * math.pi)]
+        moved.append(p)
+        theta, phi = view_of_pose(VehiclePose(p[0], p[1], p[2], p[3]), camera)  # 1.2: the weight, eq. 5.2
+        yhat = model(torch.tensor([p[5]]), theta.reshape(1).float(), phi.reshape(1).float())
+        yhat = F.avg_pool2d(yhat[None], tpl.size_px // L)[0, 0]
+        uv, depth = camera.project(torch.tensor(p[:3], dtype=torch.float64))
+        s = camera.fx * tpl.window_m / depth.item()
+        k = (torch.arange(L) + 0.5) / L - 0.5
+        gu = ((uv[0].item() + k * s + 0.5) * 2 / W - 1).expand(L, L)
+        gv = ((uv[1].item() + k * s + 0.5) * 2 / H - 1)[:, None].expand(L, L)
+        zz = F.grid_sample(D, torch.stack([gu, gv], -1)[None].float(), padding_mode="border", align_corners=False)[0, 0]
+        zz = (zz * tpl.size_px / s).clamp(-tpl.tau_px, tpl.tau_px) / tpl.tau_px
+        log_w.append(-float(((zz - yhat) ** 2).mean()) / (2 * sigma * sigma))
+    top = max(log_w)  # 2: normalise
+    weights = [math.exp(lw - top) for lw in log_w]
+    total = sum(weights)
+    weights = [wi / total for wi in weights]
+    _ = [sum(wi * p[i] for wi, p in zip(weights, moved)) for i in range(5)]  # 3: the estimate
+    out, c, j, n = [], weights[0], 0, len(moved)  # 4: systematic resampling
+    u0 = torch.rand((), generator=g).item()
+    for i in range(n):
+        target = (i + u0) / n
+        while target > c and j < n - 1:
+            j += 1
+            c += weights[j]
+        out.append(list(moved[j]))
+    return out
+
+
+def reference_fps(model, seq, frames, n: int, tracker_cfg: TrackerConfig) -> float:
+    """Frames per second of the per-particle reference (segmentation included), over len(frames) frames."""
+    from torch_atr.segmentation import ForegroundSegmenter
+
+    seg = ForegroundSegmenter(tracker_cfg.segmentation)
+    seg.warm_up(seq.warmup_frames(50))
+    t = seq.truth(0)
+    g = torch.Generator().manual_seed(0)
+    particles = [[t.x + r[0], t.y + r[1], t.z + r[2], t.heading, 1.0, 0.5] for r in torch.randn(n, 3, generator=g).tolist()]
+    times = []
+    for frame in frames:
+        start = time.perf_counter()
+        mask = seg(frame)
+        with torch.no_grad():
+            particles = reference_step(model, seq.camera, mask, particles, tracker_cfg.motion, 1 / seq.fps,
+                                       tracker_cfg.filter.sigma, tracker_cfg.filter.likelihood_px, g)
+        times.append(time.perf_counter() - start)
+    return 1.0 / statistics.median(times)
+
+
+def profile(model, seq, frames, n: int, device: str) -> dict[str, float]:
+    """Milliseconds per frame in each stage (cumulative, cProfile) at n particles."""
+    cfg = load_config(TrackerConfig, None, [f"filter.particles={n}", "init.mode=truth"])
+    tracker = Tracker(model, seq.camera, cfg, device=device, seed=0)
+    tracker.warm_up(seq.warmup_frames(50))
+    tracker.initialise(seq.truth(0))
+    for frame in frames[:5]:
+        tracker.step(frame)
+    prof = cProfile.Profile()
+    prof.enable()
+    for frame in frames[5:]:
+        tracker.step(frame)
+    prof.disable()
+    stats = pstats.Stats(prof).stats
+    count = len(frames) - 5
+    out = {}
+    for (path, _, name), (_, _, _, cumulative, _) in stats.items():
+        if name in STAGES and "torch_atr" in path and not (name == "__call__" and "segmentation" not in path) \
+                and not (name == "forward" and "appearance" not in path):
+            out[STAGES[name]] = out.get(STAGES[name], 0.0) + 1e3 * cumulative / count
+    out["whole step"] = 1e3 * sum(v[3] for (p, _, name), v in stats.items() if name == "step" and "filter" in p) / count
+    return out
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--particles", type=int, nargs="+", default=[250, 500, 1000, 2000, 4000, 8000, 16000])
+    parser.add_argument("--frames", type=int, default=60, help="frames per run (the simulator makes them first)")
+    parser.add_argument("--skip", type=int, default=5, help="frames not counted at the start of each run")
+    parser.add_argument("--reference-frames", type=int, default=3, help="frames of the per-particle reference")
+    parser.add_argument("--reference-particles", type=int, default=1000)
+    parser.add_argument("--device", default="cpu")
+    parser.add_argument("--checkpoint", default=str(SHIPPED))
+    parser.add_argument("--json", help="also write the numbers here")
+    args = parser.parse_args()
+    logging.basicConfig(level=logging.INFO, format="%(message)s")
+
+    model = GenerativeShapeModel.from_checkpoint(args.checkpoint)
+    seq = SyntheticSequence("t_72", SceneConfig(frames=max(args.frames, args.reference_frames)))
+    frames = [seq.frame(i) for i in range(args.frames)]
+    log.info("T-72 at 1000 m, %d frames of %dx%d, device %s, %d torch threads", args.frames, seq.cfg.width,
+             seq.cfg.height, args.device, torch.get_num_threads())
+    rows = []
+    for n in args.particles:
+        fps, times = tracker_fps(model, seq, frames, n, args.device, args.skip)
+        rows.append({"particles": n, "frames_per_second": fps, "particles_per_second": fps * n,
+                     "ms_per_frame_p90": 1e3 * sorted(times)[int(0.9 * (len(times) - 1))]})
+        log.info("N = %6d: %7.1f frames/s (%.2e particles/s), 90th percentile %.1f ms", n, fps, fps * n,
+                 rows[-1]["ms_per_frame_p90"])
+    n_ref = args.reference_particles
+    ref = reference_fps(model, seq, frames[:args.reference_frames], n_ref, TrackerConfig())
+    batched = next((r["frames_per_second"] for r in rows if r["particles"] == n_ref), None) or \
+        tracker_fps(model, seq, frames, n_ref, args.device, args.skip)[0]
+    log.info("per-particle reference at N = %d: %.3f frames/s; the batched filter is %.0fx faster", n_ref, ref,
+             batched / ref)
+    stages = profile(model, seq, frames, n_ref, args.device)
+    log.info("where the time goes at N = %d (ms per frame, cumulative):", n_ref)
+    for name, ms in sorted(stages.items(), key=lambda kv: -kv[1]):
+        log.info("  %-38s %6.2f", name, ms)
+    if args.json:
+        atomic_write_text(json.dumps({"runs": rows, "reference": {"particles": n_ref, "frames_per_second": ref,
+                                                                   "speed_up": batched / ref},
+                                      "profile_ms": stages, "threads": torch.get_num_threads()}, indent=2),
+                          args.json)
+
+
+if __name__ == "__main__":
+    main()
