@@ -12,7 +12,7 @@ likelihood — on the same frames, segmentation included; the speed-up is the ra
 medians at the same particle count, measured in this run.
 
     python benchmarks/bench_track.py [--particles 250 500 1000 2000 4000 8000 16000] [--frames 60]
-        [--device cpu] [--checkpoint checkpoints/default.pt] [--json OUT]
+        [--device cpu] [--checkpoint checkpoints/default.pt] [--set filter.likelihood_px=16] [--json OUT]
 """
 
 from __future__ import annotations
@@ -45,14 +45,19 @@ SHIPPED = Path(__file__).resolve().parents[1] / "checkpoints" / "default.pt"
 # Functions whose cumulative time makes the profile (name in the cProfile table -> stage).
 STAGES = {"__call__": "segmentation (MOG2, gain, blob)", "frame_distance": "frame distance (EDT near the blob)",
           "_predict": "prediction (eq. 5.1, 5.3)", "_predicted_region": "predicted region",
-          "_views": "views Θ of the particles", "forward": "predicted shapes (Method I)",
-          "observe": "windows and samples", "log_likelihood": "likelihoods (eq. 5.2)",
+          "_log_likelihood": "likelihoods (eq. 5.2), of which:", "_views": "  views Θ of the particles",
+          "observe": "  windows and their samples", "squared_errors": "  predicted shapes and errors (Method I)",
           "_estimate": "estimates", "_overlap": "overlap (placed silhouette)", "resample": "resampling"}
 
 
-def tracker_fps(model, seq, frames, n: int, device: str, skip: int) -> tuple[float, list[float]]:
+def tracker_config(n: int, overrides: list[str]) -> TrackerConfig:
+    return load_config(TrackerConfig, None, [f"filter.particles={n}", "init.mode=truth", *overrides])
+
+
+def tracker_fps(model, seq, frames, n: int, device: str, skip: int, overrides: list[str]
+                ) -> tuple[float, list[float]]:
     """Median frames per second of the batched tracker with n particles, and the step times (s)."""
-    cfg = load_config(TrackerConfig, None, [f"filter.particles={n}", "init.mode=truth"])
+    cfg = tracker_config(n, overrides)
     tracker = Tracker(model, seq.camera, cfg, device=device, seed=0)
     tracker.warm_up(seq.warmup_frames(50))
     tracker.initialise(seq.truth(0))
@@ -127,9 +132,9 @@ def reference_fps(model, seq, frames, n: int, tracker_cfg: TrackerConfig) -> flo
     return 1.0 / statistics.median(times)
 
 
-def profile(model, seq, frames, n: int, device: str) -> dict[str, float]:
+def profile(model, seq, frames, n: int, device: str, overrides: list[str]) -> dict[str, float]:
     """Milliseconds per frame in each stage (cumulative, cProfile) at n particles."""
-    cfg = load_config(TrackerConfig, None, [f"filter.particles={n}", "init.mode=truth"])
+    cfg = tracker_config(n, overrides)
     tracker = Tracker(model, seq.camera, cfg, device=device, seed=0)
     tracker.warm_up(seq.warmup_frames(50))
     tracker.initialise(seq.truth(0))
@@ -144,8 +149,7 @@ def profile(model, seq, frames, n: int, device: str) -> dict[str, float]:
     count = len(frames) - 5
     out = {}
     for (path, _, name), (_, _, _, cumulative, _) in stats.items():
-        if name in STAGES and "torch_atr" in path and not (name == "__call__" and "segmentation" not in path) \
-                and not (name == "forward" and "appearance" not in path):
+        if name in STAGES and "torch_atr" in path and not (name == "__call__" and "segmentation" not in path):
             out[STAGES[name]] = out.get(STAGES[name], 0.0) + 1e3 * cumulative / count
     out["whole step"] = 1e3 * sum(v[3] for (p, _, name), v in stats.items() if name == "step" and "filter" in p) / count
     return out
@@ -160,6 +164,8 @@ def main() -> None:
     parser.add_argument("--reference-particles", type=int, default=1000)
     parser.add_argument("--device", default="cpu")
     parser.add_argument("--checkpoint", default=str(SHIPPED))
+    parser.add_argument("--set", nargs="*", default=[], metavar="KEY=VALUE",
+                        help="tracker config overrides, e.g. filter.likelihood_px=16")
     parser.add_argument("--json", help="also write the numbers here")
     args = parser.parse_args()
     logging.basicConfig(level=logging.INFO, format="%(message)s")
@@ -167,22 +173,22 @@ def main() -> None:
     model = GenerativeShapeModel.from_checkpoint(args.checkpoint)
     seq = SyntheticSequence("t_72", SceneConfig(frames=max(args.frames, args.reference_frames)))
     frames = [seq.frame(i) for i in range(args.frames)]
-    log.info("T-72 at 1000 m, %d frames of %dx%d, device %s, %d torch threads", args.frames, seq.cfg.width,
-             seq.cfg.height, args.device, torch.get_num_threads())
+    log.info("T-72 at 1000 m, %d frames of %dx%d, device %s, %d torch threads, overrides %s", args.frames,
+             seq.cfg.width, seq.cfg.height, args.device, torch.get_num_threads(), args.set or "none")
     rows = []
     for n in args.particles:
-        fps, times = tracker_fps(model, seq, frames, n, args.device, args.skip)
+        fps, times = tracker_fps(model, seq, frames, n, args.device, args.skip, args.set)
         rows.append({"particles": n, "frames_per_second": fps, "particles_per_second": fps * n,
                      "ms_per_frame_p90": 1e3 * sorted(times)[int(0.9 * (len(times) - 1))]})
         log.info("N = %6d: %7.1f frames/s (%.2e particles/s), 90th percentile %.1f ms", n, fps, fps * n,
                  rows[-1]["ms_per_frame_p90"])
     n_ref = args.reference_particles
-    ref = reference_fps(model, seq, frames[:args.reference_frames], n_ref, TrackerConfig())
+    ref = reference_fps(model, seq, frames[:args.reference_frames], n_ref, tracker_config(n_ref, args.set))
     batched = next((r["frames_per_second"] for r in rows if r["particles"] == n_ref), None) or \
-        tracker_fps(model, seq, frames, n_ref, args.device, args.skip)[0]
+        tracker_fps(model, seq, frames, n_ref, args.device, args.skip, args.set)[0]
     log.info("per-particle reference at N = %d: %.3f frames/s; the batched filter is %.0fx faster", n_ref, ref,
              batched / ref)
-    stages = profile(model, seq, frames, n_ref, args.device)
+    stages = profile(model, seq, frames, n_ref, args.device, args.set)
     log.info("where the time goes at N = %d (ms per frame, cumulative):", n_ref)
     for name, ms in sorted(stages.items(), key=lambda kv: -kv[1]):
         log.info("  %-38s %6.2f", name, ms)
