@@ -1,3 +1,5 @@
+"""Model and tracking measures against loops and hand-computed cases."""
+
 import math
 from pathlib import Path
 
@@ -41,5 +43,51 @@ def test_rbf_mapping_iou_equals_explicit_mappings_applied_at_new_views():
     torch.testing.assert_close(got, expected.float(), check_dtype=False)
 
 
-from torch_atr.evaluation import alpha_grid_iou, per_class_mean, rbf_mapping_iou
-from torch_atr.model import GenerativeShapeModel
+def test_alpha_grid_iou_equals_a_loop_over_alpha_of_the_model_silhouette(model):
+    from torch_atr.shape import iou
+
+    theta = torch.tensor([0.3, 2.0, 4.0], dtype=torch.float64)
+    phi = torch.tensor([0.1, 0.3, 0.0], dtype=torch.float64)
+    masks = torch.stack([model.silhouette(model.alphas[k].expand(3), theta, phi) for k in (0, 30)])  # (2, 3, H, W)
+    masks[1, 2] = False  # an empty view
+    got = alpha_grid_iou(model, masks, theta, phi, grid=7)
+    assert got.shape == (2, 7, 3)
+    for a in range(7):
+        alpha = torch.full((3,), 2 * math.pi * a / 7, dtype=torch.float64)
+        recon = model.silhouette(alpha, theta, phi)
+        for b in range(2):
+            torch.testing.assert_close(got[b, a], iou(recon, masks[b]).to(got), atol=1e-6, rtol=0)
+    with pytest.raises(ValueError, match="masks"):
+        alpha_grid_iou(model, masks[0], theta, phi)
+
+
+def test_tracking_errors_by_hand():
+    from torch_atr.evaluation import tracking_errors
+
+    est = {"x": np.array([1.0, 2.0, np.nan, 0.0]), "z": np.array([100.0, 90.0, 95.0, 110.0]),
+           "theta": np.array([0.1, 6.2, 3.0, 1.0])}
+    truth = {"x": np.array([0.5, 2.5, 1.0, np.nan]), "z": np.array([100.0, 100.0, 100.0, 100.0]),
+             "theta": np.array([6.2, 0.1, 3.5, np.nan])}
+    got = tracking_errors(est, truth)
+    assert got["horizontal_error_m"] == pytest.approx(0.5)  # frames 0, 1
+    assert got["range_error_m"] == pytest.approx((0 + 10 + 5 + 10) / 4)
+    wrap = 2 * math.pi - 6.1  # 0.1 and 6.2 are 0.183 apart across 0, not 6.1
+    assert got["aspect_error_rad"] == pytest.approx((wrap + wrap + 0.5) / 3)
+    none = tracking_errors({k: np.full(2, np.nan) for k in est}, {k: np.full(2, np.nan) for k in truth})
+    assert none == {"horizontal_error_m": None, "range_error_m": None, "aspect_error_rad": None}
+
+
+def test_recognition_best_matches_and_convergence(model):
+    from torch_atr.evaluation import best_matches, frames_to_convergence, recognition_accuracy
+
+    names = model.class_names
+    k0 = 0
+    own = names[model.vehicle_classes[k0]]
+    other = next(n for n in names if n != own)
+    alpha = np.array([model.alphas[k0].item()] * 3 + [np.nan])
+    assert recognition_accuracy(model, alpha, [own, own, other, own]) == pytest.approx(2 / 4)
+    assert recognition_accuracy(model, alpha, ["", "", "", ""]) is None
+    assert best_matches(model, alpha)[0] == model.vehicle_names[k0]
+    assert best_matches(model, np.full(3, np.nan)) == []
+    ok = np.array([0, 1, 1, 0] + [1] * 12, dtype=bool)
+    assert frames_to_convergence(ok) == 4 and frames_to_convergence(ok[:8]) is None

@@ -205,3 +205,26 @@ def test_bad_inputs_raise(model, btr):
         tracker.reset(torch.full((4, 6), math.nan))
     with pytest.raises(ValueError, match="mask to be a"):
         tracker.step(mask=np.zeros((4, 4)))
+
+
+def test_kernel_width_adaptation_moves_the_widths_towards_the_observation(btr):
+    """adapt.every > 0: Adam steps on log(width) lower the squared error at the estimate."""
+    model = GenerativeShapeModel.from_checkpoint(CKPT)  # its own copy: adaptation changes the widths
+    before = model.rbf.log_width.detach().clone()
+    tracker = Tracker(model, btr.camera, _config("filter.particles=200", "init.mode=truth", "adapt.every=1",
+                                                 "adapt.steps=3", "adapt.lr=0.01"), seed=0)
+    tracker.warm_up(btr.warmup_frames(20))
+    tracker.initialise(btr.truth(0))
+    row = tracker.step(btr.frame(0))
+    distance = (signed_distance_px(tracker.last_mask), (0, 0))
+    alpha, theta, phi, uv, side = tracker._estimate_window(row)
+    from torch_atr.tracking.observation import observe_windows
+
+    z = observe_windows(distance[0], uv, side, model.template, tracker.appearance.size)
+    with torch.no_grad():
+        error_before = (tracker.appearance(alpha, theta, phi) - z).square().mean().item()
+    tracker._adapt(distance, row)
+    with torch.no_grad():
+        error_after = (tracker.appearance(alpha, theta, phi) - z).square().mean().item()
+    assert not torch.equal(model.rbf.log_width.detach(), before)
+    assert error_after < error_before

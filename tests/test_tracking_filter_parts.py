@@ -9,7 +9,7 @@ import torch
 
 from torch_atr.config import ConfigError
 from torch_atr.tracking.estimates import circular_mean, class_posterior, weighted_mean_cov
-from torch_atr.tracking.motion import ALPHA, HEADING, SPEED, X, Y, Z, MotionConfig, predict
+from torch_atr.tracking.motion import ALPHA, HEADING, MotionConfig, predict
 from torch_atr.tracking.resampling import SCHEMES, effective_sample_size, resample
 
 TWO_PI = 2 * math.pi

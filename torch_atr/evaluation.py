@@ -127,6 +127,32 @@ def fit_alpha(model, signed: torch.Tensor, theta, phi, grid: int = 360) -> tuple
     return start, losses.min().item()
 
 
+@torch.no_grad()
+def alpha_grid_iou(model, masks: torch.Tensor, theta, phi, grid: int = 720) -> torch.Tensor:
+    """Static α search: IoU of the reconstructed silhouette at ``grid`` evenly spaced α with each view.
+
+    masks: (B, V, H, W) bool silhouettes of B vehicles at the views theta, phi (V,) radians.
+    Returns (B, grid, V): entry [b, a, v] is the IoU of y(2π·a/grid, Θᵥ) > 0 with masks[b, v].
+    IoU is 1.0 where both silhouettes are empty (as :func:`torch_atr.shape.iou`). The best α of
+    a single view v is the argmax over a of [b, :, v]; that of the whole vehicle, the argmax of
+    the mean over v.
+    """
+    check_shape("masks", masks, ("B", "V", model.template.size_px, model.template.size_px))
+    if grid < 1:
+        raise ValueError(f"Expected grid >= 1; got {grid}")
+    theta, phi = _views(model, masks, theta, phi, 1)
+    alpha = torch.arange(grid, dtype=theta.dtype, device=theta.device) * (2 * math.pi / grid)
+    truth = masks.flatten(2).to(theta)  # (B, V, d)
+    area = truth.sum(-1)  # (B, V)
+    out = []
+    for chunk in alpha.split(max(1, 4096 // masks.shape[1])):
+        recon = (model.reconstruct_grid(chunk, theta, phi).flatten(2) > 0).to(theta)  # (A, V, d)
+        inter = torch.einsum("avd,bvd->bav", recon, truth)
+        union = recon.sum(-1) + area[:, None] - inter  # (B, A, V)
+        out.append(torch.where(union > 0, inter / union.clamp_min(1), torch.ones_like(union)).cpu())
+    return torch.cat(out, dim=1)
+
+
 # --- tracking and recognition (chapter 6.2) ----------------------------------------------------
 
 def wrapped_abs(a: np.ndarray) -> np.ndarray:
@@ -198,29 +224,3 @@ def frames_to_convergence(ok: np.ndarray, window: int = 10) -> int | None:
         if run == window:
             return i - window + 1
     return None
-
-
-@torch.no_grad()
-def alpha_grid_iou(model, masks: torch.Tensor, theta, phi, grid: int = 720) -> torch.Tensor:
-    """Static α search: IoU of the reconstructed silhouette at ``grid`` evenly spaced α with each view.
-
-    masks: (B, V, H, W) bool silhouettes of B vehicles at the views theta, phi (V,) radians.
-    Returns (B, grid, V): entry [b, a, v] is the IoU of y(2π·a/grid, Θᵥ) > 0 with masks[b, v].
-    IoU is 1.0 where both silhouettes are empty (as :func:`torch_atr.shape.iou`). The best α of
-    a single view v is the argmax over a of [b, :, v]; that of the whole vehicle, the argmax of
-    the mean over v.
-    """
-    check_shape("masks", masks, ("B", "V", model.template.size_px, model.template.size_px))
-    if grid < 1:
-        raise ValueError(f"Expected grid >= 1; got {grid}")
-    theta, phi = _views(model, masks, theta, phi, 1)
-    alpha = torch.arange(grid, dtype=theta.dtype, device=theta.device) * (2 * math.pi / grid)
-    truth = masks.flatten(2).to(theta)  # (B, V, d)
-    area = truth.sum(-1)  # (B, V)
-    out = []
-    for chunk in alpha.split(max(1, 4096 // masks.shape[1])):
-        recon = (model.reconstruct_grid(chunk, theta, phi).flatten(2) > 0).to(theta)  # (A, V, d)
-        inter = torch.einsum("avd,bvd->bav", recon, truth)
-        union = recon.sum(-1) + area[:, None] - inter  # (B, A, V)
-        out.append(torch.where(union > 0, inter / union.clamp_min(1), torch.ones_like(union)).cpu())
-    return torch.cat(out, dim=1)

@@ -591,7 +591,7 @@ class SyntheticSequence(Sequence):
         if self._static is not None:
             return self._static
         cfg, temps = self.cfg, self._temps
-        H, W = cfg.height, cfg.width
+        H = cfg.height
         f, cy = cfg.focal_px, (H - 1) / 2
         v_h = cy - f * math.tan(cfg.tilt_rad)  # horizon row (module docstring, R)
         v = np.arange(H, dtype=np.float64)[:, None]

@@ -37,14 +37,14 @@ from torch_atr.camera import Camera
 from torch_atr.config import ConfigError
 from torch_atr.data.sequence import FrameTruth, Sequence
 from torch_atr.model import GenerativeShapeModel
-from torch_atr.pose import VehiclePose, view_of_pose, wrap_angle
+from torch_atr.pose import VehiclePose, view_of_pose
 from torch_atr.segmentation import ForegroundSegmenter, SegmentationConfig
 from torch_atr.tracking.appearance import METHODS, ShapeAppearance
 from torch_atr.tracking.estimates import circular_mean, class_posterior, weighted_mean_cov
 from torch_atr.tracking.initialise import (InitConfig, blind_hypotheses, blind_particles, truth_alpha,
                                            truth_particles)
 from torch_atr.tracking.motion import ALPHA, HEADING, SPEED, STATE_DIM, X, Y, Z, MotionConfig, predict
-from torch_atr.tracking.observation import (frame_distance, log_likelihood, observe, observe_windows,
+from torch_atr.tracking.observation import (frame_distance, observe, observe_windows,
                                             place_silhouette, project_windows)
 from torch_atr.tracking.resampling import SCHEMES, effective_sample_size, resample
 
