@@ -311,8 +311,9 @@ class Tracker:
         blob = torch.from_numpy(mask).to(self.device)
         states, log_lik = blind_hypotheses(blob, distance[0], self.camera, self.appearance, self.cfg.init,
                                            self.cfg.filter.sigma, self.camera_height_m)
+        classes = self.model.classify(states[:, ALPHA].to(self.dtype))
         self.reset(blind_particles(states, log_lik, self.cfg.filter.particles, self.cfg.init, self.camera,
-                                   self.generator))
+                                   self.generator, classes))
         self._fresh = False  # weighed on this very frame
         best = states[log_lik.argmax()]
         log.info("blind initialisation: best of %d hypotheses at x=%.1f z=%.1f m, α=%.2f (%s)", states.shape[0],

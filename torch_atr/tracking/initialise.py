@@ -167,15 +167,26 @@ def blind_hypotheses(blob: torch.Tensor, distance: torch.Tensor, camera: Camera,
 
 
 def blind_particles(states: torch.Tensor, log_lik: torch.Tensor, n: int, cfg: InitConfig, camera: Camera,
-                    generator: torch.Generator | None = None) -> torch.Tensor:
-    """N particles around the ``cfg.hypotheses`` best hypotheses, in equal shares.
+                    generator: torch.Generator | None = None, classes: torch.Tensor | None = None) -> torch.Tensor:
+    """N particles around the best hypotheses, in equal shares.
 
-    states: (M, 6) and log_lik: (M,) from :func:`blind_hypotheses`; camera: the scene's camera.
-    The jitter: α and h by half a grid step, the range by ``range_std`` (relative, along the line
-    of sight from the camera centre), the signed speed by ``speed_std_mps``. Returns (N, 6) on
-    ``states``' device and dtype.
+    states: (M, 6) and log_lik: (M,) from :func:`blind_hypotheses`; camera: the scene's camera;
+    classes: (M,) the class of each hypothesis's α. With classes, each class keeps its best
+    ``cfg.hypotheses // C`` hypotheses (at least one), so one frame's blob does not decide the
+    class alone (measured: the T-72's first blob put all 16 best hypotheses on APCs with one
+    scene seed of three); the next frames' weights do. Without, the ``cfg.hypotheses`` best.
+    The jitter: α and h by half a grid step, the range by ``range_std`` (relative, along the
+    line of sight from the camera centre), the signed speed by ``speed_std_mps``. Returns
+    (N, 6) on ``states``' device and dtype.
     """
-    best = log_lik.argsort(descending=True)[:max(1, min(cfg.hypotheses, int(log_lik.isfinite().sum())))]
+    finite = log_lik.isfinite()
+    order = log_lik.argsort(descending=True)[:max(1, int(finite.sum()))]
+    if classes is None:
+        best = order[:cfg.hypotheses]
+    else:
+        present = classes[order].unique()
+        per_class = max(1, cfg.hypotheses // len(present))
+        best = torch.cat([order[classes[order] == c][:per_class] for c in present])
     pick = best[torch.arange(n, device=states.device) % best.shape[0]]
     out = states[pick].clone()
     noise = torch.randn(n, 4, generator=generator, dtype=states.dtype, device=states.device)
