@@ -305,22 +305,23 @@ def error_figure(rows: list[dict], title: str):
 
 
 def view_figure(rows: list[dict], title: str):
-    """The view Θ = (θ, φ) over time on the hemisphere seen from above (Fig. 6.15): azimuth θ as
-    the polar angle, elevation as the distance from the rim (the pole at the centre). Returns a Figure."""
+    """The view Θ = (θ, φ) over the run on the view manifold (Fig. 6.15): azimuth against
+    elevation, in degrees, coloured by time, with the truth where known. Returns a Figure."""
     plt = _pyplot()
-    fig = plt.figure(figsize=(6.5, 6))
-    ax = fig.add_subplot(projection="polar")
+    fig, ax = plt.subplots(figsize=(8, 4.5))
     t = _rows_column(rows, "time_s")
-    radius = 90.0 - np.degrees(_rows_column(rows, "phi"))  # the truth's φ differs by < 0.1°
-    sc = ax.scatter(_rows_column(rows, "theta"), radius, c=t, s=6, cmap="viridis", label="estimate")
-    true_theta = _rows_column(rows, "true_theta")
+    true_theta, true_phi = _rows_column(rows, "true_theta"), _rows_column(rows, "true_phi")
     if np.isfinite(true_theta).any():
-        ax.plot(true_theta, radius, "-", color="crimson", lw=1, label="truth")
-    ax.set_rlim(0, 90)
-    ax.set_rticks([30, 60, 90], labels=["φ = 60°", "30°", "0°"])
-    ax.set_title(f"{title}: view on the hemisphere\n(angle: azimuth θ from the front; radius: 90° − elevation φ)")
-    fig.colorbar(sc, ax=ax, pad=0.1, shrink=0.7, label="time (s)")
-    ax.legend(loc="lower left", bbox_to_anchor=(-0.15, -0.12), fontsize=8)
+        ax.plot(np.degrees(true_theta) % 360, np.degrees(true_phi), ".", ms=3, color="crimson", label="truth")
+    phi = np.degrees(_rows_column(rows, "phi"))
+    sc = ax.scatter(np.degrees(_rows_column(rows, "theta")) % 360, phi, c=t, s=8, cmap="viridis", label="estimate")
+    shown = np.concatenate([phi[np.isfinite(phi)], [-5.0, 50.0]])  # the training views span 0°-40°
+    ax.set(xlim=(0, 360), xticks=range(0, 361, 45), ylim=(shown.min() - 1, shown.max() + 1),
+           xlabel="azimuth θ from the vehicle's front (degrees)", ylabel="elevation φ (degrees)",
+           title=f"{title}: the view over the run")
+    ax.grid(alpha=0.3)
+    fig.colorbar(sc, ax=ax, label="time (s)")
+    ax.legend(loc="upper right", fontsize=8)
     fig.tight_layout()
     return fig
 

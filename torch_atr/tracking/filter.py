@@ -464,4 +464,5 @@ def column(rows: list[dict], name: str) -> np.ndarray:
 def truth_columns(truth: FrameTruth) -> dict:
     """The ``true_*`` columns of an estimate row."""
     return {"true_x": truth.x, "true_y": truth.y, "true_z": truth.z, "true_heading": truth.heading,
-            "true_theta": truth.theta, "true_vehicle": truth.vehicle, "true_class": truth.vehicle_class}
+            "true_theta": truth.theta, "true_phi": truth.phi, "true_vehicle": truth.vehicle,
+            "true_class": truth.vehicle_class}
