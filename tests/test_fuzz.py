@@ -41,6 +41,7 @@ from torch_atr.data import (FolderSequence, FrameTruth, SensiacSequence, agt_fra
 from torch_atr.data.sequence import TRUTH_FIELDS, Sequence
 from torch_atr.data.synthetic import MAX_FRAME_PIXELS, SceneConfig, SyntheticSequence, parse_synthetic_spec
 from torch_atr.model import GenerativeShapeModel, load_checkpoint
+from torch_atr.tracking.job import TrackConfig
 from torch_atr.training import MAX_VIEWS, TrainConfig
 from torch_atr.validate import MAX_IMAGE_PIXELS, InputError
 from torch_atr.vehicles import load_catalog_vehicle
@@ -766,6 +767,46 @@ def _config_property(case):
 
 
 test_fuzz_train_config, test_fuzz_train_config_large = fuzz(case=config_cases())(_config_property)
+
+
+_TRACK_PLAUSIBLE = {
+    "tracker.filter.particles": ["200", "5000"], "tracker.filter.method": ["I", "IV"],
+    "tracker.filter.sigma": ["0.02", "0.5"], "tracker.filter.likelihood_px": ["16", "32"],
+    "tracker.filter.resample": ["residual", "stratified"], "tracker.filter.resample_ess": ["0.5", "1.0"],
+    "tracker.motion.sigma2_x": ["0.1", "0"], "tracker.motion.sigma2_alpha": ["1.0"],
+    "tracker.init.mode": ["truth", "blind"], "tracker.init.alpha_steps": ["8"],
+    "tracker.init.camera_height_m": ["null", "5.0"], "tracker.segmentation.learning_rate": ["0.01", "-1"],
+    "tracker.adapt.every": ["0", "10"], "frames": ["null", "30"], "seed": ["1"], "out": ["runs/x"],
+    "device": ["cpu"], "sequence": ["synthetic:vehicle=t_72"]}
+_track_keys = list(_TRACK_PLAUSIBLE) + ["tracker.filter.particle", "tracker.motion", "tracker.x.y", "video"]
+
+
+@st.composite
+def track_overrides(draw):
+    keys = draw(st.lists(st.sampled_from(_track_keys), max_size=4))
+    return [f"{k}={draw(st.sampled_from(_TRACK_PLAUSIBLE[k]) if k in _TRACK_PLAUSIBLE and draw(st.integers(0, 2)) else _yaml_values)}"
+            for k in keys]
+
+
+def _track_config_property(overrides):
+    with bounded():
+        try:
+            cfg = load_config(TrackConfig, None, overrides)
+        except ConfigError as exc:
+            assert_names(exc, *overrides, *map(repr, overrides))  # messages quote an override with repr
+            return
+    event("accepted")
+    tracker = cfg.tracker
+    for section in (cfg, tracker.filter, tracker.motion, tracker.init, tracker.segmentation, tracker.adapt):
+        for name in section.__dataclass_fields__:
+            value = getattr(section, name)
+            assert not isinstance(value, float) or math.isfinite(value), name
+    assert 1 <= tracker.filter.particles <= 10_000_000 and tracker.filter.sigma > 0
+    assert tracker.filter.method in ("I", "II", "III", "IV") and tracker.init.mode in ("blind", "truth")
+
+
+test_fuzz_track_config, test_fuzz_track_config_large = fuzz(weight=0.5, overrides=track_overrides())(
+    _track_config_property)
 
 
 # ----------------------------------------------------------------------------------- checkpoints

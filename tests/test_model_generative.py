@@ -193,6 +193,18 @@ def test_checkpoint_round_trip_is_exact(model, tmp_path):
     assert GenerativeShapeModel.from_checkpoint(tmp_path / "model64.pt").core.core.dtype == torch.float64
 
 
+def test_state_dict_metadata_is_not_trusted(model, tmp_path):
+    """A file's state_dict carries an unpickled ``_metadata``; junk there (found by the fuzz suite:
+    ``{"rbf": None}``) must not reach load_state_dict, which raised a TypeError on it."""
+    path = tmp_path / "model.pt"
+    model.save(path)
+    raw = torch.load(path, weights_only=True)
+    raw["state_dict"]._metadata = {"": None, "rbf": None}
+    torch.save(raw, path)
+    loaded, _ = load_checkpoint(path)
+    assert torch.equal(loaded.core.core, model.core.core)
+
+
 def test_save_rejects_non_plain_extra(model, tmp_path):
     with pytest.raises(ValueError, match=r"extra\['obj'\] holds a object"):
         model.save(tmp_path / "x.pt", extra={"obj": object()})

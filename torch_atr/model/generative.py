@@ -9,6 +9,7 @@ import os
 import pickle
 import warnings
 import zipfile
+from collections import OrderedDict
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -529,7 +530,9 @@ def load_checkpoint(path: str | os.PathLike, map_location=None) -> tuple[Generat
     except ValueError as exc:
         raise InputError(f"{path}: {exc}") from None
     model = GenerativeShapeModel.from_model_args(model_args)
-    model.load_state_dict(state, assign=True)
+    # Only the checked tensors go in: a state_dict's ``_metadata`` attribute is unpickled data too
+    # (a fuzzed file set it to None, which crashed load_state_dict with a TypeError).
+    model.load_state_dict(OrderedDict(state.items()), assign=True)
     return model, extra
 
 

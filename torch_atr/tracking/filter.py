@@ -164,6 +164,9 @@ class Tracker:
         self.model = model.to(self.device)
         self.camera = camera
         fc = self.cfg.filter
+        if model.template.size_px % fc.likelihood_px:
+            raise ConfigError(f"filter.likelihood_px={fc.likelihood_px} must divide the model's template size "
+                              f"{model.template.size_px}")
         self.appearance = ShapeAppearance(self.model, fc.method, fc.likelihood_px, templates).to(self.device)
         self.segmenter = ForegroundSegmenter(self.cfg.segmentation)
         self.generator = torch.Generator(self.device).manual_seed(seed)
