@@ -9,6 +9,7 @@ import pytest
 import torch
 import torch.nn.functional as F
 
+from references import bilinear
 from torch_atr.config import load_config
 from torch_atr.data.synthetic import SceneConfig, SyntheticSequence
 from torch_atr.model import GenerativeShapeModel
@@ -37,15 +38,6 @@ def _config(*overrides: str) -> TrackerConfig:
     return load_config(TrackerConfig, None, list(overrides))
 
 
-def _bilinear(image: np.ndarray, u: float, v: float) -> float:
-    H, W = image.shape
-    u, v = min(max(u, 0.0), W - 1.0), min(max(v, 0.0), H - 1.0)
-    u0, v0 = min(int(math.floor(u)), W - 2), min(int(math.floor(v)), H - 2)
-    a, b = u - u0, v - v0
-    return ((1 - a) * (1 - b) * image[v0, u0] + a * (1 - b) * image[v0, u0 + 1]
-            + (1 - a) * b * image[v0 + 1, u0] + a * b * image[v0 + 1, u0 + 1])
-
-
 def _reference_log_lik(model, camera, mask: np.ndarray, particle: torch.Tensor, L: int, sigma: float) -> float:
     """Eq. 5.2 for ONE particle, done the plain way: its view, the full reconstruction y(α, Θ)
     average-pooled to L, its window sampled pixel by pixel, the clip, the mean squared error."""
@@ -60,7 +52,7 @@ def _reference_log_lik(model, camera, mask: np.ndarray, particle: torch.Tensor, 
     obs = np.empty((L, L))
     for a in range(L):
         for b in range(L):
-            d = _bilinear(D, uv[0].item() + ((b + 0.5) / L - 0.5) * s, uv[1].item() + ((a + 0.5) / L - 0.5) * s)
+            d = bilinear(D, uv[0].item() + ((b + 0.5) / L - 0.5) * s, uv[1].item() + ((a + 0.5) / L - 0.5) * s)
             d *= model.template.size_px / s
             obs[a, b] = min(max(d, -model.template.tau_px), model.template.tau_px) / model.template.tau_px
     return -float(((obs - pred) ** 2).mean()) / (2 * sigma ** 2)

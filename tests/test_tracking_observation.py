@@ -2,10 +2,10 @@
 
 import math
 
-import numpy as np
 import pytest
 import torch
 
+from references import bilinear
 from torch_atr.camera import Camera
 from torch_atr.config import TemplateConfig
 from torch_atr.data.synthetic import SceneConfig, SyntheticSequence
@@ -51,17 +51,7 @@ def test_window_size_is_f_w_over_depth():
     assert side[1].isnan().all() and uv[1].isnan().all()  # behind the camera
 
 
-def _bilinear_reference(image: np.ndarray, u: float, v: float) -> float:
-    """Bilinear interpolation at (u, v), pixel centres at integers, border values outside."""
-    H, W = image.shape
-    u, v = min(max(u, 0.0), W - 1.0), min(max(v, 0.0), H - 1.0)
-    u0, v0 = min(int(math.floor(u)), W - 2), min(int(math.floor(v)), H - 2)
-    a, b = u - u0, v - v0
-    return ((1 - a) * (1 - b) * image[v0, u0] + a * (1 - b) * image[v0, u0 + 1]
-            + (1 - a) * b * image[v0 + 1, u0] + a * b * image[v0 + 1, u0 + 1])
-
-
-def test_sample_windows_matches_bilinear_reference():
+def test_sample_windows_matchesbilinear():
     g = torch.Generator().manual_seed(0)
     image = torch.rand(30, 40, generator=g, dtype=torch.float64)
     uv = torch.tensor([[20.0, 15.0], [3.2, 27.9], [39.5, -2.0], [math.nan, 3.0]], dtype=torch.float64)
@@ -73,7 +63,7 @@ def test_sample_windows_matches_bilinear_reference():
             for b in range(L):
                 u = uv[n, 0].item() + ((b + 0.5) / L - 0.5) * side[n, 0].item()
                 v = uv[n, 1].item() + ((a + 0.5) / L - 0.5) * side[n, 1].item()
-                assert got[n, a, b].item() == pytest.approx(_bilinear_reference(image.numpy(), u, v), abs=1e-9)
+                assert got[n, a, b].item() == pytest.approx(bilinear(image.numpy(), u, v), abs=1e-9)
     assert (got[3] == 0).all()  # a non-finite window samples nothing
 
 
@@ -107,7 +97,7 @@ def test_observation_matches_a_per_particle_loop(scene):
             for b in range(L):
                 u = uv[0].item() + ((b + 0.5) / L - 0.5) * s
                 v = uv[1].item() + ((a + 0.5) / L - 0.5) * s
-                d = _bilinear_reference(Dn, u, v) * CFG.size_px / s
+                d = bilinear(Dn, u, v) * CFG.size_px / s
                 want = min(max(d, -CFG.tau_px), CFG.tau_px) / CFG.tau_px
                 assert got[n, a, b].item() == pytest.approx(want, abs=1e-5)
 
