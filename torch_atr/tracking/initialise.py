@@ -47,7 +47,7 @@ class InitConfig:
     alpha_steps: int = 72  # blind: α hypotheses evenly over [0, 2π)
     azimuth_steps: int = 36  # blind: θ hypotheses evenly over [0, 2π)
     hypotheses: int = 16  # blind: particles are drawn around this many best hypotheses
-    range_std: float = 0.03  # blind: relative σ of the range around a hypothesis's range
+    range_std: float = 0.01  # blind: relative σ of the range around a hypothesis's range
     camera_height_m: float | None = None  # blind: above flat ground; null: the sequence's, if it knows it
 
     def __post_init__(self) -> None:
