@@ -19,7 +19,7 @@ from torch_atr._checks import check_shape
 from torch_atr.io import atomic_path
 
 
-def _pyplot():
+def pyplot():
     """matplotlib.pyplot on the non-interactive Agg backend."""
     import matplotlib
 
@@ -51,7 +51,7 @@ def identity_circle_figure(alphas: Sequence[float], vehicle_names: Sequence[str]
     """
     from matplotlib.patches import Wedge
 
-    plt = _pyplot()
+    plt = pyplot()
 
     if not (len(alphas) == len(vehicle_names) == len(vehicle_classes)):
         raise ValueError(f"Expected alphas, names and classes of one length; got {len(alphas)}, "
@@ -133,7 +133,7 @@ def image_grid_figure(images: np.ndarray, row_labels: Sequence[str], col_labels:
     R, C = images.shape[:2]
     if len(row_labels) != R or len(col_labels) != C:
         raise ValueError(f"Expected {R} row and {C} column labels; got {len(row_labels)} and {len(col_labels)}")
-    plt = _pyplot()
+    plt = pyplot()
     label_in = 0.065 * max((len(label) for label in row_labels), default=0)  # room for the row labels
     top_in, bottom_in = 0.75, 0.45 if legend else 0.15  # title above, colour key below
     width, height = 0.9 * C + label_in + 0.4, 0.9 * R + top_in + bottom_in
@@ -237,7 +237,7 @@ def model_figures(model, masks: torch.Tensor, theta: torch.Tensor, phi: torch.Te
 
 def save_figures(figures: dict, folder: str | Path) -> None:
     """Write each matplotlib Figure of ``figures`` as ``folder/<name>.png``, atomically, and close it."""
-    plt = _pyplot()
+    plt = pyplot()
     folder = Path(folder)
     for name, fig in figures.items():
         with atomic_path(folder / f"{name}.png") as tmp:
@@ -256,7 +256,7 @@ def alpha_figure(rows: list[dict], model, title: str):
     of the sequence as dashed lines (Fig. 6.10). rows: estimate rows. Returns a Figure."""
     from torch_atr.evaluation import best_matches
 
-    plt = _pyplot()
+    plt = pyplot()
     colours = plt.get_cmap("tab10")
     t, alpha = _rows_column(rows, "time_s"), _rows_column(rows, "alpha")
     fig, ax = plt.subplots(figsize=(9, 4.5))
@@ -290,7 +290,7 @@ def error_figure(rows: list[dict], title: str):
     errors = [error for error in errors if np.isfinite(error[2]).any()]  # no x, z without a camera
     if not errors:
         return None
-    plt = _pyplot()
+    plt = pyplot()
     fig, axes = plt.subplots(len(errors), 1, figsize=(9, 1.2 + 1.9 * len(errors)), sharex=True, squeeze=False)
     axes = axes[:, 0]
     for ax, (name, unit, e) in zip(axes, errors):
@@ -307,7 +307,7 @@ def error_figure(rows: list[dict], title: str):
 def view_figure(rows: list[dict], title: str):
     """The view Θ = (θ, φ) over the run on the view manifold (Fig. 6.15): azimuth against
     elevation, in degrees, coloured by time, with the truth where known. Returns a Figure."""
-    plt = _pyplot()
+    plt = pyplot()
     fig, ax = plt.subplots(figsize=(8, 4.5))
     t = _rows_column(rows, "time_s")
     true_theta, true_phi = _rows_column(rows, "true_theta"), _rows_column(rows, "true_phi")
@@ -331,7 +331,7 @@ def frame_strip_figure(snapshots: list[dict], rows: list[dict], title: str, crop
     contour) overlaid, cropped around the estimate (Fig. 6.9). Returns a Figure."""
     import cv2
 
-    plt = _pyplot()
+    plt = pyplot()
     fig, axes = plt.subplots(1, len(snapshots), figsize=(2.6 * len(snapshots), 3.2), squeeze=False)
     for ax, shot in zip(axes[0], snapshots):
         image = np.repeat(shot["image"][..., None], 3, axis=2)

@@ -1,0 +1,59 @@
+"""python -m torch_atr.experiments sensiac-like, CI-sized: every method, resumable, a report that
+agrees with its sequences."""
+
+import json
+import os
+
+import pytest
+
+from torch_atr.experiments.__main__ import main
+from torch_atr.experiments.report import THESIS_TABLE_6_1
+
+QUICK = ["sensiac-like", "--quick", "--workers", "1", "--frames", "16", "--particles", "200"]
+
+
+@pytest.fixture(scope="module")
+def run(tmp_path_factory):
+    out = tmp_path_factory.mktemp("exp") / "quick"
+    agg = main([*QUICK, "--out", str(out)])
+    return out, agg
+
+
+def test_the_quick_run_reports_every_method_and_range(run):
+    out, agg = run
+    names = {p.name for p in out.iterdir()}
+    assert {"report.md", "results.json", "errors_by_range.png", "identity_1000m.png", "sequences"} <= names
+    results = json.loads((out / "results.json").read_text())
+    assert results["format"] == "torch_atr.sensiac_like_report" and len(results["sequences"]) == 2
+    for seq in results["sequences"]:
+        assert set(seq["methods"]) == {"I", "II", "III", "IV"}
+        for method in seq["methods"].values():
+            assert len(method["alpha"]) == 16 and method["metrics"]["frames"] == 16
+    # The aggregate is the mean of its sequences (one vehicle: equal to it).
+    for seq in results["sequences"]:
+        r = f"{seq['range_m']:g}"
+        for m, method in seq["methods"].items():
+            assert agg["recognition"]["tank"][r][m] == pytest.approx(100 * method["metrics"]["recognition_accuracy"])
+            assert agg["errors"]["range_error_m"][r][m] == pytest.approx(method["metrics"]["range_error_m"])
+    report = (out / "report.md").read_text()
+    assert "| 1000 (thesis, SENSIAC) | " + "/".join(map(str, THESIS_TABLE_6_1["1000"]["tank"])) in report
+
+
+def test_a_second_run_resumes_without_re_running(run):
+    out, agg = run
+    stamps = {p.name: p.stat().st_mtime_ns for p in (out / "sequences").iterdir()}
+    again = main([*QUICK, "--out", str(out)])
+    assert {p.name: p.stat().st_mtime_ns for p in (out / "sequences").iterdir()} == stamps
+    assert again == agg
+
+
+def test_other_configs_and_foreign_folders_are_refused(run, tmp_path):
+    out, _ = run
+    with pytest.raises(ValueError, match="another configuration"):
+        main([*QUICK[:-2], "--particles", "100", "--out", str(out)])
+    foreign = tmp_path / "mine"
+    foreign.mkdir()
+    (foreign / "notes.txt").write_text("mine")
+    with pytest.raises(OSError, match="not an experiment's folder"):
+        main([*QUICK, "--out", str(foreign)])
+    assert os.listdir(foreign) == ["notes.txt"]
