@@ -73,7 +73,8 @@ def identity_figure(results: list[dict], model, range_m: float = 1000.0):
                 color=plt.get_cmap("Dark2")(k % 8), label=f"{r['vehicle']} ({r['class']}): "
                 + ", ".join(method["metrics"]["best_matches"]))
     ax.set(xlabel="time (s)", ylabel="identity α (rad)", ylim=(0, 2 * math.pi),
-           title=f"Identity over time at {range_m:g} m, Method I (label: the two best-matching training vehicles)")
+           title=f"Identity over time at {range_m:g} m, Method I\n(legend: each vehicle's two best-matching "
+                 "training vehicles)")
     ax.legend(loc="center left", bbox_to_anchor=(1.01, 0.5), fontsize=7, markerscale=4)
     fig.tight_layout()
     return fig
