@@ -126,6 +126,11 @@ def test_method_iv_needs_templates_of_the_right_shape(model):
         ShapeAppearance(model, "IV", templates=torch.zeros(3, 4, 64, 64))
     with pytest.raises(ValueError, match="Unknown method 'V'"):
         ShapeAppearance(model, "V")
+    app = ShapeAppearance(model, "I", 16)
+    with pytest.raises(ValueError, match=r"theta to have shape \(3\); got \(2,\)"):
+        app(torch.zeros(3), torch.zeros(2), torch.zeros(3))
+    with pytest.raises(ValueError, match=r"z to have shape \(3, 16, 16\)"):
+        app.squared_errors(torch.zeros(3, 32, 32), torch.zeros(3), torch.zeros(3), torch.zeros(3))
 
 
 def test_truth_run_tracks_and_recognises_and_is_deterministic(model, btr):

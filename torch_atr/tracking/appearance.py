@@ -24,6 +24,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from torch_atr._checks import check_shape
 from torch_atr.model import GenerativeShapeModel
 from torch_atr.pose import view_vectors
 
@@ -86,6 +87,14 @@ class ShapeAppearance(nn.Module):
         else:
             self.register_buffer("templates", None)
 
+    def _queries(self, alpha: torch.Tensor, theta: torch.Tensor, phi: torch.Tensor
+                 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """alpha, theta, phi checked to be (N,) each and converted to the model's dtype and device."""
+        check_shape("alpha", alpha, ("N",))
+        for name, q in (("theta", theta), ("phi", phi)):
+            check_shape(name, q, (alpha.shape[0],))
+        return tuple(q.to(self.windows) for q in (alpha, theta, phi))
+
     def snap(self, alpha: torch.Tensor, theta: torch.Tensor, phi: torch.Tensor
              ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor | None, torch.Tensor | None]:
         """The method's (α, θ, φ) for (N,) queries, and the snapped vehicle and view indices (N,)
@@ -125,9 +134,10 @@ class ShapeAppearance(nn.Module):
 
         z: (N, L, L) observed signed distances; alpha, theta, phi: (N,). Returns (N,).
         """
+        alpha, theta, phi = self._queries(alpha, theta, phi)
+        check_shape("z", z, (alpha.shape[0], self.size, self.size))
         if self.method == "IV":
             return (z - self(alpha, theta, phi).to(z)).square().sum(dim=(1, 2))
-        alpha, theta, phi = (q.to(self.windows) for q in (alpha, theta, phi))
         c = self.coords(*self.snap(alpha, theta, phi)[:3])  # (N, r)
         flat = z.reshape(z.shape[0], -1).to(c)
         return flat.square().sum(1) - 2 * ((flat @ self.basis) * c).sum(1) + ((c @ self.gram) * c).sum(1)
@@ -135,8 +145,7 @@ class ShapeAppearance(nn.Module):
     def forward(self, alpha: torch.Tensor, theta: torch.Tensor, phi: torch.Tensor) -> torch.Tensor:
         """Predicted templates y for alpha, theta, phi: (N,) radians (any float dtype). Returns
         (N, L, L) in the model's dtype."""
-        alpha, theta, phi = (q.to(self.windows) for q in (alpha, theta, phi))
-        alpha, theta, phi, vehicle, view = self.snap(alpha, theta, phi)
+        alpha, theta, phi, vehicle, view = self.snap(*self._queries(alpha, theta, phi))
         if self.method == "IV":
             y = self.templates[vehicle, view]  # (N, L²)
         else:
