@@ -47,17 +47,23 @@ def show(value: Any) -> str:
     return text if len(text) <= _SHOW else f"{text[:_SHOW - 15]}...{text[-10:]} ({len(text)} characters)"
 
 
+def _bounds(lo: float | None, hi: float | None, lo_open: bool = False) -> str:
+    """" in [lo, hi]", " >= lo", " <= hi" or "" for an error message; lo excluded when ``lo_open``."""
+    def show_bound(x: float) -> str:
+        return str(x) if isinstance(x, int) else f"{x:g}"
+
+    if lo is not None and hi is not None:
+        return f" in {'(' if lo_open else '['}{show_bound(lo)}, {show_bound(hi)}]"
+    if lo is not None:
+        return f" {'>' if lo_open else '>='} {show_bound(lo)}"
+    return "" if hi is None else f" <= {show_bound(hi)}"
+
+
 def real(where: str, value: Any, lo: float | None = None, hi: float | None = None,
          lo_open: bool = False) -> float:
     """``value`` as a float after checking it is a finite real number in [lo, hi] (lo excluded
     when ``lo_open``); bools and strings are not numbers. ``InputError`` starting with ``where``."""
-    expected = "a finite number"
-    if lo is not None and hi is not None:
-        expected += f" in {'(' if lo_open else '['}{lo:g}, {hi:g}]"
-    elif lo is not None:
-        expected += f" {'>' if lo_open else '>='} {lo:g}"
-    elif hi is not None:
-        expected += f" <= {hi:g}"
+    expected = "a finite number" + _bounds(lo, hi, lo_open)
     if isinstance(value, bool) or not isinstance(value, numbers.Real):
         raise InputError(f"{where}: expected {expected}; got {show(value)}")
     try:
@@ -71,13 +77,7 @@ def real(where: str, value: Any, lo: float | None = None, hi: float | None = Non
 
 def integer(where: str, value: Any, lo: int | None = None, hi: int | None = None) -> int:
     """``value`` as an int after checking it is an integer (not a bool, not a float) in [lo, hi]."""
-    expected = "an integer"
-    if lo is not None and hi is not None:
-        expected += f" in [{lo}, {hi}]"
-    elif lo is not None:
-        expected += f" >= {lo}"
-    elif hi is not None:
-        expected += f" <= {hi}"
+    expected = "an integer" + _bounds(lo, hi)
     if isinstance(value, bool) or not isinstance(value, numbers.Integral):
         raise InputError(f"{where}: expected {expected}; got {show(value)}")
     n = int(value)
