@@ -1,13 +1,19 @@
 """python -m torch_atr.experiments sensiac-like, CI-sized: every method, resumable, a report that
 agrees with its sequences."""
 
+import dataclasses
 import json
 import os
 
+import numpy as np
 import pytest
+import torch
 
+from torch_atr.data.synthetic import SyntheticSequence
 from torch_atr.experiments.__main__ import main
 from torch_atr.experiments.report import THESIS_TABLE_6_1
+from torch_atr.experiments.sensiac_like import FULL, RANGES_M, TEST_VEHICLES, SensiacLikeConfig, scene
+from torch_atr.pose import body_to_world
 
 QUICK = ["sensiac-like", "--quick", "--workers", "1", "--frames", "16", "--particles", "200"]
 
@@ -57,3 +63,29 @@ def test_other_configs_and_foreign_folders_are_refused(run, tmp_path):
     with pytest.raises(OSError, match="not an experiment's folder"):
         main([*QUICK, "--out", str(foreign)])
     assert os.listdir(foreign) == ["notes.txt"]
+
+
+def _frames_with_vehicle_in_view(vehicle: str, cfg: SensiacLikeConfig, range_m: float) -> np.ndarray:
+    """Whether each frame's whole vehicle (its convex hull's vertices, projected) lies in the image."""
+    seq = SyntheticSequence(vehicle, scene(range_m, cfg))
+    hull = torch.as_tensor(np.asarray(seq.vehicle.mesh.convex_hull.vertices))
+    cam = seq.camera
+    last = torch.tensor([cam.width - 1.0, cam.height - 1.0], dtype=hull.dtype)
+    inside = []
+    for i in range(len(seq)):
+        R, t = body_to_world(seq.pose(i))
+        uv, _ = cam.project(hull @ R.T + t)
+        inside.append(bool(((uv >= 0) & (uv <= last)).all()))
+    return np.array(inside)
+
+
+def test_full_runs_keep_every_vehicle_in_view_for_a_whole_lap():
+    cfg = SensiacLikeConfig(**FULL)
+    near = min(RANGES_M)
+    for vehicle in TEST_VEHICLES:
+        assert _frames_with_vehicle_in_view(vehicle, cfg, near).all(), vehicle
+    sc = scene(near, cfg)
+    assert sc.frames / sc.fps * sc.speed_mps / sc.radius_m > 2 * np.pi  # every aspect is seen
+    # The default 100 m circle would lose the vehicle within the 1000 frames (the check can fail).
+    wide = dataclasses.replace(cfg, circle_diameter_m=100.0)
+    assert not _frames_with_vehicle_in_view("t_72", wide, near).all()

@@ -1,8 +1,9 @@
-"""``python -m torch_atr.experiments sensiac-like --out DIR [--quick] [--init blind|truth] [--workers N]
+"""``python -m torch_atr.experiments sensiac-like --out DIR [--quick | --full] [--init blind|truth] [--workers N]
 [--frames N] [--particles N] [--vehicles ...] [--ranges ...] [--methods ...] [--seed S] [key=value ...]``
 
 Runs the SENSIAC-like grid (8 test vehicles × 1000-3500 m × Methods I-IV; ``--quick``: the T-72
-at 1000 and 2500 m, 24 frames) and writes DIR/report.md, DIR/results.json and the figures.
+at 1000 and 2500 m, 24 frames; ``--full``: 1000 frames, the thesis's length, on a 50 m circle that
+stays in view at every range) and writes DIR/report.md, DIR/results.json and the figures.
 Finished sequences are kept in DIR/sequences/ and not re-run. ``key=value`` are tracker config
 overrides (``motion.sigma2_alpha=1.0``).
 """
@@ -17,7 +18,7 @@ from pathlib import Path
 
 from torch_atr.cli import run_main
 from torch_atr.experiments.report import is_report_folder, mean_recognition, write_report
-from torch_atr.experiments.sensiac_like import QUICK, SensiacLikeConfig, run_all
+from torch_atr.experiments.sensiac_like import FULL, QUICK, SensiacLikeConfig, run_all
 from torch_atr.io import OutputExistsError
 
 log = logging.getLogger("experiments")
@@ -28,7 +29,9 @@ def main(argv: list[str] | None = None) -> dict:
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("experiment", choices=["sensiac-like"])
     parser.add_argument("--out", required=True, help="the report folder (resumed when it holds a run of ours)")
-    parser.add_argument("--quick", action="store_true", help="the CI-sized run")
+    size = parser.add_mutually_exclusive_group()
+    size.add_argument("--quick", action="store_true", help="the CI-sized run")
+    size.add_argument("--full", action="store_true", help="1000 frames per sequence on a 50 m circle")
     parser.add_argument("--init", choices=["blind", "truth"])
     parser.add_argument("--workers", type=int, default=0, help="worker processes (0: one per core)")
     parser.add_argument("--frames", type=int)
@@ -41,7 +44,7 @@ def main(argv: list[str] | None = None) -> dict:
     parser.add_argument("overrides", nargs="*", help="tracker config overrides, key=value")
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s: %(message)s", datefmt="%H:%M:%S")
-    fields = dict(QUICK) if args.quick else {}
+    fields = dict(QUICK) if args.quick else dict(FULL) if args.full else {}
     given = {"init": args.init, "frames": args.frames, "particles": args.particles, "seed": args.seed,
              "checkpoint": args.checkpoint, "vehicles": args.vehicles and tuple(args.vehicles),
              "ranges_m": args.ranges and tuple(args.ranges), "methods": args.methods and tuple(args.methods)}

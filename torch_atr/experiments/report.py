@@ -122,7 +122,8 @@ def write_report(out: Path, cfg: SensiacLikeConfig, results: list[dict], model, 
         "# SENSIAC-like experiment (thesis chapter 6.2) on the simulator",
         "",
         f"{len(cfg.vehicles)} vehicle(s) × {len(cfg.ranges_m)} range(s) × Methods {', '.join(cfg.methods)}; "
-        f"{cfg.frames} frames per sequence, {cfg.particles} particles, {cfg.init} start, seed {cfg.seed}; "
+        f"{cfg.frames} frames per sequence on a {cfg.circle_diameter_m:g} m circle, {cfg.particles} particles, "
+        f"{cfg.init} start, seed {cfg.seed}; "
         f"torch_atr {torch_atr.__version__}. Ours is a simulator, the thesis's is SENSIAC's real infrared "
         "footage: the numbers sit side by side, they are not the same experiment.",
         "",

@@ -45,7 +45,8 @@ class SensiacLikeConfig:
     vehicles: tuple[str, ...] = TEST_VEHICLES
     ranges_m: tuple[float, ...] = RANGES_M
     methods: tuple[str, ...] = METHODS
-    frames: int = 150  # per sequence; the default grid finishes in ~25 min on 2 cores
+    frames: int = 150  # per sequence; the default grid finishes in ~10 min on 2 cores
+    circle_diameter_m: float = 100.0  # the circle driven; FULL's fits the frame at 1000 m
     init: str = "blind"  # or "truth", the thesis's start
     particles: int = 1000
     seed: int = 0  # the scene's and the tracker's
@@ -60,6 +61,8 @@ class SensiacLikeConfig:
             raise ConfigError(f"methods: unknown {bad}; expected some of {METHODS}")
         if self.init not in ("blind", "truth"):
             raise ConfigError(f"init must be 'blind' or 'truth'; got {self.init!r}")
+        if not 0 < self.circle_diameter_m <= 1e4:
+            raise ConfigError(f"circle_diameter_m must be in (0, 10000]; got {self.circle_diameter_m}")
         if not 1 <= self.frames <= 100_000 or not 1 <= self.particles <= 10_000_000:
             raise ConfigError(f"frames in [1, 1e5] and particles in [1, 1e7]; got {self.frames}, {self.particles}")
 
@@ -69,6 +72,9 @@ class SensiacLikeConfig:
 
 
 QUICK = {"vehicles": ("t_72",), "ranges_m": (1000.0, 2500.0), "frames": 24, "particles": 300}  # the CI-sized run
+# The thesis's sequence length. 1000 frames at 5 m/s drive 167 m: more than a lap of a 50 m circle,
+# which stays in the 64 m wide view at 1000 m (the 100 m circle leaves it after ~300 frames).
+FULL = {"frames": 1000, "circle_diameter_m": 50.0}
 
 
 def job_name(vehicle: str, range_m: float, cfg: SensiacLikeConfig) -> str:
@@ -96,6 +102,14 @@ def _templates(checkpoint: str):
     return _WORKER["templates"]
 
 
+def scene(range_m: float, cfg: SensiacLikeConfig):
+    """The simulator's scene of one sequence: the default night scene, the vehicle driving
+    ``cfg.circle_diameter_m`` at ``range_m``."""
+    from torch_atr.data.synthetic import SceneConfig
+
+    return SceneConfig(range_m=range_m, circle_diameter_m=cfg.circle_diameter_m, frames=cfg.frames, seed=cfg.seed)
+
+
 def run_sequence(vehicle: str, range_m: float, cfg: SensiacLikeConfig) -> dict:
     """Simulate one sequence and track it with every method of ``cfg``; the result file's content.
 
@@ -104,13 +118,13 @@ def run_sequence(vehicle: str, range_m: float, cfg: SensiacLikeConfig) -> dict:
     """
     import torch
 
-    from torch_atr.data.synthetic import SceneConfig, SyntheticSequence
+    from torch_atr.data.synthetic import SyntheticSequence
     from torch_atr.tracking import Tracker, TrackerConfig
     from torch_atr.tracking.job import run_summary
 
     start = time.perf_counter()
     model = _model(cfg.checkpoint)
-    seq = SyntheticSequence(vehicle, SceneConfig(range_m=range_m, frames=cfg.frames, seed=cfg.seed))
+    seq = SyntheticSequence(vehicle, scene(range_m, cfg))
     frames = _Frames(seq)  # simulated once, tracked by every method
     out = {"format": RESULT_FORMAT, "vehicle": vehicle, "class": seq.vehicle.cls, "range_m": range_m,
            "config": dataclasses.asdict(cfg), "methods": {}}
