@@ -89,3 +89,22 @@ def test_full_runs_keep_every_vehicle_in_view_for_a_whole_lap():
     # The default 100 m circle would lose the vehicle within the 1000 frames (the check can fail).
     wide = dataclasses.replace(cfg, circle_diameter_m=100.0)
     assert not _frames_with_vehicle_in_view("t_72", wide, near).all()
+
+
+def test_unseen_meshes_are_tracked_and_reported_by_class(tmp_path):
+    out = tmp_path / "unseen"
+    agg = main(["unseen", "--quick", "--workers", "1", "--frames", "12", "--particles", "200", "--out", str(out)])
+    results = json.loads((out / "results.json").read_text())
+    assert results["format"] == "torch_atr.unseen_report"
+    by_mesh = {r["vehicle"]: r for r in results["sequences"]}
+    tank, truck = by_mesh["heldout:tank/quaternius_tank1.obj"], by_mesh["heldout:truck/gazebo_fire_truck.obj"]
+    assert (tank["class"], truck["class"]) == ("tank", "unknown")  # the manifest's classes
+    accuracy = tank["methods"]["I"]["metrics"]["recognition_accuracy"]
+    assert agg["meshes"][tank["vehicle"]]["recognition"]["1000"]["I"] == pytest.approx(100 * accuracy)
+    assert agg["classes"] == {"tank": {"1000": {"I": pytest.approx(100 * accuracy)}}}
+    assert agg["meshes"][truck["vehicle"]]["recognition"]["1000"]["I"] is None
+    report = (out / "report.md").read_text()
+    assert "| truck/gazebo_fire_truck.obj | " + ", ".join(truck["methods"]["I"]["metrics"]["best_matches"]) in report
+    with pytest.raises(ValueError, match="not in the held-out manifest"):
+        main(["unseen", "--quick", "--vehicles", "heldout:tank/nope.obj", "--workers", "1", "--out",
+              str(tmp_path / "bad")])

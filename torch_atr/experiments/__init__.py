@@ -1,7 +1,9 @@
 """Experiments of the thesis's chapter 6, reproducible by one command each.
 
-    python -m torch_atr.experiments sensiac-like --out DIR [--quick] [--init blind|truth] [--workers N]
+    python -m torch_atr.experiments sensiac-like --out DIR [--quick | --full] [--init blind|truth] [--workers N]
+    python -m torch_atr.experiments unseen --out DIR [--quick] [--init blind|truth] [--workers N]
 
-:mod:`~torch_atr.experiments.sensiac_like` runs the grid (resumable, in worker processes) and
-:mod:`~torch_atr.experiments.report` writes ``report.md``, ``results.json`` and the figures.
+:mod:`~torch_atr.experiments.sensiac_like` runs a grid of sequences (resumable, in worker
+processes), :mod:`~torch_atr.experiments.report` writes the SENSIAC-like ``report.md``,
+``results.json`` and figures, and :mod:`~torch_atr.experiments.unseen` the held-out meshes' report.
 """

@@ -156,7 +156,8 @@ def write_report(out: Path, cfg: SensiacLikeConfig, results: list[dict], model, 
 def is_report_folder(path: Path) -> bool:
     """True for a folder an experiment wrote (its results.json is ours) or is writing (sequences/)."""
     try:
-        return json.loads((path / "results.json").read_text(encoding="utf-8")).get("format") == REPORT_FORMAT
+        return json.loads((path / "results.json").read_text(encoding="utf-8")).get("format", "").startswith(
+            "torch_atr.")
     except (OSError, ValueError, AttributeError):
         return (path / "sequences").is_dir()
 

@@ -16,6 +16,7 @@ import json
 import logging
 import math
 import os
+import re
 import time
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass, field
@@ -36,6 +37,7 @@ TEST_VEHICLES = tuple(spec.name for spec in SPLITS["test"])
 RANGES_M = (1000.0, 1500.0, 2000.0, 2500.0, 3000.0, 3500.0)
 GROUPS = ("tank", "apc", "suv", "pickup")  # Table 6.1's columns (SENSIAC has no car or minivan)
 RESULT_FORMAT = "torch_atr.sensiac_like_sequence"
+HELDOUT_PREFIX = "heldout:"  # a vehicle name for a held-out mesh: heldout:PATH, PATH as in the manifest
 
 
 @dataclass(frozen=True)
@@ -78,8 +80,30 @@ FULL = {"frames": 1000, "circle_diameter_m": 50.0}
 
 
 def job_name(vehicle: str, range_m: float, cfg: SensiacLikeConfig) -> str:
-    """The result file's stem for one sequence."""
-    return f"{vehicle}_{range_m:g}m_{cfg.init}_seed{cfg.seed}"
+    """The result file's stem for one sequence (a held-out mesh's path flattened)."""
+    return re.sub(r"[^A-Za-z0-9_.-]", "_", f"{vehicle}_{range_m:g}m_{cfg.init}_seed{cfg.seed}")
+
+
+def heldout_names() -> tuple[str, ...]:
+    """Every held-out manifest entry as an experiment vehicle name, ``heldout:PATH``."""
+    from torch_atr.vehicles.catalog import read_manifest
+
+    return tuple(HELDOUT_PREFIX + e.path for e in read_manifest())
+
+
+def load_experiment_vehicle(name: str):
+    """The vehicle of an experiment name: ``heldout:PATH`` loads that manifest entry (its class,
+    axes and scale from the manifest); anything else is left to the simulator (a catalog name)."""
+    if not name.startswith(HELDOUT_PREFIX):
+        return name
+    from torch_atr.vehicles.catalog import load_heldout_meshes, read_manifest
+
+    path = name[len(HELDOUT_PREFIX):]
+    entries = [e for e in read_manifest() if e.path == path]
+    if not entries:
+        raise ConfigError(f"vehicles: {name!r} is not in the held-out manifest; expected one of "
+                          f"{', '.join(heldout_names())}")
+    return load_heldout_meshes(entries=entries)[0]
 
 
 _WORKER: dict = {}  # per worker process: the model and Method IV's templates, loaded once
@@ -124,7 +148,7 @@ def run_sequence(vehicle: str, range_m: float, cfg: SensiacLikeConfig) -> dict:
 
     start = time.perf_counter()
     model = _model(cfg.checkpoint)
-    seq = SyntheticSequence(vehicle, scene(range_m, cfg))
+    seq = SyntheticSequence(load_experiment_vehicle(vehicle), scene(range_m, cfg))
     frames = _Frames(seq)  # simulated once, tracked by every method
     out = {"format": RESULT_FORMAT, "vehicle": vehicle, "class": seq.vehicle.cls, "range_m": range_m,
            "config": dataclasses.asdict(cfg), "methods": {}}
