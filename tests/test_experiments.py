@@ -108,3 +108,18 @@ def test_unseen_meshes_are_tracked_and_reported_by_class(tmp_path):
     with pytest.raises(ValueError, match="not in the held-out manifest"):
         main(["unseen", "--quick", "--vehicles", "heldout:tank/nope.obj", "--workers", "1", "--out",
               str(tmp_path / "bad")])
+
+
+@pytest.mark.slow
+def test_a_local_ray_cluster_gives_the_processes_results(run, tmp_path):
+    pytest.importorskip("ray")
+    out, _ = run
+    on_ray = tmp_path / "ray"
+    main([*QUICK, "--ray", "local", "--out", str(on_ray)])
+    for path in (out / "sequences").iterdir():
+        here, there = (json.loads(p.read_text()) for p in (path, on_ray / "sequences" / path.name))
+        for r in (here, there):
+            r.pop("wall_s")
+            for method in r["methods"].values():
+                method["metrics"].pop("frames_per_second")
+        assert here == there, path.name

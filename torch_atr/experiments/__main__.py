@@ -1,12 +1,14 @@
-"""``python -m torch_atr.experiments {sensiac-like,unseen} --out DIR [--quick | --full] [--init blind|truth]
-[--workers N] [--frames N] [--particles N] [--vehicles ...] [--ranges ...] [--methods ...] [--seed S] [key=value ...]``
+"""``python -m torch_atr.experiments {sensiac-like,unseen} --out DIR [--quick | --full]
+[--init blind|truth] [--workers N | --ray ADDRESS] [--frames N] [--particles N] [--vehicles ...]
+[--ranges ...] [--methods ...] [--seed S] [key=value ...]``
 
 sensiac-like runs the SENSIAC-like grid (8 test vehicles × 1000-3500 m × Methods I-IV; ``--quick``:
 the T-72 at 1000 and 2500 m, 24 frames; ``--full``: 1000 frames, the thesis's length, on a 50 m
 circle that stays in view at every range). unseen runs the held-out real meshes (never trained on)
 at 1000-2500 m with Method I (``--quick``: a tank and a truck at 1000 m). Each writes
 DIR/report.md, DIR/results.json (and the figures). Finished sequences are kept in DIR/sequences/
-and not re-run. ``key=value`` are tracker config overrides (``motion.sigma2_alpha=1.0``).
+and not re-run; ``--ray ADDRESS`` runs them as tasks of a Ray cluster instead of local processes.
+``key=value`` are tracker config overrides (``motion.sigma2_alpha=1.0``).
 """
 
 from __future__ import annotations
@@ -36,6 +38,8 @@ def main(argv: list[str] | None = None) -> dict:
     size.add_argument("--full", action="store_true", help="1000 frames per sequence on a 50 m circle")
     parser.add_argument("--init", choices=["blind", "truth"])
     parser.add_argument("--workers", type=int, default=0, help="worker processes (0: one per core)")
+    parser.add_argument("--ray", metavar="ADDRESS", help="run the sequences on this Ray cluster ('local': start one "
+                        "here; needs the [ray] extra)")
     parser.add_argument("--frames", type=int)
     parser.add_argument("--particles", type=int)
     parser.add_argument("--vehicles", nargs="+")
@@ -59,7 +63,7 @@ def main(argv: list[str] | None = None) -> dict:
     if out.exists() and (not out.is_dir() or (any(out.iterdir()) and not is_report_folder(out))):
         raise OutputExistsError(f"{out} exists and is not an experiment's folder; choose another --out")
     start = time.perf_counter()
-    results = run_all(cfg, out, args.workers)
+    results = run_all(cfg, out, args.workers, ray_address=args.ray)
     if args.experiment == "unseen":
         agg = write_unseen_report(out, cfg, results, time.perf_counter() - start)
         log.info("wrote %s: report.md, results.json; config %s", out, dataclasses.asdict(cfg))

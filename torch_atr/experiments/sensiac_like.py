@@ -137,9 +137,23 @@ def scene(range_m: float, cfg: SensiacLikeConfig):
 def run_sequence(vehicle: str, range_m: float, cfg: SensiacLikeConfig) -> dict:
     """Simulate one sequence and track it with every method of ``cfg``; the result file's content.
 
+    Runs on one CPU thread: torch's parallel reductions round differently with another thread
+    count, so pinning it makes a result the same whichever backend and ``--workers`` ran it.
+
     Returns {"format", "vehicle", "class", "range_m", "config", "methods": {method: {"metrics":
     ``run_summary``, "alpha": α̂ per frame, "time_s"}}, "wall_s"}.
     """
+    import torch
+
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        return _run_sequence(vehicle, range_m, cfg)
+    finally:
+        torch.set_num_threads(threads)
+
+
+def _run_sequence(vehicle: str, range_m: float, cfg: SensiacLikeConfig) -> dict:
     import torch
 
     from torch_atr.data.synthetic import SyntheticSequence
@@ -193,22 +207,18 @@ class _Frames(Sequence):
         return self.seq.warmup_frames(n)
 
 
-def _init_worker(threads: int) -> None:
-    import torch
-
-    torch.set_num_threads(threads)
-
-
 def _write(result: dict, path: Path) -> None:
     atomic_write_text(json.dumps(result) + "\n", path)
 
 
-def run_all(cfg: SensiacLikeConfig, out: Path, workers: int = 0, progress: bool = True) -> list[dict]:
+def run_all(cfg: SensiacLikeConfig, out: Path, workers: int = 0, progress: bool = True,
+            ray_address: str | None = None) -> list[dict]:
     """Run every sequence not already in ``out/sequences`` (resumable), ``workers`` at a time
-    (0: one per core; 1: in this process). Returns every sequence's result, the grid's order.
+    (0: one per core; 1: in this process), or as tasks of the Ray cluster at ``ray_address``
+    ("local": a Ray instance started here). Returns every sequence's result, the grid's order.
 
     A result file from another configuration is refused (``ConfigError`` naming it): use another
-    ``out``.
+    ``out``. Each result is written as soon as its sequence finishes.
     """
     from tqdm import tqdm
 
@@ -226,26 +236,46 @@ def run_all(cfg: SensiacLikeConfig, out: Path, workers: int = 0, progress: bool 
             done[(vehicle, range_m)] = result
     todo = [job for job in wanted if job not in done]
     log.info("%d sequences: %d done before, %d to run", len(wanted), len(done), len(todo))
-    workers = workers or os.cpu_count() or 1
-    bar = tqdm(total=len(todo), desc="sequences", unit="seq", disable=not progress)
-    if workers == 1 or len(todo) <= 1:
-        for vehicle, range_m in todo:
-            result = run_sequence(vehicle, range_m, cfg)
-            _write(result, folder / f"{job_name(vehicle, range_m, cfg)}.json")
-            done[(vehicle, range_m)] = result
+    runs = _on_ray(todo, cfg, ray_address) if ray_address else _in_processes(todo, cfg, workers or os.cpu_count() or 1)
+    with tqdm(total=len(todo), desc="sequences", unit="seq", disable=not progress) as bar:
+        for job, result in runs:
+            _write(result, folder / f"{job_name(*job, cfg)}.json")
+            done[job] = result
             bar.update()
-    else:
-        threads = max(1, (os.cpu_count() or 1) // workers)
-        with ProcessPoolExecutor(max_workers=workers, initializer=_init_worker, initargs=(threads,)) as pool:
-            futures = {pool.submit(run_sequence, v, r, cfg): (v, r) for v, r in todo}
-            for future in as_completed(futures):
-                vehicle, range_m = futures[future]
-                result = future.result()
-                _write(result, folder / f"{job_name(vehicle, range_m, cfg)}.json")
-                done[(vehicle, range_m)] = result
-                bar.update()
-    bar.close()
     return [done[job] for job in wanted]
+
+
+def _in_processes(todo: list[tuple[str, float]], cfg: SensiacLikeConfig, workers: int):
+    """(job, result) as the sequences finish, ``workers`` processes at a time (1: here)."""
+    if workers == 1 or len(todo) <= 1:
+        for job in todo:
+            yield job, run_sequence(*job, cfg)
+        return
+    with ProcessPoolExecutor(max_workers=workers) as pool:
+        futures = {pool.submit(run_sequence, *job, cfg): job for job in todo}
+        for future in as_completed(futures):
+            yield futures[future], future.result()
+
+
+def _on_ray(todo: list[tuple[str, float]], cfg: SensiacLikeConfig, address: str):
+    """(job, result) as the sequences finish, one Ray task (one CPU) each. Every node needs
+    torch_atr installed and the checkpoint at ``cfg.checkpoint`` (an absolute path is safest)."""
+    try:
+        import ray
+    except ImportError as exc:
+        raise ConfigError("--ray needs Ray: pip install -e \".[ray]\"") from exc
+    started = not ray.is_initialized()
+    if started:
+        ray.init(address=None if address == "local" else address, include_dashboard=False, log_to_driver=False)
+    try:
+        task = ray.remote(num_cpus=1)(run_sequence)
+        pending = {task.remote(*job, cfg): job for job in todo}
+        while pending:
+            ready, _ = ray.wait(list(pending), num_returns=1)
+            yield pending.pop(ready[0]), ray.get(ready[0])
+    finally:
+        if started:
+            ray.shutdown()
 
 
 def aggregate(results: list[dict], cfg: SensiacLikeConfig) -> dict:
