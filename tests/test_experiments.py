@@ -123,3 +123,15 @@ def test_a_local_ray_cluster_gives_the_processes_results(run, tmp_path):
             for method in r["methods"].values():
                 method["metrics"].pop("frames_per_second")
         assert here == there, path.name
+
+
+def test_scene_overrides_reach_the_simulator_and_bad_ones_name_their_key():
+    from torch_atr.config import ConfigError
+    from torch_atr.data.synthetic import SceneConfig
+
+    cfg = SensiacLikeConfig(scene=("night=false", "occluder_width_m=3"), frames=40)
+    assert scene(1500.0, cfg) == SceneConfig(range_m=1500.0, frames=40, night=False, occluder_width_m=3.0)
+    with pytest.raises(ConfigError, match="--scene nite=1: unknown config key"):
+        SensiacLikeConfig(scene=("nite=1",))
+    with pytest.raises(ConfigError, match="sets the grid itself"):
+        SensiacLikeConfig(scene=("range_m=500",))

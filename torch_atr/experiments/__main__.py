@@ -1,6 +1,6 @@
 """``python -m torch_atr.experiments {sensiac-like,unseen} --out DIR [--quick | --full]
 [--init blind|truth] [--workers N | --ray ADDRESS] [--frames N] [--particles N] [--vehicles ...]
-[--ranges ...] [--methods ...] [--seed S] [key=value ...]``
+[--ranges ...] [--methods ...] [--seed S] [--scene key=value ...] [key=value ...]``
 
 sensiac-like runs the SENSIAC-like grid (8 test vehicles × 1000-3500 m × Methods I-IV; ``--quick``:
 the T-72 at 1000 and 2500 m, 24 frames; ``--full``: 1000 frames, the thesis's length, on a 50 m
@@ -8,7 +8,8 @@ circle that stays in view at every range). unseen runs the held-out real meshes 
 at 1000-2500 m with Method I (``--quick``: a tank and a truck at 1000 m). Each writes
 DIR/report.md, DIR/results.json (and the figures). Finished sequences are kept in DIR/sequences/
 and not re-run; ``--ray ADDRESS`` runs them as tasks of a Ray cluster instead of local processes.
-``key=value`` are tracker config overrides (``motion.sigma2_alpha=1.0``).
+``key=value`` are tracker config overrides (``motion.sigma2_alpha=1.0``); ``--scene key=value``
+overrides the simulator's scene (day: ``night=false``; an occluder, a turning turret).
 """
 
 from __future__ import annotations
@@ -47,6 +48,8 @@ def main(argv: list[str] | None = None) -> dict:
     parser.add_argument("--methods", nargs="+")
     parser.add_argument("--seed", type=int)
     parser.add_argument("--checkpoint")
+    parser.add_argument("--scene", nargs="+", default=[], metavar="KEY=VALUE",
+                        help="simulator scene overrides: night=false, occluder_width_m=3, turret_sweep_deg=60")
     parser.add_argument("overrides", nargs="*", help="tracker config overrides, key=value")
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s: %(message)s", datefmt="%H:%M:%S")
@@ -58,7 +61,7 @@ def main(argv: list[str] | None = None) -> dict:
              "checkpoint": args.checkpoint, "vehicles": args.vehicles and tuple(args.vehicles),
              "ranges_m": args.ranges and tuple(args.ranges), "methods": args.methods and tuple(args.methods)}
     fields.update({k: v for k, v in given.items() if v is not None})
-    cfg = SensiacLikeConfig(**fields, tracker=tuple(args.overrides))
+    cfg = SensiacLikeConfig(**fields, tracker=tuple(args.overrides), scene=tuple(args.scene))
     out = Path(args.out)
     if out.exists() and (not out.is_dir() or (any(out.iterdir()) and not is_report_folder(out))):
         raise OutputExistsError(f"{out} exists and is not an experiment's folder; choose another --out")

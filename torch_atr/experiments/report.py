@@ -36,6 +36,11 @@ MEASURES = (("horizontal_error_m", "horizontal error (m)"), ("range_error_m", "r
             ("aspect_error_rad", "aspect error (rad)"))
 
 
+def scene_note(cfg: SensiacLikeConfig) -> str:
+    """", scene night=false, ..." for a run with scene overrides; "" without."""
+    return f", scene {', '.join(cfg.scene)}" if cfg.scene else ""
+
+
 def errors_figure(agg: dict, cfg: SensiacLikeConfig):
     """Mean errors per range, one line per method (Fig. 6.8). Returns a Figure."""
     plt = pyplot()
@@ -123,7 +128,7 @@ def write_report(out: Path, cfg: SensiacLikeConfig, results: list[dict], model, 
         "",
         f"{len(cfg.vehicles)} vehicle(s) × {len(cfg.ranges_m)} range(s) × Methods {', '.join(cfg.methods)}; "
         f"{cfg.frames} frames per sequence on a {cfg.circle_diameter_m:g} m circle, {cfg.particles} particles, "
-        f"{cfg.init} start, seed {cfg.seed}; "
+        f"{cfg.init} start, seed {cfg.seed}{scene_note(cfg)}; "
         f"torch_atr {torch_atr.__version__}. Ours is a simulator, the thesis's is SENSIAC's real infrared "
         "footage: the numbers sit side by side, they are not the same experiment.",
         "",

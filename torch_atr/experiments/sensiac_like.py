@@ -37,6 +37,7 @@ TEST_VEHICLES = tuple(spec.name for spec in SPLITS["test"])
 RANGES_M = (1000.0, 1500.0, 2000.0, 2500.0, 3000.0, 3500.0)
 GROUPS = ("tank", "apc", "suv", "pickup")  # Table 6.1's columns (SENSIAC has no car or minivan)
 RESULT_FORMAT = "torch_atr.sensiac_like_sequence"
+GRID_SCENE_KEYS = ("range_m", "circle_diameter_m", "frames", "seed")  # set by the grid, not by scene overrides
 HELDOUT_PREFIX = "heldout:"  # a vehicle name for a held-out mesh: heldout:PATH, PATH as in the manifest
 
 
@@ -54,6 +55,7 @@ class SensiacLikeConfig:
     seed: int = 0  # the scene's and the tracker's
     checkpoint: str = "checkpoints/default.pt"
     tracker: tuple[str, ...] = field(default_factory=tuple)  # extra TrackerConfig overrides, key=value
+    scene: tuple[str, ...] = field(default_factory=tuple)  # SceneConfig overrides: night=false, occluder_width_m=3
 
     def __post_init__(self) -> None:
         if not self.vehicles or not self.ranges_m or not self.methods:
@@ -67,6 +69,13 @@ class SensiacLikeConfig:
             raise ConfigError(f"circle_diameter_m must be in (0, 10000]; got {self.circle_diameter_m}")
         if not 1 <= self.frames <= 100_000 or not 1 <= self.particles <= 10_000_000:
             raise ConfigError(f"frames in [1, 1e5] and particles in [1, 1e7]; got {self.frames}, {self.particles}")
+        grid = [o for o in self.scene if o.split("=", 1)[0].strip() in GRID_SCENE_KEYS]
+        if grid:
+            raise ConfigError(f"scene: {grid[0]!r} sets the grid itself; use the experiment's own options for "
+                              f"{', '.join(GRID_SCENE_KEYS)}")
+        from torch_atr.data.synthetic import SceneConfig
+
+        load_config(SceneConfig, None, list(self.scene), what="--scene")  # fails here, naming the key, not in a worker
 
     def tracker_overrides(self, method: str) -> list[str]:
         return [f"filter.particles={self.particles}", f"filter.method={method}", f"init.mode={self.init}",
@@ -127,11 +136,13 @@ def _templates(checkpoint: str):
 
 
 def scene(range_m: float, cfg: SensiacLikeConfig):
-    """The simulator's scene of one sequence: the default night scene, the vehicle driving
-    ``cfg.circle_diameter_m`` at ``range_m``."""
+    """The simulator's scene of one sequence: the default night scene with ``cfg.scene``'s
+    overrides, the vehicle driving ``cfg.circle_diameter_m`` at ``range_m``."""
     from torch_atr.data.synthetic import SceneConfig
 
-    return SceneConfig(range_m=range_m, circle_diameter_m=cfg.circle_diameter_m, frames=cfg.frames, seed=cfg.seed)
+    grid = [f"range_m={range_m!r}", f"circle_diameter_m={cfg.circle_diameter_m!r}", f"frames={cfg.frames}",
+            f"seed={cfg.seed}"]
+    return load_config(SceneConfig, None, [*cfg.scene, *grid])
 
 
 def run_sequence(vehicle: str, range_m: float, cfg: SensiacLikeConfig) -> dict:

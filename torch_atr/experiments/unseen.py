@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 
 import torch_atr
-from torch_atr.experiments.report import MEASURES
+from torch_atr.experiments.report import MEASURES, scene_note
 from torch_atr.experiments.sensiac_like import HELDOUT_PREFIX, SensiacLikeConfig, heldout_names
 from torch_atr.io import atomic_write_text
 
@@ -94,7 +94,8 @@ def write_unseen_report(out: Path, cfg: SensiacLikeConfig, results: list[dict], 
         "",
         f"{len(agg['meshes'])} held-out mesh(es) (never trained on) × {len(ranges)} range(s) × Methods "
         f"{', '.join(cfg.methods)}; {cfg.frames} frames per sequence on a {cfg.circle_diameter_m:g} m circle, "
-        f"{cfg.particles} particles, {cfg.init} start, seed {cfg.seed}; torch_atr {torch_atr.__version__}.",
+        f"{cfg.particles} particles, {cfg.init} start, seed {cfg.seed}{scene_note(cfg)}; "
+        f"torch_atr {torch_atr.__version__}.",
         "",
         f"## Recognition per mesh: % of frames on the true class, Methods {methods}",
         "",
