@@ -135,3 +135,35 @@ def test_scene_overrides_reach_the_simulator_and_bad_ones_name_their_key():
         SensiacLikeConfig(scene=("nite=1",))
     with pytest.raises(ConfigError, match="sets the grid itself"):
         SensiacLikeConfig(scene=("range_m=500",))
+
+
+def test_each_study_changes_one_thing_and_its_rows_average_its_sequences(tmp_path):
+    from torch_atr.experiments.studies import run_studies, study_configs, write_studies_report
+
+    configs = study_configs(quick=True)
+    base = dataclasses.asdict(configs["baseline"])
+    changed = {name: {k for k, v in dataclasses.asdict(cfg).items() if v != base[k]} for name, cfg in configs.items()}
+    assert changed == {"baseline": set(), "particles_250": {"particles"}, "particles_4000": {"particles"},
+                       "particles_16000": {"particles"}, "range_4000_5000": {"ranges_m"}, "day": {"scene"},
+                       "occlusion": {"scene"}, "turret": {"scene"}}
+    assert not scene(1000.0, configs["day"]).night and scene(1000.0, configs["occlusion"]).occluder_width_m == 12
+    two = {name: dataclasses.replace(configs[name], frames=8) for name in ("baseline", "day")}
+    results = run_studies(tmp_path / "studies", two, workers=1)
+    rows = write_studies_report(tmp_path / "studies", two, results, wall_s=1.0)
+    for row in rows:
+        (seq,) = [json.loads(p.read_text()) for p in (tmp_path / "studies" / row["setting"] / "sequences").iterdir()]
+        metrics = seq["methods"]["I"]["metrics"]
+        assert row["recognition_pct"] == pytest.approx(100 * (metrics["recognition_accuracy"] or 0))
+        assert row["range_error_m"] == pytest.approx(metrics["range_error_m"])
+    assert json.loads((tmp_path / "studies" / "results.json").read_text())["format"] == "torch_atr.studies_report"
+    assert "| day scene (low contrast) | 1000 |" in (tmp_path / "studies" / "report.md").read_text()
+    with pytest.raises(ValueError, match="--particles cannot be given"):
+        main(["studies", "--quick", "--particles", "10", "--out", str(tmp_path / "bad")])
+
+
+@pytest.mark.slow
+def test_the_quick_studies_run_every_setting(tmp_path):
+    rows = main(["studies", "--quick", "--workers", "1", "--out", str(tmp_path / "studies")])
+    assert [(r["setting"], r["range_m"]) for r in rows] == [
+        ("baseline", 1000.0), ("particles_250", 1000.0), ("particles_4000", 1000.0), ("particles_16000", 1000.0),
+        ("range_4000_5000", 4000.0), ("day", 1000.0), ("occlusion", 1000.0), ("turret", 1000.0)]

@@ -1,11 +1,13 @@
-"""``python -m torch_atr.experiments {sensiac-like,unseen} --out DIR [--quick | --full]
+"""``python -m torch_atr.experiments {sensiac-like,unseen,studies} --out DIR [--quick | --full]
 [--init blind|truth] [--workers N | --ray ADDRESS] [--frames N] [--particles N] [--vehicles ...]
 [--ranges ...] [--methods ...] [--seed S] [--scene key=value ...] [key=value ...]``
 
 sensiac-like runs the SENSIAC-like grid (8 test vehicles × 1000-3500 m × Methods I-IV; ``--quick``:
 the T-72 at 1000 and 2500 m, 24 frames; ``--full``: 1000 frames, the thesis's length, on a 50 m
 circle that stays in view at every range). unseen runs the held-out real meshes (never trained on)
-at 1000-2500 m with Method I (``--quick``: a tank and a truck at 1000 m). Each writes
+at 1000-2500 m with Method I (``--quick``: a tank and a truck at 1000 m). studies changes one
+thing at a time against a Method I baseline at 1000 and 2500 m: particles, 4000-5000 m, day,
+an occluding berm, sweeping turrets (it sets particles, ranges, methods and scene itself). Each writes
 DIR/report.md, DIR/results.json (and the figures). Finished sequences are kept in DIR/sequences/
 and not re-run; ``--ray ADDRESS`` runs them as tasks of a Ray cluster instead of local processes.
 ``key=value`` are tracker config overrides (``motion.sigma2_alpha=1.0``); ``--scene key=value``
@@ -21,8 +23,10 @@ import time
 from pathlib import Path
 
 from torch_atr.cli import run_main
+from torch_atr.config import ConfigError
 from torch_atr.experiments.report import is_report_folder, mean_recognition, write_report
 from torch_atr.experiments.sensiac_like import FULL, QUICK, SensiacLikeConfig, run_all
+from torch_atr.experiments.studies import run_studies, study_configs, write_studies_report
 from torch_atr.experiments.unseen import unseen_fields, write_unseen_report
 from torch_atr.io import OutputExistsError
 
@@ -32,7 +36,7 @@ log = logging.getLogger("experiments")
 def main(argv: list[str] | None = None) -> dict:
     parser = argparse.ArgumentParser(prog="python -m torch_atr.experiments", description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("experiment", choices=["sensiac-like", "unseen"])
+    parser.add_argument("experiment", choices=["sensiac-like", "unseen", "studies"])
     parser.add_argument("--out", required=True, help="the report folder (resumed when it holds a run of ours)")
     size = parser.add_mutually_exclusive_group()
     size.add_argument("--quick", action="store_true", help="the CI-sized run")
@@ -60,11 +64,12 @@ def main(argv: list[str] | None = None) -> dict:
     given = {"init": args.init, "frames": args.frames, "particles": args.particles, "seed": args.seed,
              "checkpoint": args.checkpoint, "vehicles": args.vehicles and tuple(args.vehicles),
              "ranges_m": args.ranges and tuple(args.ranges), "methods": args.methods and tuple(args.methods)}
-    fields.update({k: v for k, v in given.items() if v is not None})
-    cfg = SensiacLikeConfig(**fields, tracker=tuple(args.overrides), scene=tuple(args.scene))
+    given = {k: v for k, v in given.items() if v is not None}
     out = Path(args.out)
-    if out.exists() and (not out.is_dir() or (any(out.iterdir()) and not is_report_folder(out))):
-        raise OutputExistsError(f"{out} exists and is not an experiment's folder; choose another --out")
+    if args.experiment == "studies":
+        return _studies(args, given, out)
+    cfg = SensiacLikeConfig(**(fields | given), tracker=tuple(args.overrides), scene=tuple(args.scene))
+    _check_out(out)
     start = time.perf_counter()
     results = run_all(cfg, out, args.workers, ray_address=args.ray)
     if args.experiment == "unseen":
@@ -78,6 +83,24 @@ def main(argv: list[str] | None = None) -> dict:
              ", ".join(f"{m} {v:.0f} %" for m, v in mean_recognition(agg).items()))
     log.info("wrote %s: report.md, results.json, figures; config %s", out, dataclasses.asdict(cfg))
     return agg
+
+
+def _check_out(out: Path) -> None:
+    if out.exists() and (not out.is_dir() or (any(out.iterdir()) and not is_report_folder(out))):
+        raise OutputExistsError(f"{out} exists and is not an experiment's folder; choose another --out")
+
+
+def _studies(args: argparse.Namespace, given: dict, out: Path) -> list[dict]:
+    fixed = [f"--{k}" for k in ("particles", "ranges", "methods", "scene", "full") if getattr(args, k)]
+    if fixed:
+        raise ConfigError(f"studies: {', '.join(fixed)} cannot be given; each study sets them itself")
+    configs = study_configs(args.quick, **given, tracker=tuple(args.overrides))
+    _check_out(out)
+    start = time.perf_counter()
+    results = run_studies(out, configs, args.workers, ray_address=args.ray)
+    rows = write_studies_report(out, configs, results, time.perf_counter() - start)
+    log.info("wrote %s: report.md, results.json", out)
+    return rows
 
 
 if __name__ == "__main__":

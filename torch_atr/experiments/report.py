@@ -159,12 +159,13 @@ def write_report(out: Path, cfg: SensiacLikeConfig, results: list[dict], model, 
 
 
 def is_report_folder(path: Path) -> bool:
-    """True for a folder an experiment wrote (its results.json is ours) or is writing (sequences/)."""
+    """True for a folder an experiment wrote (its results.json is ours) or is writing (sequences/,
+    or the studies' settings' folders holding sequences/)."""
     try:
         return json.loads((path / "results.json").read_text(encoding="utf-8")).get("format", "").startswith(
             "torch_atr.")
     except (OSError, ValueError, AttributeError):
-        return (path / "sequences").is_dir()
+        return (path / "sequences").is_dir() or any((sub / "sequences").is_dir() for sub in path.glob("*/"))
 
 
 def mean_recognition(agg: dict) -> dict:

@@ -88,6 +88,12 @@ QUICK = {"vehicles": ("t_72",), "ranges_m": (1000.0, 2500.0), "frames": 24, "par
 FULL = {"frames": 1000, "circle_diameter_m": 50.0}
 
 
+def mean_or_none(values: list) -> float | None:
+    """The mean of the values that are not None; None when none is (an error no frame had)."""
+    values = [v for v in values if v is not None]
+    return float(np.mean(values)) if values else None
+
+
 def job_name(vehicle: str, range_m: float, cfg: SensiacLikeConfig) -> str:
     """The result file's stem for one sequence (a held-out mesh's path flattened)."""
     return re.sub(r"[^A-Za-z0-9_.-]", "_", f"{vehicle}_{range_m:g}m_{cfg.init}_seed{cfg.seed}")
@@ -310,7 +316,6 @@ def aggregate(results: list[dict], cfg: SensiacLikeConfig) -> dict:
             cell = [r for r in results if r["range_m"] == range_m]
             values = {m: [r["methods"][m]["metrics"][measure] for r in cell] for m in cfg.methods}
             errors.setdefault(measure, {})[f"{range_m:g}"] = {
-                m: float(np.mean([v for v in vs if v is not None])) if any(v is not None for v in vs) else None
-                for m, vs in values.items()}
+                m: mean_or_none(vs) for m, vs in values.items()}
     fps = {m: float(np.mean([r["methods"][m]["metrics"]["frames_per_second"] for r in results])) for m in cfg.methods}
     return {"recognition": recognition, "errors": errors, "frames_per_second": fps}

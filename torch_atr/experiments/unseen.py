@@ -19,11 +19,9 @@ import dataclasses
 import json
 from pathlib import Path
 
-import numpy as np
-
 import torch_atr
 from torch_atr.experiments.report import MEASURES, scene_note
-from torch_atr.experiments.sensiac_like import HELDOUT_PREFIX, SensiacLikeConfig, heldout_names
+from torch_atr.experiments.sensiac_like import HELDOUT_PREFIX, SensiacLikeConfig, heldout_names, mean_or_none
 from torch_atr.io import atomic_write_text
 
 UNSEEN_FORMAT = "torch_atr.unseen_report"
@@ -35,12 +33,6 @@ def unseen_fields(quick: bool) -> dict:
         vehicles = (HELDOUT_PREFIX + "tank/quaternius_tank1.obj", HELDOUT_PREFIX + "truck/gazebo_fire_truck.obj")
         return {"vehicles": vehicles, "ranges_m": (1000.0,), "methods": ("I",), "frames": 24, "particles": 300}
     return {"vehicles": heldout_names(), "ranges_m": (1000.0, 1500.0, 2000.0, 2500.0), "methods": ("I",)}
-
-
-def _mean(values: list) -> float | None:
-    """The mean of the values that are not None; None when none is."""
-    values = [v for v in values if v is not None]
-    return float(np.mean(values)) if values else None
 
 
 def _cell(values: list) -> str:
@@ -68,11 +60,11 @@ def aggregate_unseen(results: list[dict], cfg: SensiacLikeConfig) -> dict:
         for measure, _ in MEASURES:
             mesh["errors"][measure] = {}
             for m in cfg.methods:
-                mesh["errors"][measure][m] = _mean([r["methods"][m]["metrics"][measure] for r in rows])
+                mesh["errors"][measure][m] = mean_or_none([r["methods"][m]["metrics"][measure] for r in rows])
     classes: dict = {}
     for cls in sorted({m["class"] for m in meshes.values()} - {"unknown"}):
         of_class = [m for m in meshes.values() if m["class"] == cls]
-        classes[cls] = {f"{r:g}": {m: _mean([x["recognition"][f"{r:g}"][m] for x in of_class]) for m in cfg.methods}
+        classes[cls] = {f"{r:g}": {m: mean_or_none([x["recognition"][f"{r:g}"][m] for x in of_class]) for m in cfg.methods}
                         for r in cfg.ranges_m}
     return {"meshes": meshes, "classes": classes}
 
