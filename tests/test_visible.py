@@ -3,6 +3,7 @@ calibration, and the visible-band experiment, against hand-worked formulas, an i
 rasteriser (render_mask), the rendered ground-truth camera and the run's own sequences."""
 
 import hashlib
+import json
 import math
 
 import numpy as np
@@ -10,6 +11,7 @@ import pytest
 import torch
 from scipy import ndimage
 
+import torch_atr
 from torch_atr.calibration import calibrate_checkerboard, find_checkerboard, floor_pose, levelled_camera
 from torch_atr.camera import Camera
 from torch_atr.config import ConfigError
@@ -185,3 +187,87 @@ def test_render_checkerboard_checks_its_inputs(camera):
         render_checkerboard(camera, PATTERN, 0.1, 2 * torch.eye(3), torch.zeros(3))
     with pytest.raises(ValueError, match="2 x 2"):
         render_checkerboard(camera, (1, 5), 0.1, torch.eye(3), torch.zeros(3))
+
+
+# --- the experiment ------------------------------------------------------------------------------
+
+@pytest.fixture(scope="module")
+def quick_run(tmp_path_factory):
+    from torch_atr.experiments.__main__ import main
+
+    out = tmp_path_factory.mktemp("visible")
+    agg = main(["visible", "--out", str(out), "--quick", "--workers", "1"])
+    return out, agg, json.loads((out / "results.json").read_text(encoding="utf-8"))
+
+
+def test_quick_run_writes_its_report(quick_run):
+    out, agg, results = quick_run
+    assert results["format"] == "torch_atr.visible_report" and results["aggregate"] == agg
+    assert results["torch_atr_version"] == torch_atr.__version__ and results["wall_s"] > 0
+    assert results["config"]["frames"] == 8 and results["config"]["methods"] == ["I", "IV"]
+    for name in ("overlap", "calibration", "view_car", "view_suv", "view_van", "identity_car", "identity_van"):
+        assert (out / f"{name}.png").stat().st_size > 1000
+    report = (out / "report.md").read_text(encoding="utf-8")
+    assert "## Calibration (thesis 3.3)" in report and "Fig. 6.13" in report and "Fig. 6.15" in report
+
+
+def test_quick_run_calibration_is_close_to_the_true_camera(quick_run):
+    cal = quick_run[2]["calibration"]
+    true, got, errors = cal["true"], cal["calibrated"], cal["errors"]
+    assert errors["fx_rel"] == pytest.approx(got["fx"] / true["fx"] - 1)
+    assert abs(errors["fx_rel"]) < 0.01 and abs(errors["cx_px"]) < 2 and abs(errors["cy_px"]) < 2
+    assert abs(cal["height_m"] - 6.5) < 0.1 and errors["rotation_deg"] < 0.5
+    assert np.linalg.det(np.array(got["R"])) == pytest.approx(1.0)  # sensor-like, as the tracker wants
+
+
+def test_quick_run_numbers_agree_with_its_sequences(quick_run):
+    """The aggregate against the per-frame lists, recomputed here by hand, and the truth against
+    the simulator opened afresh."""
+    from torch_atr.experiments.sensiac_like import _model, load_experiment_vehicle
+    from torch_atr.experiments.visible import VisibleConfig, scene
+
+    _, agg, results = quick_run
+    model = _model("checkpoints/default.pt")
+    cfg = VisibleConfig(**{k: tuple(v) if isinstance(v, list) else v for k, v in results["config"].items()})
+    for seq in results["sequences"]:
+        assert seq["calibrated"] == (seq["role"] != "van")
+        for method, m in seq["methods"].items():
+            row = agg[seq["role"]][method]
+            overlap = [v for v in m["overlap"] if v is not None]
+            assert len(m["alpha"]) == 8 and all(0 < v <= 1 for v in overlap)
+            assert row["overlap_ratio"] == pytest.approx(np.mean(overlap), abs=1e-4)
+            classes = model.classify(torch.tensor(m["alpha"], dtype=model.alphas.dtype)).tolist()
+            on_class = np.mean([model.class_names[c] == seq["class"] for c in classes])
+            assert row["recognition_pct"] == pytest.approx(100 * on_class)
+            if seq["calibrated"]:
+                horizontal = np.mean(np.abs(np.array(m["x"]) - np.array(m["true_x"])))
+                assert row["horizontal_error_m"] == pytest.approx(horizontal, abs=1e-4)
+                assert row["horizontal_error_m"] < 1.5 and row["range_error_m"] < 3.0  # metres at ~10 m
+            else:
+                assert row["horizontal_error_m"] is None and all(v is None for v in m["x"])
+        truth = SyntheticSequence(load_experiment_vehicle(seq["vehicle"]), scene(seq["role"], cfg)).truth(3)
+        assert seq["methods"]["I"]["true_theta"][3] == pytest.approx(truth.theta, abs=1e-4)
+        assert seq["methods"]["I"]["true_x"][3] == pytest.approx(truth.x, abs=1e-4)  # the van's too
+    assert agg["car"]["I"]["recognition_pct"] == 100  # the car is a car from the first frame on
+
+
+def test_quick_run_resumes_and_refuses_foreign_folders(quick_run, tmp_path, monkeypatch):
+    from torch_atr.experiments import visible
+    from torch_atr.experiments.__main__ import main
+    from torch_atr.io import OutputExistsError
+
+    out = quick_run[0]
+
+    def no_rerun(*args):
+        raise AssertionError("a finished sequence was run again")
+
+    monkeypatch.setattr(visible, "run_visible_sequence", no_rerun)
+    agg = main(["visible", "--out", str(out), "--quick", "--workers", "1"])
+    assert agg == quick_run[1]
+    with pytest.raises(ConfigError, match="another configuration"):
+        main(["visible", "--out", str(out), "--quick", "--workers", "1", "--particles", "100"])
+    (tmp_path / "notes.txt").write_text("mine")
+    with pytest.raises(OutputExistsError):
+        main(["visible", "--out", str(tmp_path), "--quick"])
+    with pytest.raises(ConfigError, match="--ranges"):
+        main(["visible", "--out", str(tmp_path / "new"), "--quick", "--ranges", "1000"])
