@@ -20,7 +20,9 @@ cargo van of a surveillance video (PETS2001) without a camera model, pose and id
    22°, focal 640 px), and :class:`~torch_atr.tracking.blob.BlobTracker` tracks view and
    identity on its normalised blob with no camera at all.
 
-Each sequence is simulated once and tracked by every method; it is one job (worker processes,
+Every tracker closes the segmented mask with a 9 px kernel (``SEGMENTATION``; the default 3 px
+leaves holes where the textured vehicle matches the textured floor). Each sequence is simulated
+once and tracked by every method; it is one job (worker processes,
 :func:`~torch_atr.experiments.sensiac_like.in_processes`) whose result is kept in
 ``OUT/sequences/ROLE.json``, so an interrupted run resumes. Reported per sequence and method: the
 overlap ratio ξ (eq. 6.1) between the reconstructed silhouette placed at the estimate and the
@@ -61,6 +63,10 @@ VAN_SCENE = {"range_m": 24.0, "circle_diameter_m": 16.0, "camera_height_m": 8.0,
 PATTERN = (9, 6)  # inner corners of the checkerboards
 HAND_SQUARE_M = 0.1  # the boards held before the camera (intrinsics)
 FLOOR_SQUARE_M = 0.5  # the board on the floor (pose), at image_scale 1; larger in smaller images
+# The visible band's textured vehicle on its textured floor leaves holes in MOG2's mask wherever the
+# two happen to match; a 9 px closing (the tracker's default is 3, set on small IR targets) fills
+# them. Measured on the van, 50 frames: overlap 0.74-0.84 -> 0.89-0.96.
+SEGMENTATION = ("segmentation.close_px=9",)
 PER_FRAME = ("time_s", "overlap", "alpha", "theta", "phi", "x", "z", "true_theta", "true_phi", "true_x",
              "true_z")  # kept per frame (x, z: NaN for the van)
 
@@ -99,7 +105,7 @@ class VisibleConfig:
 
     def tracker_overrides(self, method: str) -> list[str]:
         return [f"filter.particles={self.particles}", f"filter.method={method}", f"init.mode={self.init}",
-                *self.tracker]
+                *SEGMENTATION, *self.tracker]
 
 
 QUICK = {"frames": 8, "particles": 200, "methods": ("I", "IV"), "image_scale": 0.5, "boards": 5}  # the CI-sized run
