@@ -328,8 +328,9 @@ def visible_scene(**overrides) -> SceneConfig:
 
     Full-size vehicles before a close, wide-angle camera, the thesis's toy-car lab scaled up
     (the model and the tracker work in metres): the views' elevation φ stays within the trained
-    [0°, 40°] of ``checkpoints/default.pt`` (it is 19°-35° at the vehicle's centre on the default
-    circle), and the vehicle's near side is 20-40 % closer than its far side, so perspective matters.
+    [0°, 40°] of ``checkpoints/default.pt`` (it is 18°-36° at a car's centre on the default circle),
+    and a vehicle seen end on has its far end up to a third farther than its near end, so
+    perspective matters.
     """
     return SceneConfig(**(VISIBLE_SCENE | overrides))
 
