@@ -288,6 +288,40 @@ def floor_pose(camera: Camera, image: np.ndarray, pattern: tuple[int, int], squa
     return Camera.from_opencv(K, dist, rvec, tvec, camera.width, camera.height)
 
 
+def levelled_camera(camera: Camera) -> tuple[Camera, float]:
+    """The tracker's camera from a floor-posed one: its world frame made sensor-like and ground-levelled.
+
+    :func:`floor_pose` gives a camera whose world frame is the (right-handed, Z up) floor frame;
+    the tracker and the simulator want the world frame of :mod:`torch_atr.pose`: origin at the
+    camera centre c, y up (the floor's Z), z the optical axis a projected on the floor, x = z × y
+    (right). A world point p maps to the floor point c + M p, M = [x | y | z] (columns, floor
+    coordinates), so the camera becomes R' = R M, t' = R c + t = 0 (det R' = +1), and the camera
+    stands c_Z above the floor.
+
+    Args:
+        camera: world frame = floor frame (e.g. from :func:`floor_pose`); its optical axis must
+            not be vertical.
+    Returns:
+        (camera with R' and t' = 0, height of the camera centre above the floor in metres).
+    """
+    R, t = camera.R.to(torch.float64), camera.t.to(torch.float64)
+    if float(torch.linalg.det(R)) > 0:
+        raise ValueError("Expected a camera posed in the right-handed floor frame (det R = -1, as floor_pose "
+                         "returns); got det R = +1, a world frame that is already sensor-like")
+    centre = -(R.T @ t)  # camera centre in the floor frame
+    up = torch.tensor([0.0, 0.0, 1.0], dtype=torch.float64)
+    axis = R.T @ torch.tensor([0.0, 0.0, 1.0], dtype=torch.float64)  # the optical axis, floor frame
+    forward = axis - (axis @ up) * up
+    if float(forward.norm()) < 1e-6:
+        raise ValueError("Expected a camera whose optical axis is not vertical; the forward direction is undefined")
+    forward = forward / forward.norm()
+    right = torch.linalg.cross(forward, up)  # forward × up points right in a right-handed, Z-up frame
+    M = torch.stack([right, up, forward], dim=1)  # (3, 3) world -> floor axes
+    levelled = Camera(camera.fx, camera.fy, camera.cx, camera.cy, camera.width, camera.height,
+                      dist=camera.dist, R=R @ M, dtype=camera.K.dtype)
+    return levelled, float(centre[2])
+
+
 def draw_cubes(image: np.ndarray, camera: Camera, cube_size: float, positions,
                color: tuple[int, int, int] = (255, 255, 255), thickness: int = 1) -> np.ndarray:
     """Wireframe cubes standing on the floor, projected with ``camera`` (Fig. 3.7).

@@ -1,4 +1,5 @@
-"""A SENSIAC-like infrared scene simulator: one vehicle driving a circle before a static MWIR camera.
+"""A SENSIAC-like infrared scene simulator: one vehicle driving a circle before a static MWIR camera
+(or, in the visible band, a lit indoor-like scene before a close visible camera).
 
 Scene (METHOD.md, "The SENSIAC setting"). The vehicle's body origin drives a circle of
 ``circle_diameter_m`` on flat ground at ``speed_mps``; the circle's centre lies ``range_m``
@@ -65,6 +66,26 @@ its own generator seeded from (seed, stream, i), so random access equals sequent
 :meth:`SyntheticSequence.warmup_frames` gives target-free frames of the same noise process (on
 another stream) for learning the background.
 
+Visible band (``band="visible"``; thesis 6.3, the toy cars of the lab, here at full size:
+:func:`visible_scene` gives the indoor-like geometry, a camera 6.5 m up, tilted down 32°, 13 m
+from the centre of a 10 m circle, focal 480 px at 640 x 480, so the view elevation φ stays inside
+the trained range [0°, 40°] of ``checkpoints/default.pt`` while the vehicle's near end is much
+closer than its far end and perspective matters). Everything is a grey level (0-255) instead
+of a temperature. The floor y = −camera_height_m is a matte tiling: tiles of 1 m separated by
+2 cm grout lines 40 % darker, its albedo ``floor_albedo`` modulated by a static procedural
+texture (a sum of plane waves of 0.15-1.5 m wavelength, fixed by the seed; relative amplitude
+``texture_contrast``), shaded by :func:`lambert` under a distant light (``light_azimuth_deg``
+from +z towards +x, ``light_elevation_deg`` above the floor) plus ``ambient`` light; above the
+horizon a plain wall lit by the ambient light only. The vehicle's surface points (from the same
+z-buffer and 3 x 3 sub-samples as the IR's) take the albedo of their part (``body_albedo`` for
+the body and engine deck, 0.1 for the running gear and the exhaust) times the same kind of
+texture in body coordinates, and are shaded by :func:`lambert` with their face's normal turned
+towards the camera (meshes' windings need not be consistent). There are no cast shadows, no
+specular highlights and no occluder (``occluder_width_m`` must be 0). The frame is blurred by
+the PSF, white noise of ``noise_dn`` grey levels is added, and it is read out as uint8 (H, W);
+the determinism rules, :meth:`SyntheticSequence.warmup_frames` and the truth are the IR's. The
+IR's minimum distance from the camera to the circle (20 m, room for the occluder) becomes 2 m.
+
 Ground truth (:class:`~torch_atr.data.sequence.FrameTruth`), exact per frame: x, y, z of the
 vehicle's centre (the centre of its rest-pose 3D bounding box, a fixed point of the body: the
 point templates are centred on and the tracker's state follows), heading and speed, all in the
@@ -125,6 +146,7 @@ _EXHAUST_TOP = 0.75  # ... up to this fraction of the height (rear-engined vehic
 _DECK_FACING = 0.5  # the engine deck's faces have |n_Z| above this
 _SKY_SCALE = 1 / 8  # the sky cools from the horizon over this fraction of the image height
 _OCCLUDER_GAP_M = 10.0  # the occluder stands at least this far in front of the circle
+_VISIBLE_GAP_M = 2.0  # visible band: the circle's nearest point at least this far from the camera
 _OCCLUDER_BUMPS_M = 1.5  # spacing of the occluder's top profile samples
 _PSF_TRUNCATE = 4.0  # Gaussian kernels reach 4 σ
 _SUPERSAMPLE = 3  # the target's radiance is averaged over 3 x 3 sub-samples per pixel
@@ -142,7 +164,24 @@ _DAY = {"ground_k": 300.0, "sky_k": 278.0, "body_k": 300.5, "running_gear_k": 30
         "exhaust_k": 325.0, "occluder_k": 299.0, "top_delta_k": 4.0}
 
 # Random streams of the seed.
-_CLUTTER, _OCCLUDER, _NOISE, _WARMUP = range(4)
+_CLUTTER, _OCCLUDER, _NOISE, _WARMUP, _TEXTURE = range(5)
+
+BANDS = ("ir", "visible")
+MAX_GREY = 255  # visible band: 8-bit read-out
+_DARK_ALBEDO = 0.1  # visible band: tyres, running gear and exhaust
+_WALL_ALBEDO = 0.6  # visible band: the plain wall above the horizon, lit by the ambient light only
+_TILE_M = 1.0  # visible band: floor tiles' side ...
+_GROUT_M = 0.02  # ... and the width of the darker grout lines between them
+_GROUT_SHADE = 0.6  # grout albedo / tile albedo
+_TEXTURE_WAVES = 8  # sinusoids summed by the procedural texture
+_TEXTURE_WAVELENGTH_M = (0.15, 1.5)  # their wavelengths' range
+
+# The visible band's indoor-like scene (thesis 6.3, the toy cars, at full size): a camera 6.5 m up,
+# tilted down 32°, wide-angle (68° x 52° field of view), 13 m from the centre of a 10 m circle
+# driven at 1.5 m/s. See :func:`visible_scene`.
+VISIBLE_SCENE = {"band": "visible", "range_m": 13.0, "circle_diameter_m": 10.0, "camera_height_m": 6.5,
+                 "tilt_deg": 32.0, "focal_px": 480.0, "width": 640, "height": 480, "fps": 10.0,
+                 "speed_mps": 1.5, "psf_sigma_px": 0.6, "psf_sigma_per_km": 0.0}
 
 
 @dataclass(frozen=True)
@@ -184,13 +223,24 @@ class SceneConfig:
     occluder_range_m: float | None = None  # None: 20 m in front of the circle's near point
     turret_sweep_deg: float = 0.0  # turret yaw amplitude (vehicles with a turret_yaw joint)
     turret_period_s: float = 8.0  # period of the turret sweep
+    band: str = "ir"  # "ir": thermal, uint16 counts; "visible": lit and textured, uint8 grey (module docstring)
+    light_azimuth_deg: float = 30.0  # visible: direction to the (distant) light, from +z towards +x ...
+    light_elevation_deg: float = 60.0  # ... and above the floor
+    ambient: float = 0.35  # visible: the share of the light every surface gets whatever its normal
+    floor_albedo: float = 0.4  # visible: mean reflectance of the floor tiles
+    body_albedo: float = 0.8  # visible: the vehicle's paint (running gear and exhaust: 0.1)
+    texture_contrast: float = 0.15  # visible: relative amplitude of the procedural textures
+    noise_dn: float = 2.0  # visible: per-frame sensor noise σ in grey levels
     seed: int = 0
 
     def __post_init__(self) -> None:
         r = self.circle_diameter_m / 2
+        visible = self.band == "visible"
+        gap = _VISIBLE_GAP_M if visible else 2 * _OCCLUDER_GAP_M  # the IR's leaves room for the occluder
         checks = {
-            "range_m": (self.range_m - r > 2 * _OCCLUDER_GAP_M and self.range_m <= 1e5,
-                        f"at most 100 km, more than circle_diameter_m / 2 + {2 * _OCCLUDER_GAP_M:g} m"),
+            "band": (self.band in BANDS, f"one of {BANDS}"),
+            "range_m": (self.range_m - r > gap and self.range_m <= 1e5,
+                        f"at most 100 km, more than circle_diameter_m / 2 + {gap:g} m"),
             "circle_diameter_m": (0 < self.circle_diameter_m <= 1e4, "in (0, 10000]"),
             "frames": (1 <= self.frames <= 10 ** 7, "in [1, 10**7]"),
             "fps": (0 < self.fps <= 1e4, "in (0, 10000]"),
@@ -213,7 +263,8 @@ class SceneConfig:
             "psf_sigma_per_km": (0 <= self.psf_sigma_per_km and self.psf_sigma <= _MAX_BLUR_PX,
                                  f">= 0, with psf_sigma_px + psf_sigma_per_km * range_m / 1000 at most "
                                  f"{_MAX_BLUR_PX:g} px"),
-            "occluder_width_m": (0 <= self.occluder_width_m <= 1e4, "in [0, 10000]"),
+            "occluder_width_m": (0 <= self.occluder_width_m <= 1e4 and not (visible and self.occluder_width_m),
+                                 "0 in the visible band" if visible else "in [0, 10000]"),
             "occluder_x_m": (math.isfinite(self.occluder_x_m), "finite"),
             "occluder_height_m": (0 < self.occluder_height_m <= 1e3, "in (0, 1000]"),
             "occluder_range_m": (self.occluder_range_m is None
@@ -221,6 +272,13 @@ class SceneConfig:
                                  f"null or in (0, range_m - circle_diameter_m / 2 - {_OCCLUDER_GAP_M:g}]"),
             "turret_sweep_deg": (math.isfinite(self.turret_sweep_deg), "finite"),
             "turret_period_s": (0 < self.turret_period_s < math.inf, "positive"),
+            "light_azimuth_deg": (math.isfinite(self.light_azimuth_deg), "finite"),
+            "light_elevation_deg": (0 < self.light_elevation_deg <= 90, "in (0, 90]"),
+            "ambient": (0 <= self.ambient <= 1, "in [0, 1]"),
+            "floor_albedo": (0 <= self.floor_albedo <= 1, "in [0, 1]"),
+            "body_albedo": (0 <= self.body_albedo <= 1, "in [0, 1]"),
+            "texture_contrast": (0 <= self.texture_contrast < 1, "in [0, 1)"),
+            "noise_dn": (0 <= self.noise_dn <= MAX_GREY, f"in [0, {MAX_GREY}]"),
             "seed": (self.seed >= 0, ">= 0"),
         }
         for key in _NIGHT:
@@ -247,6 +305,11 @@ class SceneConfig:
         """PSF σ in pixels at this scene's range: psf_sigma_px + psf_sigma_per_km · range_m / 1000."""
         return self.psf_sigma_px + self.psf_sigma_per_km * self.range_m / 1000.0
 
+    def light_direction(self) -> np.ndarray:
+        """(3,) unit vector towards the visible band's light in the world frame (x right, y up, z forward)."""
+        az, el = math.radians(self.light_azimuth_deg), math.radians(self.light_elevation_deg)
+        return np.array([math.cos(el) * math.sin(az), math.sin(el), math.cos(el) * math.cos(az)])
+
     def temperatures(self) -> dict[str, float]:
         """The temperature fields, None replaced by the night or day default (kelvin)."""
         defaults = _NIGHT if self.night else _DAY
@@ -258,6 +321,39 @@ def scene_camera(cfg: SceneConfig) -> Camera:
     c, s = math.cos(cfg.tilt_rad), math.sin(cfg.tilt_rad)
     R = [[1.0, 0.0, 0.0], [0.0, c, s], [0.0, -s, c]]
     return Camera(cfg.focal_px, cfg.focal_px, (cfg.width - 1) / 2, (cfg.height - 1) / 2, cfg.width, cfg.height, R=R)
+
+
+def visible_scene(**overrides) -> SceneConfig:
+    """The visible band's indoor-like scene (``VISIBLE_SCENE``) with ``overrides`` (SceneConfig fields).
+
+    Full-size vehicles before a close, wide-angle camera, the thesis's toy-car lab scaled up
+    (the model and the tracker work in metres): the views' elevation φ stays within the trained
+    [0°, 40°] of ``checkpoints/default.pt`` (it is 18°-36° at a car's centre on the default circle),
+    and a vehicle seen end on has its far end up to a third farther than its near end, so
+    perspective matters.
+    """
+    return SceneConfig(**(VISIBLE_SCENE | overrides))
+
+
+def lambert(albedo: np.ndarray, normals: np.ndarray, to_light: np.ndarray, ambient: float) -> np.ndarray:
+    """Brightness of matte surface points under a distant light plus ambient light, in [0, 1]:
+    albedo · (ambient + (1 − ambient) · max(0, n · l)).
+
+    Args:
+        albedo: (N,) reflectances in [0, 1].
+        normals: (N, 3) unit surface normals (facing the viewer).
+        to_light: (3,) unit vector towards the light, the normals' frame.
+        ambient: in [0, 1].
+    Returns:
+        (N,) float64.
+    """
+    albedo, normals, to_light = (np.asarray(a, dtype=np.float64) for a in (albedo, normals, to_light))
+    if albedo.ndim != 1 or normals.shape != (albedo.shape[0], 3) or to_light.shape != (3,):
+        raise ValueError(f"Expected albedo (N,), normals (N, 3) and to_light (3,); got {albedo.shape}, "
+                         f"{normals.shape} and {to_light.shape}")
+    if not 0 <= ambient <= 1:
+        raise ValueError(f"Expected ambient in [0, 1]; got {ambient}")
+    return albedo * (ambient + (1 - ambient) * np.clip(normals @ to_light, 0.0, None))
 
 
 def surface_parts(mesh: trimesh.Trimesh, points: np.ndarray, face_index: np.ndarray,
@@ -407,6 +503,23 @@ def _generator(seed: int, stream: int, index: int) -> torch.Generator:
     return torch.Generator().manual_seed(int(state) & (2 ** 63 - 1))
 
 
+def _texture(points: np.ndarray, generator: torch.Generator) -> np.ndarray:
+    """A static procedural texture of points (N, D), D = 2 or 3 metres: (N,) in [−1, 1].
+
+    The sum of ``_TEXTURE_WAVES`` plane waves of random directions, wavelengths (log-uniform in
+    ``_TEXTURE_WAVELENGTH_M``) and phases drawn from ``generator``, scaled to unit standard
+    deviation and clipped to [−1, 1].
+    """
+    n, d = _TEXTURE_WAVES, points.shape[1]
+    directions = torch.randn(n, d, generator=generator, dtype=torch.float64).numpy()
+    lo, hi = (math.log(x) for x in _TEXTURE_WAVELENGTH_M)
+    wavelengths = np.exp(lo + (hi - lo) * torch.rand(n, generator=generator, dtype=torch.float64).numpy())
+    phases = 2 * math.pi * torch.rand(n, generator=generator, dtype=torch.float64).numpy()
+    k = directions / np.linalg.norm(directions, axis=1, keepdims=True) * (2 * math.pi / wavelengths)[:, None]
+    waves = np.sin(points @ k.T + phases).sum(axis=1) / math.sqrt(n / 2)  # each sine has variance 1/2
+    return np.clip(waves, -1.0, 1.0)
+
+
 def _gaussian_blur(img: np.ndarray, sigma_x: float, sigma_y: float, border: int) -> np.ndarray:
     """cv2 Gaussian blur with kernels reaching 4 σ; a copy when σ_x = σ_y = 0."""
     if sigma_x == 0 and sigma_y == 0:
@@ -435,7 +548,7 @@ class SyntheticSequence(Sequence):
         vehicle: a Vehicle, a catalog name (train or test split) or a URDF / mesh path.
         cfg: the scene; ``SceneConfig()`` if None.
 
-    Frames are (height, width) uint16 counts, generated on demand. ``camera`` is the scene's
+    Frames are (height, width) uint16 counts (IR) or uint8 grey levels (visible), generated on demand. ``camera`` is the scene's
     camera, ``truth(i)`` exact ground truth, and :meth:`true_mask`, :meth:`visible_mask` and
     :meth:`part_map` the rendered target of frame i.
     """
@@ -455,7 +568,8 @@ class SyntheticSequence(Sequence):
         self.camera = scene_camera(cfg)
         self.camera_height_m = cfg.camera_height_m
         self.fps = cfg.fps
-        self.name = f"synthetic_{self.vehicle.name}_{cfg.range_m:g}m_seed{cfg.seed}"
+        band = "visible_" if cfg.band == "visible" else ""
+        self.name = f"synthetic_{band}{self.vehicle.name}_{cfg.range_m:g}m_seed{cfg.seed}"
         self.meta = {"simulator": __name__, "vehicle": self.vehicle.name, "vehicle_class": self.vehicle.cls,
                      "vehicle_source": str(self.vehicle.source), "scene": dataclasses.asdict(cfg)}
         self._temps = cfg.temperatures()
@@ -521,26 +635,27 @@ class SyntheticSequence(Sequence):
         fu1, fv1 = max(min(u1 + 1, cam.width), fu0), max(min(v1 + 1, cam.height), fv0)
         silhouette = silhouette[fv0 - v0:fv1 - v0, fu0 - u0:fu1 - u0]
         cover, radiance, centre_parts = self._radiance(vehicle, uv - torch.tensor([fu0, fv0]), depth,
-                                                       silhouette.shape, float(np.linalg.norm(self.centre(i))))
+                                                       silhouette.shape, float(np.linalg.norm(self.centre(i))), pose)
         parts = np.where(silhouette, np.where(centre_parts >= 0, centre_parts, BODY), -1)
         target = _Target(fu0, fv0, silhouette, parts, cover, radiance, centroid)
         self._cached = (i, target)
         return target
 
     def _radiance(self, vehicle: Vehicle, uv: torch.Tensor, depth: torch.Tensor, shape: tuple[int, int],
-                  slant_m: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """The target's pixels from SUPERSAMPLE² sub-samples each (module docstring, "Thermal model").
+                  slant_m: float, pose: VehiclePose) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The target's pixels from SUPERSAMPLE² sub-samples each (module docstring, "Thermal model"
+        and "Visible band").
 
         Sub-sample (a, b) of pixel (j, i) sits at (j + (a − k) / S, i + (b − k) / S), k = S // 2,
         so the middle one is the pixel centre.
 
         Args:
             uv: (M, 2) vertices in window pixels; depth: (M,) metres; shape: (h, w) of the window;
-            slant_m: range for the atmospheric transmission.
+            slant_m: range for the atmospheric transmission (IR); pose: the vehicle's (visible).
         Returns:
             cover: (h, w) float32 fraction of sub-samples on the target; radiance: (h, w) float32
-            Σ apparent temperature over them / S²; centre_parts: (h, w) int64 part at the pixel
-            centre, −1 where no face covers it.
+            Σ apparent temperature (IR) or grey level (visible) over them / S²; centre_parts: (h, w)
+            int64 part at the pixel centre, −1 where no face covers it.
         """
         temps, S = self._temps, _SUPERSAMPLE
         k, (h, w) = S // 2, shape
@@ -553,15 +668,38 @@ class SyntheticSequence(Sequence):
         points = np.einsum("nk,nkd->nd", weights[covered], np.asarray(mesh.vertices)[faces[seen]])
         parts = np.full(nearest.shape, -1, dtype=np.int64)
         parts[covered] = surface_parts(mesh, points, seen, vehicle.cls)
-        # Part temperature + top_delta |n_Z|, pulled towards the ground's by the atmosphere.
-        part_k = np.array([temps[f"{p}_k"] for p in PARTS])
-        kelvin = part_k[parts[covered]] + temps["top_delta_k"] * np.abs(np.asarray(mesh.face_normals)[seen, 2])
-        tau = math.exp(-self.cfg.extinction_per_km * slant_m / 1000.0)
         sub_k = np.zeros(nearest.shape)
-        sub_k[covered] = temps["ground_k"] + tau * (kelvin - temps["ground_k"])
+        if self.cfg.band == "visible":
+            sub_k[covered] = self._brightness(mesh, points, seen, parts[covered], pose)
+        else:
+            # Part temperature + top_delta |n_Z|, pulled towards the ground's by the atmosphere.
+            part_k = np.array([temps[f"{p}_k"] for p in PARTS])
+            kelvin = part_k[parts[covered]] + temps["top_delta_k"] * np.abs(np.asarray(mesh.face_normals)[seen, 2])
+            tau = math.exp(-self.cfg.extinction_per_km * slant_m / 1000.0)
+            sub_k[covered] = temps["ground_k"] + tau * (kelvin - temps["ground_k"])
         cover = covered.reshape(h, S, w, S).mean(axis=(1, 3), dtype=np.float64)
         radiance = sub_k.reshape(h, S, w, S).mean(axis=(1, 3))
         return cover.astype(np.float32), radiance.astype(np.float32), parts[k::S, k::S]
+
+    def _brightness(self, mesh: trimesh.Trimesh, points: np.ndarray, faces: np.ndarray, parts: np.ndarray,
+                    pose: VehiclePose) -> np.ndarray:
+        """Grey levels of seen surface points (module docstring, "Visible band").
+
+        Args:
+            points: (N, 3) body frame; faces: (N,) their faces; parts: (N,) their PARTS.
+        Returns:
+            (N,) float64 in [0, MAX_GREY].
+        """
+        cfg = self.cfg
+        R, t = (a.numpy() for a in body_to_world(pose))
+        R_inv = np.linalg.inv(R)  # det R = −1 (the world frame is left-handed), still orthogonal
+        to_camera = R_inv @ -t - points  # (N, 3) the camera centre (the world origin) in the body frame
+        normals = np.asarray(mesh.face_normals)[faces]
+        normals = np.where((np.einsum("nd,nd->n", normals, to_camera) < 0)[:, None], -normals, normals)
+        dark = (parts == RUNNING_GEAR) | (parts == EXHAUST)
+        albedo = np.where(dark, _DARK_ALBEDO, cfg.body_albedo)
+        albedo = albedo * (1 + cfg.texture_contrast * _texture(points, _generator(cfg.seed, _TEXTURE, 1)))
+        return MAX_GREY * lambert(albedo, normals, R_inv @ cfg.light_direction(), cfg.ambient)
 
     def _paste(self, target: _Target, window: np.ndarray, fill) -> np.ndarray:
         """A frame-sized array holding ``window`` (one of the target's arrays) at its place."""
@@ -590,6 +728,11 @@ class SyntheticSequence(Sequence):
         """(sharp scene, blurred scene, occluder mask), each (H, W), built once."""
         if self._static is not None:
             return self._static
+        if self.cfg.band == "visible":
+            scene = self._floor().astype(np.float32)
+            blurred = _gaussian_blur(scene, self.cfg.psf_sigma, self.cfg.psf_sigma, cv2.BORDER_REFLECT_101)
+            self._static = (scene, blurred, np.zeros(scene.shape, dtype=bool))
+            return self._static
         cfg, temps = self.cfg, self._temps
         H = cfg.height
         f, cy = cfg.focal_px, (H - 1) / 2
@@ -610,6 +753,33 @@ class SyntheticSequence(Sequence):
         self._static = (scene, blurred, occluder)
         return self._static
 
+    def _world_rays(self, uv: np.ndarray) -> np.ndarray:
+        """(..., 3) world-frame directions (not normalised) of the rays through pixels uv (..., 2)."""
+        rays = self.camera.R.T @ self.camera.pixel_rays(torch.as_tensor(uv)).reshape(-1, 3).T  # (3, P) world
+        return rays.numpy().T.reshape(*uv.shape[:-1], 3)
+
+    def _floor(self) -> np.ndarray:
+        """(H, W) float64 grey levels of the visible band's static background (module docstring):
+        the lit, tiled and textured floor below the horizon, averaged over S x S sub-samples per
+        pixel like the target, and a plain wall above it."""
+        cfg, S = self.cfg, _SUPERSAMPLE
+        k = S // 2
+        offsets = (np.arange(S) - k) / S
+        u = (np.arange(cfg.width)[:, None] + offsets).ravel()  # (W·S,) sub-sample columns
+        v = (np.arange(cfg.height)[:, None] + offsets).ravel()
+        rays = self._world_rays(np.stack(np.meshgrid(u, v), axis=-1))  # (H·S, W·S, 3)
+        down = rays[..., 1] < 0
+        with np.errstate(divide="ignore", invalid="ignore"):
+            s = np.where(down, cfg.camera_height_m / -rays[..., 1], 0.0)  # ray parameter at the floor y = −h
+        ground = np.stack([s * rays[..., 0], s * rays[..., 2]], axis=-1)[down]  # (P, 2) floor (x, z), metres
+        albedo = cfg.floor_albedo * (1 + cfg.texture_contrast * _texture(ground, _generator(cfg.seed, _TEXTURE, 0)))
+        from_line = np.abs(ground / _TILE_M - np.round(ground / _TILE_M)).min(axis=1) * _TILE_M
+        albedo = np.where(from_line < _GROUT_M / 2, _GROUT_SHADE * albedo, albedo)
+        up = np.broadcast_to(np.array([0.0, 1.0, 0.0]), (len(albedo), 3))
+        grey = np.full(down.shape, MAX_GREY * _WALL_ALBEDO * cfg.ambient)
+        grey[down] = MAX_GREY * lambert(albedo, up, cfg.light_direction(), cfg.ambient)
+        return grey.reshape(cfg.height, S, cfg.width, S).mean(axis=(1, 3))
+
     def _clutter(self, stream: int) -> np.ndarray:
         """(H, W) float64 static texture of unit standard deviation (module docstring)."""
         cfg = self.cfg
@@ -627,9 +797,8 @@ class SyntheticSequence(Sequence):
         z_occ = cfg.occluder_range_m
         if z_occ is None:
             z_occ = cfg.range_m - cfg.radius_m - 2 * _OCCLUDER_GAP_M
-        uv = np.stack(np.meshgrid(np.arange(W, dtype=np.float64), np.arange(H, dtype=np.float64)), axis=-1)
-        rays = self.camera.R.T @ self.camera.pixel_rays(torch.as_tensor(uv)).reshape(-1, 3).T  # (3, H·W) world
-        rays = rays.numpy().T.reshape(H, W, 3)
+        rays = self._world_rays(np.stack(np.meshgrid(np.arange(W, dtype=np.float64), np.arange(H, dtype=np.float64)),
+                                         axis=-1))  # (H, W, 3)
         with np.errstate(divide="ignore", invalid="ignore"):
             s = np.where(rays[..., 2] > 0, z_occ / rays[..., 2], np.nan)  # ray parameter at the wall z = z_occ
         x, y = s * rays[..., 0], s * rays[..., 1] + cfg.camera_height_m  # y: height above the ground
@@ -654,7 +823,8 @@ class SyntheticSequence(Sequence):
         return np.clip(np.rint((kelvin - ZERO_COUNT_K) * COUNTS_PER_K), 0, MAX_COUNT).astype(np.uint16)
 
     def scene(self, i: int) -> np.ndarray:
-        """(height, width) float32: frame ``i``'s blurred apparent temperature (K) before noise and read-out."""
+        """(height, width) float32: frame ``i``'s blurred apparent temperature (K; visible band: grey
+        level) before noise and read-out."""
         i = self._index(i)
         sharp, blurred, occluder = self._static_scene()
         target = self._target(i)
@@ -676,15 +846,25 @@ class SyntheticSequence(Sequence):
         out[r0:r1, c0:c1] += _gaussian_blur(diff, sigma, sigma, cv2.BORDER_CONSTANT)
         return out
 
+    def _grey(self, grey: np.ndarray, stream: int, index: int) -> np.ndarray:
+        """Add frame noise to a grey-level image and read it out as uint8 (visible band)."""
+        cfg = self.cfg
+        noise = torch.randn(cfg.height, cfg.width, generator=_generator(cfg.seed, stream, index), dtype=torch.float32)
+        return np.clip(np.rint(grey + np.float32(cfg.noise_dn) * noise.numpy()), 0, MAX_GREY).astype(np.uint8)
+
+    def _read_out(self, image: np.ndarray, stream: int, index: int) -> np.ndarray:
+        return (self._grey if self.cfg.band == "visible" else self._counts)(image, stream, index)
+
     def _read_frame(self, i: int) -> np.ndarray:
-        return self._counts(self.scene(i), _NOISE, i)
+        return self._read_out(self.scene(i), _NOISE, i)
 
     def warmup_frames(self, n: int) -> Iterator[np.ndarray]:
-        """``n`` target-free frames, (height, width) uint16: the static background with fresh noise."""
+        """``n`` target-free frames, (height, width) uint16 (IR) or uint8 (visible): the static
+        background with fresh noise."""
         if isinstance(n, bool) or not isinstance(n, int) or n < 0:
             raise ValueError(f"Expected n to be an integer >= 0; got {n!r}")
         blurred = self._static_scene()[1]
-        return (self._counts(blurred, _WARMUP, k) for k in range(n))
+        return (self._read_out(blurred, _WARMUP, k) for k in range(n))
 
     def _truth(self, i: int) -> FrameTruth:
         cfg = self.cfg

@@ -3,9 +3,11 @@
     python -m torch_atr.experiments sensiac-like --out DIR [--quick | --full] [--init blind|truth] [--workers N]
     python -m torch_atr.experiments unseen --out DIR [--quick] [--init blind|truth] [--workers N]
     python -m torch_atr.experiments studies --out DIR [--quick] [--workers N]
+    python -m torch_atr.experiments visible --out DIR [--quick] [--workers N]
 
 :mod:`~torch_atr.experiments.sensiac_like` runs a grid of sequences (resumable, in worker
 processes), :mod:`~torch_atr.experiments.report` writes the SENSIAC-like ``report.md``,
 ``results.json`` and figures, :mod:`~torch_atr.experiments.unseen` the held-out meshes' report,
-and :mod:`~torch_atr.experiments.studies` the one-change-at-a-time studies beyond the thesis.
+:mod:`~torch_atr.experiments.studies` the one-change-at-a-time studies beyond the thesis, and
+:mod:`~torch_atr.experiments.visible` the visible-band experiment (thesis 6.3).
 """

@@ -253,7 +253,7 @@ def run_all(cfg: SensiacLikeConfig, out: Path, workers: int = 0, progress: bool 
             done[(vehicle, range_m)] = result
     todo = [job for job in wanted if job not in done]
     log.info("%d sequences: %d done before, %d to run", len(wanted), len(done), len(todo))
-    runs = _on_ray(todo, cfg, ray_address) if ray_address else _in_processes(todo, cfg, workers or os.cpu_count() or 1)
+    runs = _on_ray(todo, cfg, ray_address) if ray_address else in_processes(todo, cfg, workers or os.cpu_count() or 1)
     with tqdm(total=len(todo), desc="sequences", unit="seq", disable=not progress) as bar:
         for job, result in runs:
             _write(result, folder / f"{job_name(*job, cfg)}.json")
@@ -262,14 +262,16 @@ def run_all(cfg: SensiacLikeConfig, out: Path, workers: int = 0, progress: bool 
     return [done[job] for job in wanted]
 
 
-def _in_processes(todo: list[tuple[str, float]], cfg: SensiacLikeConfig, workers: int):
-    """(job, result) as the sequences finish, ``workers`` processes at a time (1: here)."""
+def in_processes(todo: list[tuple], cfg, workers: int, run=None):
+    """(job, result) as the jobs finish, ``run(*job, cfg)`` in ``workers`` processes at a time
+    (1: here); ``run`` defaults to :func:`run_sequence` and must be picklable (module level)."""
+    run = run_sequence if run is None else run
     if workers == 1 or len(todo) <= 1:
         for job in todo:
-            yield job, run_sequence(*job, cfg)
+            yield job, run(*job, cfg)
         return
     with ProcessPoolExecutor(max_workers=workers) as pool:
-        futures = {pool.submit(run_sequence, *job, cfg): job for job in todo}
+        futures = {pool.submit(run, *job, cfg): job for job in todo}
         for future in as_completed(futures):
             yield futures[future], future.result()
 
