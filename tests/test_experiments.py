@@ -167,3 +167,35 @@ def test_the_quick_studies_run_every_setting(tmp_path):
     assert [(r["setting"], r["range_m"]) for r in rows] == [
         ("baseline", 1000.0), ("particles_250", 1000.0), ("particles_4000", 1000.0), ("particles_16000", 1000.0),
         ("range_4000_5000", 4000.0), ("day", 1000.0), ("occlusion", 1000.0), ("turret", 1000.0)]
+
+
+def test_the_combined_report_nests_each_report_and_points_into_its_folder(tmp_path):
+    from torch_atr.experiments.combined import write_combined_report
+
+    for name, fmt in (("a", "torch_atr.x"), ("b", "torch_atr.y")):
+        (tmp_path / name).mkdir()
+        (tmp_path / name / "report.md").write_text(f"# {name}\n\n## Table\n\n![fig](fig.png) [site](https://x.org) "
+                                                   f"[here](#table)\n\n```\n# not a heading\n```\n")
+        (tmp_path / name / "results.json").write_text(json.dumps({"format": fmt}))
+    write_combined_report(tmp_path, ("a", "b"), wall_s=3.0)
+    text = (tmp_path / "report.md").read_text()
+    assert ("\n## a\n\n### Table\n\n![fig](a/fig.png) [site](https://x.org) [here](#table)\n\n```\n# not a heading\n```"
+            in text)
+    assert "![fig](b/fig.png)" in text and text.index("## a") < text.index("## b")
+    assert json.loads((tmp_path / "results.json").read_text())["experiments"] == {
+        "a": {"results": "a/results.json", "format": "torch_atr.x"},
+        "b": {"results": "b/results.json", "format": "torch_atr.y"}}
+    (tmp_path / "b" / "report.md").unlink()
+    with pytest.raises(FileNotFoundError, match="b/report.md: the b experiment wrote no report"):
+        write_combined_report(tmp_path, ("a", "b"), wall_s=3.0)
+    with pytest.raises(ValueError, match="all: --frames cannot be given"):
+        main(["all", "--frames", "10", "--out", str(tmp_path / "c")])
+
+
+@pytest.mark.slow
+def test_all_quick_runs_every_experiment_into_one_report(tmp_path):
+    main(["all", "--quick", "--workers", "1", "--out", str(tmp_path / "all")])
+    text = (tmp_path / "all" / "report.md").read_text()
+    for name in ("sensiac-like", "unseen", "visible", "studies"):
+        assert (tmp_path / "all" / name / "results.json").is_file()
+    assert "](sensiac-like/errors_by_range.png)" in text and text.count("\n## ") >= 4

@@ -1,4 +1,4 @@
-"""``python -m torch_atr.experiments {sensiac-like,unseen,studies,visible} --out DIR [--quick | --full]
+"""``python -m torch_atr.experiments {all,sensiac-like,unseen,studies,visible} --out DIR [--quick | --full]
 [--init blind|truth] [--workers N | --ray ADDRESS] [--frames N] [--particles N] [--vehicles ...]
 [--ranges ...] [--methods ...] [--seed S] [--scene key=value ...] [key=value ...]``
 
@@ -14,7 +14,8 @@ a held-out car and SUV tracked in 3D with Methods I-IV, and a van tracked withou
 --particles, --methods, --seed, --checkpoint, --workers and tracker overrides). Each writes
 DIR/report.md, DIR/results.json (and the figures). Finished sequences are kept in DIR/sequences/
 and not re-run; ``--ray ADDRESS`` runs them as tasks of a Ray cluster instead of local processes.
-``key=value`` are tracker config overrides (``motion.sigma2_alpha=1.0``); ``--scene key=value``
+all runs the four, each into DIR/NAME/, and writes one DIR/report.md of them all (it takes
+--quick, --init, --seed, --checkpoint and --workers). ``key=value`` are tracker config overrides (``motion.sigma2_alpha=1.0``); ``--scene key=value``
 overrides the simulator's scene (day: ``night=false``; an occluder, a turning turret).
 """
 
@@ -28,6 +29,7 @@ from pathlib import Path
 
 from torch_atr.cli import run_main
 from torch_atr.config import ConfigError
+from torch_atr.experiments.combined import EXPERIMENTS, write_combined_report
 from torch_atr.experiments.report import is_report_folder, mean_recognition, write_report
 from torch_atr.experiments.sensiac_like import FULL, QUICK, SensiacLikeConfig, run_all
 from torch_atr.experiments.studies import run_studies, study_configs, write_studies_report
@@ -40,7 +42,7 @@ log = logging.getLogger("experiments")
 def main(argv: list[str] | None = None) -> dict:
     parser = argparse.ArgumentParser(prog="python -m torch_atr.experiments", description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("experiment", choices=["sensiac-like", "unseen", "studies", "visible"])
+    parser.add_argument("experiment", choices=["all", *EXPERIMENTS])
     parser.add_argument("--out", required=True, help="the report folder (resumed when it holds a run of ours)")
     size = parser.add_mutually_exclusive_group()
     size.add_argument("--quick", action="store_true", help="the CI-sized run")
@@ -70,6 +72,8 @@ def main(argv: list[str] | None = None) -> dict:
              "ranges_m": args.ranges and tuple(args.ranges), "methods": args.methods and tuple(args.methods)}
     given = {k: v for k, v in given.items() if v is not None}
     out = Path(args.out)
+    if args.experiment == "all":
+        return _all(args, out)
     if args.experiment == "studies":
         return _studies(args, given, out)
     if args.experiment == "visible":
@@ -126,6 +130,22 @@ def _visible(args: argparse.Namespace, given: dict, out: Path) -> dict:
                                time.perf_counter() - start)
     log.info("wrote %s: report.md, results.json, figures; config %s", out, dataclasses.asdict(cfg))
     return agg
+
+
+def _all(args: argparse.Namespace, out: Path) -> dict:
+    passed = {"--init": args.init, "--seed": args.seed, "--checkpoint": args.checkpoint}
+    given = [f"--{k}" for k in ("full", "ray", "frames", "particles", "vehicles", "ranges", "methods", "scene",
+                                "overrides") if getattr(args, k)]
+    if given:
+        raise ConfigError(f"all: {', '.join(given)} cannot be given; run that experiment alone to change it")
+    _check_out(out)
+    common = ["--workers", str(args.workers), *(["--quick"] if args.quick else []),
+              *(a for k, v in passed.items() if v is not None for a in (k, str(v)))]
+    start = time.perf_counter()
+    outcomes = {name: main([name, "--out", str(out / name), *common]) for name in EXPERIMENTS}
+    write_combined_report(out, EXPERIMENTS, time.perf_counter() - start)
+    log.info("wrote %s: report.md, results.json over %s", out, ", ".join(EXPERIMENTS))
+    return outcomes
 
 
 if __name__ == "__main__":
