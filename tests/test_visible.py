@@ -223,11 +223,11 @@ def test_quick_run_calibration_is_close_to_the_true_camera(quick_run):
 def test_quick_run_numbers_agree_with_its_sequences(quick_run):
     """The aggregate against the per-frame lists, recomputed here by hand, and the truth against
     the simulator opened afresh."""
-    from torch_atr.experiments.sensiac_like import _model, load_experiment_vehicle
+    from torch_atr.experiments.sensiac_like import worker_model, load_experiment_vehicle
     from torch_atr.experiments.visible import VisibleConfig, scene
 
     _, agg, results = quick_run
-    model = _model("checkpoints/default.pt")
+    model = worker_model("checkpoints/default.pt")
     cfg = VisibleConfig(**{k: tuple(v) if isinstance(v, list) else v for k, v in results["config"].items()})
     for seq in results["sequences"]:
         assert seq["calibrated"] == (seq["role"] != "van")

@@ -86,9 +86,9 @@ def main(argv: list[str] | None = None) -> dict:
         agg = write_unseen_report(out, cfg, results, time.perf_counter() - start)
         log.info("wrote %s: report.md, results.json; config %s", out, dataclasses.asdict(cfg))
         return agg
-    from torch_atr.experiments.sensiac_like import _model
+    from torch_atr.experiments.sensiac_like import worker_model
 
-    agg = write_report(out, cfg, results, _model(cfg.checkpoint), time.perf_counter() - start)
+    agg = write_report(out, cfg, results, worker_model(cfg.checkpoint), time.perf_counter() - start)
     log.info("recognition (mean over groups and ranges): %s",
              ", ".join(f"{m} {v:.0f} %" for m, v in mean_recognition(agg).items()))
     log.info("wrote %s: report.md, results.json, figures; config %s", out, dataclasses.asdict(cfg))
@@ -124,9 +124,9 @@ def _visible(args: argparse.Namespace, given: dict, out: Path) -> dict:
     _check_out(out)
     start = time.perf_counter()
     calibration, drawn, results = run_visible(cfg, out, args.workers)
-    from torch_atr.experiments.sensiac_like import _model
+    from torch_atr.experiments.sensiac_like import worker_model
 
-    agg = write_visible_report(out, cfg, calibration, drawn, results, _model(cfg.checkpoint),
+    agg = write_visible_report(out, cfg, calibration, drawn, results, worker_model(cfg.checkpoint),
                                time.perf_counter() - start)
     log.info("wrote %s: report.md, results.json, figures; config %s", out, dataclasses.asdict(cfg))
     return agg

@@ -124,7 +124,8 @@ def load_experiment_vehicle(name: str):
 _WORKER: dict = {}  # per worker process: the model and Method IV's templates, loaded once
 
 
-def _model(checkpoint: str):
+def worker_model(checkpoint: str):
+    """The checkpoint's model, loaded once per process (workers run many sequences)."""
     from torch_atr.model import GenerativeShapeModel
 
     if _WORKER.get("checkpoint") != checkpoint:
@@ -133,11 +134,12 @@ def _model(checkpoint: str):
     return _WORKER["model"]
 
 
-def _templates(checkpoint: str):
+def worker_templates(checkpoint: str):
+    """Method IV's training templates of the checkpoint's catalog, rendered once per process."""
     from torch_atr.training import training_templates
 
     if "templates" not in _WORKER:
-        _WORKER["templates"] = training_templates(_model(checkpoint))
+        _WORKER["templates"] = training_templates(worker_model(checkpoint))
     return _WORKER["templates"]
 
 
@@ -178,30 +180,30 @@ def _run_sequence(vehicle: str, range_m: float, cfg: SensiacLikeConfig) -> dict:
     from torch_atr.tracking.job import run_summary
 
     start = time.perf_counter()
-    model = _model(cfg.checkpoint)
+    model = worker_model(cfg.checkpoint)
     seq = SyntheticSequence(load_experiment_vehicle(vehicle), scene(range_m, cfg))
-    frames = _Frames(seq)  # simulated once, tracked by every method
+    frames = FrameCache(seq)  # simulated once, tracked by every method
     out = {"format": RESULT_FORMAT, "vehicle": vehicle, "class": seq.vehicle.cls, "range_m": range_m,
            "config": dataclasses.asdict(cfg), "methods": {}}
     for method in cfg.methods:
         tracker_cfg = load_config(TrackerConfig, None, cfg.tracker_overrides(method))
-        tracker = Tracker(_model(cfg.checkpoint), seq.camera, tracker_cfg, seed=cfg.seed,
-                          templates=_templates(cfg.checkpoint) if method == "IV" else None)
+        tracker = Tracker(worker_model(cfg.checkpoint), seq.camera, tracker_cfg, seed=cfg.seed,
+                          templates=worker_templates(cfg.checkpoint) if method == "IV" else None)
         with torch.no_grad():
             result = tracker.run(frames, progress=False, snapshots=0)
         out["methods"][method] = {"metrics": run_summary(result, model, min(60, cfg.frames // 2)),
-                                  "alpha": [_plain(a) for a in column(result.rows, "alpha")],
-                                  "time_s": [_plain(t) for t in column(result.rows, "time_s")]}
+                                  "alpha": [json_number(a) for a in column(result.rows, "alpha")],
+                                  "time_s": [json_number(t) for t in column(result.rows, "time_s")]}
     out["wall_s"] = time.perf_counter() - start
     return out
 
 
-def _plain(x: float) -> float | None:
+def json_number(x: float) -> float | None:
     """A JSON number: None for NaN."""
     return None if math.isnan(x) else round(float(x), 5)
 
 
-class _Frames(Sequence):
+class FrameCache(Sequence):
     """A simulated sequence's frames and truth, made once and kept in memory (every method tracks
     the same frames); warm-up frames come from the simulator."""
 

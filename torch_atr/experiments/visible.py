@@ -47,7 +47,7 @@ import numpy as np
 
 import torch_atr
 from torch_atr.config import ConfigError, load_config
-from torch_atr.experiments.sensiac_like import HELDOUT_PREFIX, _Frames, _model, _plain, _templates, in_processes
+from torch_atr.experiments.sensiac_like import HELDOUT_PREFIX, FrameCache, worker_model, json_number, worker_templates, in_processes
 from torch_atr.io import atomic_write_text
 from torch_atr.tracking import METHODS
 
@@ -210,10 +210,10 @@ def _run_visible_sequence(role: str, vehicle: str, calibration: dict | None, cfg
     from torch_atr.tracking.job import run_summary
 
     start = time.perf_counter()
-    model = _model(cfg.checkpoint)
+    model = worker_model(cfg.checkpoint)
     scene_cfg = scene(role, cfg)
     seq = SyntheticSequence(load_experiment_vehicle(vehicle), scene_cfg)
-    frames = _Frames(seq)  # simulated once, tracked by every method; the truth is the true camera's
+    frames = FrameCache(seq)  # simulated once, tracked by every method; the truth is the true camera's
     if calibration is None:
         frames.camera, frames.camera_height_m = None, math.nan
     else:
@@ -224,7 +224,7 @@ def _run_visible_sequence(role: str, vehicle: str, calibration: dict | None, cfg
            "config": dataclasses.asdict(cfg), "methods": {}}
     for method in cfg.methods:
         tracker_cfg = load_config(TrackerConfig, None, cfg.tracker_overrides(method))
-        templates = _templates(cfg.checkpoint) if method == "IV" else None
+        templates = worker_templates(cfg.checkpoint) if method == "IV" else None
         if calibration is None:
             tracker = BlobTracker(model, tracker_cfg, seed=cfg.seed, templates=templates)
         else:
@@ -232,7 +232,7 @@ def _run_visible_sequence(role: str, vehicle: str, calibration: dict | None, cfg
         with torch.no_grad():
             result = tracker.run(frames, progress=False, snapshots=0)
         out["methods"][method] = {"metrics": run_summary(result, model, cfg.frames // 4),
-                                  **{k: [_plain(v) for v in column(result.rows, k)] for k in PER_FRAME}}
+                                  **{k: [json_number(v) for v in column(result.rows, k)] for k in PER_FRAME}}
     out["wall_s"] = time.perf_counter() - start
     return out
 
