@@ -37,15 +37,40 @@ from torch_atr.camera import Camera
 from torch_atr.config import ConfigError
 from torch_atr.data.sequence import FrameTruth, Sequence
 from torch_atr.model import GenerativeShapeModel
-from torch_atr.pose import VehiclePose, view_of_pose
+from torch_atr.pose import VehiclePose, camera_centre, view_of_pose
 from torch_atr.segmentation import ForegroundSegmenter, SegmentationConfig
 from torch_atr.tracking.appearance import METHODS, ShapeAppearance
-from torch_atr.tracking.estimates import circular_mean, class_posterior, weighted_mean_cov
-from torch_atr.tracking.initialise import (InitConfig, blind_hypotheses, blind_particles, truth_alpha,
-                                           truth_particles)
-from torch_atr.tracking.motion import ALPHA, HEADING, SPEED, STATE_DIM, X, Y, Z, MotionConfig, predict
-from torch_atr.tracking.observation import (frame_distance, observe, observe_windows,
-                                            place_silhouette, project_windows)
+from torch_atr.tracking.estimates import (
+    circular_mean,
+    class_posterior,
+    weighted_mean_cov,
+)
+from torch_atr.tracking.ground import half_heights, interpolate_periodic
+from torch_atr.tracking.initialise import (
+    InitConfig,
+    blind_hypotheses,
+    blind_particles,
+    truth_alpha,
+    truth_particles,
+)
+from torch_atr.tracking.motion import (
+    ALPHA,
+    HEADING,
+    SPEED,
+    STATE_DIM,
+    MotionConfig,
+    X,
+    Y,
+    Z,
+    predict,
+)
+from torch_atr.tracking.observation import (
+    frame_distance,
+    observe,
+    observe_windows,
+    place_silhouette,
+    project_windows,
+)
 from torch_atr.tracking.resampling import SCHEMES, effective_sample_size, resample
 
 log = logging.getLogger(__name__)
@@ -64,6 +89,7 @@ class FilterConfig:
     resample: str = "systematic"  # systematic, stratified, residual or multinomial
     resample_ess: float = 1.0  # resample when ESS < resample_ess · N; 1.0: every frame (the thesis's SIR)
     max_foreground: float = 0.5  # a mask covering more of the frame is no observation (a global change)
+    ground_contact: bool = False  # y = ground + H(α)/2 when the camera's height is known (tracking.ground)
     fps: float = 30.0  # frame rate for a sequence that states none
 
     def __post_init__(self) -> None:
@@ -178,6 +204,7 @@ class Tracker:
         height = self.cfg.init.camera_height_m
         self.camera_height_m = math.nan if height is None else height  # above the ground (blind start)
         self._frames = 0
+        self._half_heights: torch.Tensor | None = None  # H(α)/2 on a grid of α (ground contact)
         self._fresh = False  # the particles describe the coming frame (just initialised): no prediction
         self._optimiser = (torch.optim.Adam([self.model.rbf.log_width], lr=self.cfg.adapt.lr)
                            if self.cfg.adapt.every else None)
@@ -274,8 +301,15 @@ class Tracker:
         return row
 
     def _predict(self, dt: float) -> torch.Tensor:
-        """Eq. 5.1 and 5.3 for every particle. Returns (N, 6)."""
-        return predict(self.particles, dt, self.cfg.motion, self.generator)
+        """Eq. 5.1 and 5.3 for every particle, then (``filter.ground_contact``, camera height known)
+        each centre put half its vehicle's height above the ground. Returns (N, 6)."""
+        particles = predict(self.particles, dt, self.cfg.motion, self.generator)
+        if self.cfg.filter.ground_contact and math.isfinite(self.camera_height_m):
+            if self._half_heights is None:
+                self._half_heights = half_heights(self.model)
+            ground_y = float(camera_centre(self.camera)[1]) - self.camera_height_m
+            particles[:, Y] = ground_y + interpolate_periodic(self._half_heights, particles[:, ALPHA])
+        return particles
 
     def _predicted_region(self) -> tuple[tuple[float, float] | None, tuple[float, float, float, float] | None,
                                          float]:

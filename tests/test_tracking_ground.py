@@ -1,0 +1,64 @@
+"""Ground contact: the silhouette's lowest point against analytic edges, the periodic table
+against numpy, H(α)/2 against the training meshes' heights, and the tracker holding every
+particle on the ground."""
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from torch_atr.config import load_config
+from torch_atr.data.synthetic import SceneConfig, SyntheticSequence
+from torch_atr.model import GenerativeShapeModel
+from torch_atr.pose import camera_centre
+from torch_atr.tracking import Tracker, TrackerConfig
+from torch_atr.tracking.ground import bottom_edge_px, half_heights, interpolate_periodic
+from torch_atr.tracking.motion import ALPHA, Y
+from torch_atr.vehicles import load_catalog_vehicle
+
+CKPT = Path(__file__).resolve().parents[1] / "checkpoints" / "default.pt"
+
+
+@pytest.fixture(scope="module")
+def model():
+    return GenerativeShapeModel.from_checkpoint(CKPT)
+
+
+@pytest.mark.parametrize("bottom", [21.0, 20.7, 13.25])
+def test_bottom_edge_is_the_analytic_edge_of_a_box(bottom):
+    rows = torch.arange(32, dtype=torch.float64) + 0.5  # pixel centres
+    vertical = torch.minimum(rows - 10.0, bottom - rows)  # signed distance to a band [10, bottom]
+    sdf = vertical[:, None].expand(32, 32).clone()
+    sdf[:, :5] = -1.0  # columns outside the box
+    assert bottom_edge_px(sdf[None]).item() == pytest.approx(bottom, abs=1e-9)
+    assert math.isnan(bottom_edge_px(-torch.ones(1, 8, 8)).item())
+    with pytest.raises(ValueError, match="signed"):
+        bottom_edge_px(torch.ones(8, 8))
+
+
+def test_periodic_interpolation_matches_numpy():
+    table = torch.tensor([1.0, 3.0, 2.0, 5.0], dtype=torch.float64)
+    alpha = torch.tensor([0.0, 0.4, 2.0, 5.9, 6.28, -0.3, 7.0], dtype=torch.float64)
+    grid = np.arange(4) * (2 * math.pi / 4)
+    expected = np.interp(np.mod(alpha.numpy(), 2 * math.pi), grid, table.numpy(), period=2 * math.pi)
+    np.testing.assert_allclose(interpolate_periodic(table, alpha).numpy(), expected, atol=1e-12)
+
+
+def test_half_heights_match_the_training_meshes(model):
+    table = half_heights(model)
+    for k in range(0, len(model.vehicle_names), 7):
+        bounds = load_catalog_vehicle(model.vehicle_names[k]).mesh.bounds
+        got = interpolate_periodic(table, model.alphas[k:k + 1]).item()
+        assert got == pytest.approx((bounds[1][2] - bounds[0][2]) / 2, abs=0.15), model.vehicle_names[k]
+
+
+def test_ground_contact_puts_every_particle_half_its_height_above_the_ground(model):
+    seq = SyntheticSequence("btr_70", SceneConfig(frames=3))
+    cfg = load_config(TrackerConfig, None, ["filter.particles=200", "init.mode=truth", "filter.ground_contact=true"])
+    tracker = Tracker(model, seq.camera, cfg, seed=0)
+    tracker.run(seq, progress=False)
+    ground_y = float(camera_centre(seq.camera)[1]) - seq.camera_height_m
+    expected = ground_y + interpolate_periodic(half_heights(model), tracker.particles[:, ALPHA])
+    torch.testing.assert_close(tracker.particles[:, Y], expected)
