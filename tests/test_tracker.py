@@ -231,7 +231,7 @@ def test_kernel_width_adaptation_moves_the_widths_towards_the_observation(btr):
 @pytest.mark.parametrize("vehicle, aspect_bar", [("isuzu_rodeo", 0.3), ("t_72", 0.5)])
 def test_full_runs_at_1000_m_meet_the_bars(model, vehicle, aspect_bar):
     """The tracker issue's setting: 300 frames at 1000 m, 1000 particles, Method I, the thesis's
-    start. The T-72's aspect misses the issue's 0.3 rad (0.32-0.43 over three seeds; README)."""
+    start. The T-72's aspect misses the issue's 0.3 rad (0.32-0.44 over three seeds; README)."""
     seq = SyntheticSequence(vehicle, SceneConfig(frames=300))
     result = Tracker(model, seq.camera, _config("init.mode=truth"), seed=0).run(seq, progress=False)
     m = run_summary(result, model, 60)
