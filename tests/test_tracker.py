@@ -91,6 +91,31 @@ def test_batched_filter_equals_a_per_particle_loop_of_table_5_1(model, btr):
     torch.testing.assert_close(tracker.log_weights.double(), ref - torch.logsumexp(ref, 0), atol=2e-3, rtol=0)
 
 
+def test_score_equals_the_per_particle_likelihood_and_leaves_the_filter_alone(model, btr):
+    """Tracker.score against the per-particle eq. 5.2 above, on an uninitialised tracker and on a
+    running one whose particles and weights it must not touch."""
+    tracker = Tracker(model, btr.camera, _config("filter.particles=5", "filter.likelihood_px=8",
+                                                  "filter.sigma=0.1"), seed=3)
+    t = btr.truth(0)
+    alphas = model.alphas[[0, 10, 20, 30]]
+    p = torch.tensor([[t.x + dx, t.y, t.z + dz, t.heading + dh, 5.0, 0.0]
+                      for dx, dz, dh in [(0, 0, 0), (0.5, -3, 0.3), (-0.4, 4, -0.5), (0.2, 0, 3.0)]])
+    p[:, 5] = alphas
+    mask = render_mask(btr.vehicle, btr.camera, btr.pose(0)).numpy()
+    ref = torch.tensor([_reference_log_lik(model, btr.camera, mask, q, 8, 0.1) for q in p.double()],
+                       dtype=torch.float64)
+    torch.testing.assert_close(tracker.score(mask, p).double(), ref, atol=2e-3, rtol=0)
+    tracker.reset(p[:1].repeat(5, 1))
+    tracker.step(mask=mask)
+    before = tracker.particles.clone(), tracker.log_weights.clone()
+    torch.testing.assert_close(tracker.score(mask, p).double(), ref, atol=2e-3, rtol=0)
+    assert torch.equal(tracker.particles, before[0]) and torch.equal(tracker.log_weights, before[1])
+    with pytest.raises(ValueError, match="non-empty"):
+        tracker.score(np.zeros_like(mask), p)
+    with pytest.raises(ValueError, match="particles"):
+        tracker.score(mask, p[:, :5])
+
+
 @pytest.mark.parametrize("method", METHODS)
 def test_methods_snap_what_they_should(model, method):
     """I reconstructs at (α, Θ); II at the nearest αₖ; III at the nearest training view; IV is the

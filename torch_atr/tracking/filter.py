@@ -270,11 +270,8 @@ class Tracker:
         self.last_mask = mask
         area = int(mask.sum())
         observed = 0 < area <= self.cfg.filter.max_foreground * mask.size
-        if observed:  # distances beyond τ in the largest window are clipped: transform only near the blob
-            template = self.model.template
-            margin = min(template.tau_px * side / template.size_px, max(mask.shape))
-            distance, origin = frame_distance(mask, margin)
-            distance = (distance.to(self.device), origin)
+        if observed:
+            distance = self._frame_distance(mask, side)
         if not self.initialised and observed:
             self._initialise_blind(mask, distance)
         lost = True
@@ -299,6 +296,35 @@ class Tracker:
         self._frames += 1
         row["step_ms"] = 1e3 * (time.perf_counter() - start)
         return row
+
+    @torch.no_grad()
+    def score(self, mask: np.ndarray, particles: torch.Tensor) -> torch.Tensor:
+        """Eq. 5.2 of any particles against a target mask, leaving the filter as it is: how well
+        each hypothesis (say the true position and heading with every α) explains the frame.
+
+        Args:
+            mask: (H, W) bool, the target's mask (e.g. ``last_mask`` after a :meth:`step`), not empty.
+            particles: (N, 6) [x, y, z, h, v, α].
+        Returns:
+            (N,) log-likelihoods −mean((z − y)²)/2σ², −inf where not finite; higher is better.
+        """
+        if not (isinstance(mask, np.ndarray) and mask.ndim == 2 and mask.dtype == bool and mask.any()):
+            raise ValueError(f"Expected mask to be a non-empty (H, W) bool array; got "
+                             f"{getattr(mask, 'shape', type(mask))} {getattr(mask, 'dtype', '')}")
+        check_shape("particles", particles, ("N", STATE_DIM))
+        particles = particles.to(self.device, self.dtype)
+        _, side = project_windows(self.camera, particles[:, X:Z + 1], self.model.template.window_m)
+        side = side[side.isfinite()]
+        return self._log_likelihood(self._frame_distance(mask, float(side.max()) if side.numel() else math.inf),
+                                    particles)
+
+    def _frame_distance(self, mask: np.ndarray, side: float) -> tuple[torch.Tensor, tuple[int, int]]:
+        """The mask's signed distance near the blob and its origin (``observation.frame_distance``):
+        distances beyond τ in the largest window (``side`` pixels) are clipped, so only that margin
+        around the blob is transformed."""
+        template = self.model.template
+        distance, origin = frame_distance(mask, min(template.tau_px * side / template.size_px, max(mask.shape)))
+        return distance.to(self.device), origin
 
     def _predict(self, dt: float) -> torch.Tensor:
         """Eq. 5.1 and 5.3 for every particle, then (``filter.ground_contact``, camera height known)
