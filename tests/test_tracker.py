@@ -16,7 +16,10 @@ from torch_atr.model import GenerativeShapeModel
 from torch_atr.pose import VehiclePose, view_of_pose
 from torch_atr.render import render_mask
 from torch_atr.shape import signed_distance_px
+from torch_atr.segmentation import ForegroundSegmenter
 from torch_atr.tracking import METHODS, ShapeAppearance, Tracker, TrackerConfig
+from torch_atr.tracking.filter import tracker_segmentation
+from torch_atr.tracking.initialise import InitConfig, blind_hypotheses, ground_depth
 from torch_atr.tracking.job import run_summary
 
 CKPT = Path(__file__).resolve().parents[1] / "checkpoints" / "default.pt"
@@ -180,6 +183,27 @@ def test_blind_start_finds_the_vehicle(model, btr):
     t = btr.truth(39)
     assert all(r["class"] == "apc" for r in last)
     assert abs(last[-1]["x"] - t.x) < 1.5 and abs(last[-1]["z"] - t.z) < 100
+
+
+@pytest.mark.parametrize("range_m", [1000.0, 2000.0, 3000.0])
+def test_blind_range_is_within_half_the_lowest_row(model, range_m):
+    """The blind start's range comes from the ground under the centre of the blob's lowest row, so
+    it is within half that row's depth of the truth: the reference is the span between the rays
+    through the row's top and bottom edges. (The row's bottom edge, used before, put the start
+    121 m near at 3000 m, more than half the row's 170 m.)"""
+    seq = SyntheticSequence("bmp_2", SceneConfig(frames=150, range_m=range_m))
+    segmenter = ForegroundSegmenter(tracker_segmentation())
+    segmenter.warm_up(seq.warmup_frames(20))
+    blob = segmenter(seq.frame(0))
+    states, log_lik = blind_hypotheses(torch.from_numpy(blob), signed_distance_px(blob), seq.camera,
+                                       ShapeAppearance(model, "I", 32), InitConfig(alpha_steps=6, azimuth_steps=6),
+                                       0.02, seq.camera_height_m)
+    rows, cols = np.nonzero(blob)
+    top, bottom = (ground_depth(seq.camera, torch.tensor([(cols.min() + cols.max()) / 2, rows.max() + edge],
+                                                         dtype=torch.float64), seq.camera_height_m)
+                   for edge in (-0.5, 0.5))
+    error = float(states[log_lik.isfinite(), 2].median()) - seq.truth(0).z
+    assert abs(error) < (top - bottom) / 2, (error, top - bottom)
 
 
 def test_no_observation_keeps_the_prediction_and_flags_the_frame(model, btr):

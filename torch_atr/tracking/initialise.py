@@ -5,11 +5,14 @@ positive speed (the thesis has no speed truth), and α₀ʲ at the true vehicle'
 training vehicle, else at the centre of its class's arc.
 
 Blind (what a real user has: one segmented blob and the camera). The range comes from the ground
-plane when the camera's height above flat ground is known: the blob's lowest row is where the
-vehicle meets the ground, and its ray meets the plane at the range. Without it, each hypothesis
-takes the range at which its silhouette has the blob's size — which confuses a small vehicle near
-with a big one far (a car at 570 m for a tank at 1000 m, measured), so give the height when you
-know it. For every hypothesis (α, θ) of a coarse grid, at the elevation φ of the line of sight
+plane when the camera's height above flat ground is known: the vehicle meets the ground somewhere
+in the blob's lowest row, and the ray through that row's centre (pixel centres are integer
+coordinates) meets the plane at the range. The row's bottom edge, used before, put every start
+about half a row near (a row spans 18 m of range at 1000 m, 170 m at 3000 m, on the simulator);
+with the centre, the blind SENSIAC-like grid's mean range error (Method I) fell from 74 to 43 m.
+Without the height, each hypothesis takes the range at which its silhouette has the blob's size,
+which confuses a small vehicle near with a big one far (a car at 570 m for a tank at 1000 m,
+measured), so give the height when you know it. For every hypothesis (α, θ) of a coarse grid, at the elevation φ of the line of sight
 through the blob, the model's silhouette y(α, θ, φ) > 0 has a size and an offset from the window
 centre in template pixels; matching its box to the blob's box at the range gives the window
 centre and so the position on that pixel's ray, and the heading follows from θ and the bearing of
@@ -141,8 +144,8 @@ def blind_hypotheses(blob: torch.Tensor, distance: torch.Tensor, camera: Camera,
     with torch.no_grad():
         shapes = model.reconstruct_grid(alpha.to(model.alphas), theta.to(model.alphas), phi.expand(B).to(model.alphas))
     boxes = silhouette_boxes(shapes.reshape(A * B, S, S) > 0).to(dtype)  # (M, 4) template pixels
-    # Range: from the ground under the blob's lowest row, else where the silhouette has the blob's size.
-    ground = ground_depth(camera, torch.stack([(blob_box[0] + blob_box[2]) / 2, blob_box[3] + 0.5]),
+    # Range: from the ground under the blob's lowest row's centre, else where the silhouette has the blob's size.
+    ground = ground_depth(camera, torch.stack([(blob_box[0] + blob_box[2]) / 2, blob_box[3]]),
                           camera_height_m) if math.isfinite(camera_height_m) else math.nan
     f = torch.stack([K[0, 0], K[1, 1]])
     side = f * model.template.window_m / ground if math.isfinite(ground) else None
