@@ -10,7 +10,7 @@ import torch
 import torch.nn.functional as F
 
 from references import bilinear
-from torch_atr.config import load_config
+from torch_atr.config import ConfigError, load_config
 from torch_atr.data.synthetic import SceneConfig, SyntheticSequence
 from torch_atr.model import GenerativeShapeModel
 from torch_atr.pose import VehiclePose, view_of_pose
@@ -204,6 +204,28 @@ def test_blind_range_is_within_half_the_lowest_row(model, range_m):
                    for edge in (-0.5, 0.5))
     error = float(states[log_lik.isfinite(), 2].median()) - seq.truth(0).z
     assert abs(error) < (top - bottom) / 2, (error, top - bottom)
+
+
+def test_blind_ground_row_sets_where_the_vehicle_meets_the_ground(model):
+    """``init.ground_row`` moves the contact within the lowest row: every hypothesis's depth is the
+    depth at which the ray through (blob centre column, lowest row + ground_row) meets the ground."""
+    seq = SyntheticSequence("bmp_2", SceneConfig(frames=150, range_m=2000.0))
+    segmenter = ForegroundSegmenter(tracker_segmentation())
+    segmenter.warm_up(seq.warmup_frames(20))
+    blob = segmenter(seq.frame(0))
+    rows, cols = np.nonzero(blob)
+    R, t = seq.camera.R.double(), seq.camera.t.double()
+    for row in (0.0, 0.5, -0.25):
+        states, log_lik = blind_hypotheses(torch.from_numpy(blob), signed_distance_px(blob), seq.camera,
+                                           ShapeAppearance(model, "I", 32),
+                                           InitConfig(alpha_steps=4, azimuth_steps=4, ground_row=row), 0.02,
+                                           seq.camera_height_m)
+        depth = (states[log_lik.isfinite(), :3].double() @ R.T + t)[:, 2]
+        expected = ground_depth(seq.camera, torch.tensor([(cols.min() + cols.max()) / 2, rows.max() + row],
+                                                         dtype=torch.float64), seq.camera_height_m)
+        assert torch.allclose(depth, torch.full_like(depth, expected), rtol=1e-6), (row, depth[:3], expected)
+    with pytest.raises(ConfigError, match="init.ground_row"):
+        InitConfig(ground_row=2.0)
 
 
 def test_no_observation_keeps_the_prediction_and_flags_the_frame(model, btr):

@@ -10,7 +10,8 @@ in the blob's lowest row, and the ray through that row's centre (pixel centres a
 coordinates) meets the plane at the range. The row's bottom edge, used before, put every start
 about half a row near (a row spans 18 m of range at 1000 m, 170 m at 3000 m, on the simulator);
 with the centre, the blind SENSIAC-like grid's mean range error (Method I) fell from 74 to 43 m
-at 1000-3500 m, though it rose at 4000-5000 m and in the low-contrast day scene (README, studies).
+at 1000-3500 m, though it rose at 4000-5000 m and in the low-contrast day scene (README, studies),
+where ``ground_row = 0.5`` (the bottom edge) did better.
 Without the height, each hypothesis takes the range at which its silhouette has the blob's size,
 which confuses a small vehicle near with a big one far (a car at 570 m for a tank at 1000 m,
 measured), so give the height when you know it. For every hypothesis (α, θ) of a coarse grid, at the elevation φ of the line of sight
@@ -53,6 +54,7 @@ class InitConfig:
     hypotheses: int = 16  # blind: particles are drawn around this many best hypotheses
     range_std: float = 0.01  # blind: relative σ of the range around a hypothesis's range
     camera_height_m: float | None = None  # blind: above flat ground; null: the sequence's, if it knows it
+    ground_row: float = 0.0  # blind: the ground contact, in rows below the centre of the blob's lowest row
 
     def __post_init__(self) -> None:
         if self.mode not in INIT_MODES:
@@ -63,6 +65,8 @@ class InitConfig:
             value = getattr(self, key)
             if not (math.isfinite(value) and 0 <= value <= 1e3):
                 raise ConfigError(f"init.{key} must be in [0, 1e3]; got {value!r}")
+        if not (math.isfinite(self.ground_row) and -1 <= self.ground_row <= 1):
+            raise ConfigError(f"init.ground_row must be in [-1, 1] rows; got {self.ground_row!r}")
         if self.camera_height_m is not None and not (math.isfinite(self.camera_height_m) and self.camera_height_m > 0):
             raise ConfigError(f"init.camera_height_m must be positive or null; got {self.camera_height_m!r}")
         if not math.isfinite(self.speed_mps):
@@ -146,7 +150,7 @@ def blind_hypotheses(blob: torch.Tensor, distance: torch.Tensor, camera: Camera,
         shapes = model.reconstruct_grid(alpha.to(model.alphas), theta.to(model.alphas), phi.expand(B).to(model.alphas))
     boxes = silhouette_boxes(shapes.reshape(A * B, S, S) > 0).to(dtype)  # (M, 4) template pixels
     # Range: from the ground under the blob's lowest row's centre, else where the silhouette has the blob's size.
-    ground = ground_depth(camera, torch.stack([(blob_box[0] + blob_box[2]) / 2, blob_box[3]]),
+    ground = ground_depth(camera, torch.stack([(blob_box[0] + blob_box[2]) / 2, blob_box[3] + cfg.ground_row]),
                           camera_height_m) if math.isfinite(camera_height_m) else math.nan
     f = torch.stack([K[0, 0], K[1, 1]])
     side = f * model.template.window_m / ground if math.isfinite(ground) else None
