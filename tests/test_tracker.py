@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 import torch
 import torch.nn.functional as F
+from scipy.optimize import fsolve
 
 from references import bilinear
 from torch_atr.config import ConfigError, load_config
@@ -15,11 +16,11 @@ from torch_atr.data.synthetic import SceneConfig, SyntheticSequence
 from torch_atr.model import GenerativeShapeModel
 from torch_atr.pose import VehiclePose, view_of_pose
 from torch_atr.render import render_mask
-from torch_atr.shape import signed_distance_px
 from torch_atr.segmentation import ForegroundSegmenter
+from torch_atr.shape import signed_distance_px
 from torch_atr.tracking import METHODS, ShapeAppearance, Tracker, TrackerConfig
 from torch_atr.tracking.filter import tracker_segmentation
-from torch_atr.tracking.initialise import InitConfig, blind_hypotheses, ground_depth
+from torch_atr.tracking.initialise import InitConfig, blind_hypotheses
 from torch_atr.tracking.job import run_summary
 
 CKPT = Path(__file__).resolve().parents[1] / "checkpoints" / "default.pt"
@@ -185,45 +186,60 @@ def test_blind_start_finds_the_vehicle(model, btr):
     assert abs(last[-1]["x"] - t.x) < 1.5 and abs(last[-1]["z"] - t.z) < 100
 
 
-@pytest.mark.parametrize("range_m", [1000.0, 2000.0, 3000.0])
-def test_blind_range_is_within_half_the_lowest_row(model, range_m):
-    """The blind start's range comes from the ground under the centre of the blob's lowest row, so
-    it is within half that row's depth of the truth: the reference is the span between the rays
-    through the row's top and bottom edges. (The row's bottom edge, used before, put the start
-    121 m near at 3000 m, more than half the row's 170 m.)"""
-    seq = SyntheticSequence("bmp_2", SceneConfig(frames=150, range_m=range_m))
+def _ground_depth_by_projection(camera, camera_height_m: float, u: float, v: float, guess: tuple[float, float]
+                                ) -> float:
+    """Independent reference for the ground under pixel (u, v): the ground point (x, ground, z) that
+    ``Camera.project`` sends to (u, v), found by scipy's root finder; returns its depth."""
+    ground_y = float(-(camera.R.T @ camera.t)[1]) - camera_height_m
+
+    def residual(xz):
+        uv, _ = camera.project(torch.tensor([xz[0], ground_y, xz[1]], dtype=torch.float64))
+        return (uv - torch.tensor([u, v], dtype=torch.float64)).numpy()
+
+    x, z = fsolve(residual, guess, xtol=1e-12)
+    return float(camera.project(torch.tensor([x, ground_y, z], dtype=torch.float64))[1])
+
+
+def _first_blob(vehicle: str, range_m: float):
+    """The 150-frame grid scene's first segmented blob, its lowest row and centre column."""
+    seq = SyntheticSequence(vehicle, SceneConfig(frames=150, range_m=range_m))
     segmenter = ForegroundSegmenter(tracker_segmentation())
     segmenter.warm_up(seq.warmup_frames(20))
     blob = segmenter(seq.frame(0))
+    rows, cols = np.nonzero(blob)
+    return seq, blob, float(rows.max()), float(cols.min() + cols.max()) / 2
+
+
+@pytest.mark.parametrize("range_m", [1000.0, 2000.0, 3000.0])
+def test_blind_range_is_within_half_the_lowest_row(model, range_m):
+    """The blind start's range comes from the ground under the centre of the blob's lowest row, so
+    it is within half that row's depth of the truth: the reference is the span between the ground
+    points that project to the row's top and bottom edges. (The row's bottom edge, used before, put
+    the start 121 m near at 3000 m, more than half the row's 170 m.)"""
+    seq, blob, row, col = _first_blob("bmp_2", range_m)
     states, log_lik = blind_hypotheses(torch.from_numpy(blob), signed_distance_px(blob), seq.camera,
                                        ShapeAppearance(model, "I", 32), InitConfig(alpha_steps=6, azimuth_steps=6),
                                        0.02, seq.camera_height_m)
-    rows, cols = np.nonzero(blob)
-    top, bottom = (ground_depth(seq.camera, torch.tensor([(cols.min() + cols.max()) / 2, rows.max() + edge],
-                                                         dtype=torch.float64), seq.camera_height_m)
+    truth = seq.truth(0)
+    top, bottom = (_ground_depth_by_projection(seq.camera, seq.camera_height_m, col, row + edge, (truth.x, truth.z))
                    for edge in (-0.5, 0.5))
-    error = float(states[log_lik.isfinite(), 2].median()) - seq.truth(0).z
+    error = float(states[log_lik.isfinite(), 2].median()) - truth.z
     assert abs(error) < (top - bottom) / 2, (error, top - bottom)
 
 
 def test_blind_ground_row_sets_where_the_vehicle_meets_the_ground(model):
-    """``init.ground_row`` moves the contact within the lowest row: every hypothesis's depth is the
-    depth at which the ray through (blob centre column, lowest row + ground_row) meets the ground."""
-    seq = SyntheticSequence("bmp_2", SceneConfig(frames=150, range_m=2000.0))
-    segmenter = ForegroundSegmenter(tracker_segmentation())
-    segmenter.warm_up(seq.warmup_frames(20))
-    blob = segmenter(seq.frame(0))
-    rows, cols = np.nonzero(blob)
+    """``init.ground_row`` moves the contact within the lowest row: every hypothesis's depth is that
+    of the ground point projecting to (blob centre column, lowest row + ground_row)."""
+    seq, blob, row, col = _first_blob("bmp_2", 2000.0)
     R, t = seq.camera.R.double(), seq.camera.t.double()
-    for row in (0.0, 0.5, -0.25):
-        states, log_lik = blind_hypotheses(torch.from_numpy(blob), signed_distance_px(blob), seq.camera,
-                                           ShapeAppearance(model, "I", 32),
-                                           InitConfig(alpha_steps=4, azimuth_steps=4, ground_row=row), 0.02,
+    appearance, truth = ShapeAppearance(model, "I", 32), seq.truth(0)
+    for offset in (0.0, 0.5, -0.25):
+        states, log_lik = blind_hypotheses(torch.from_numpy(blob), signed_distance_px(blob), seq.camera, appearance,
+                                           InitConfig(alpha_steps=4, azimuth_steps=4, ground_row=offset), 0.02,
                                            seq.camera_height_m)
         depth = (states[log_lik.isfinite(), :3].double() @ R.T + t)[:, 2]
-        expected = ground_depth(seq.camera, torch.tensor([(cols.min() + cols.max()) / 2, rows.max() + row],
-                                                         dtype=torch.float64), seq.camera_height_m)
-        assert torch.allclose(depth, torch.full_like(depth, expected), rtol=1e-6), (row, depth[:3], expected)
+        expected = _ground_depth_by_projection(seq.camera, seq.camera_height_m, col, row + offset, (truth.x, truth.z))
+        assert torch.allclose(depth, torch.full_like(depth, expected), rtol=1e-6), (offset, depth[:3], expected)
     with pytest.raises(ConfigError, match="init.ground_row"):
         InitConfig(ground_row=2.0)
 
