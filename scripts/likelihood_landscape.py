@@ -83,13 +83,13 @@ def main() -> None:
               f"{best(with_every_alpha(row['x'], row['y'], row['z'], h)):>26}")
     if args.classes:
         print("range − true (m) | best per class over x ±0.6 m, y ±0.3 m, heading ±0.8 rad, every α")
+        offsets = list(itertools.product((-0.6, -0.3, 0.0, 0.3, 0.6), (-0.3, 0.0, 0.3), np.arange(-0.8, 0.801, 0.1)))
+        every_class = classes.cpu().repeat(len(offsets))
         for dz in (-20.0, -10.0, 0.0, 10.0):
-            top = torch.full((len(model.class_names),), -math.inf)
-            for dx, dy, dh in itertools.product((-0.6, -0.3, 0.0, 0.3, 0.6), (-0.3, 0.0, 0.3),
-                                                np.arange(-0.8, 0.801, 0.1)):
-                p = with_every_alpha(truth.x + dx, truth.y + dy, truth.z + dz, truth.heading + float(dh))
-                scores = tracker.score(mask, p).cpu()
-                top = torch.maximum(top, torch.full_like(top, -math.inf).scatter_reduce(0, classes.cpu(), scores, "amax"))
+            p = torch.cat([with_every_alpha(truth.x + dx, truth.y + dy, truth.z + dz, truth.heading + float(dh))
+                           for dx, dy, dh in offsets])
+            top = torch.full((len(model.class_names),), -math.inf).scatter_reduce(
+                0, every_class, tracker.score(mask, p).cpu(), "amax")
             print(f"{dz:+16.0f} | " + "  ".join(f"{c} {float(v):6.1f}" for c, v in zip(model.class_names, top)))
 
 

@@ -238,7 +238,8 @@ def test_blind_ground_row_sets_where_the_vehicle_meets_the_ground(model):
                                            InitConfig(alpha_steps=4, azimuth_steps=4, ground_row=offset), 0.02,
                                            seq.camera_height_m)
         depth = (states[log_lik.isfinite(), :3].double() @ R.T + t)[:, 2]
-        expected = _ground_depth_by_projection(seq.camera, seq.camera_height_m, col, row + offset, (truth.x, truth.z))
+        expected = _ground_depth_by_projection(seq.camera, seq.camera_height_m, col, row + offset,
+                                               (truth.x, truth.z))
         assert torch.allclose(depth, torch.full_like(depth, expected), rtol=1e-6), (offset, depth[:3], expected)
     with pytest.raises(ConfigError, match="init.ground_row"):
         InitConfig(ground_row=2.0)

@@ -7,15 +7,18 @@ training vehicle, else at the centre of its class's arc.
 Blind (what a real user has: one segmented blob and the camera). The range comes from the ground
 plane when the camera's height above flat ground is known: the vehicle meets the ground somewhere
 in the blob's lowest row, and the ray through that row's centre (pixel centres are integer
-coordinates) meets the plane at the range. The row's bottom edge, used before, put every start
+coordinates; ``ground_row`` moves the point within the row) meets the plane at the range. The row's bottom edge, used before, put every start
 about half a row near (a row spans 18 m of range at 1000 m, 170 m at 3000 m, on the simulator);
 with the centre, the blind SENSIAC-like grid's mean range error (Method I) fell from 74 to 43 m
 at 1000-3500 m, though it rose at 4000-5000 m and in the low-contrast day scene (README, studies),
 where ``ground_row = 0.5`` (the bottom edge) did better.
+
 Without the height, each hypothesis takes the range at which its silhouette has the blob's size,
 which confuses a small vehicle near with a big one far (a car at 570 m for a tank at 1000 m,
-measured), so give the height when you know it. For every hypothesis (α, θ) of a coarse grid, at the elevation φ of the line of sight
-through the blob, the model's silhouette y(α, θ, φ) > 0 has a size and an offset from the window
+measured), so give the height when you know it.
+
+For every hypothesis (α, θ) of a coarse grid, at the elevation φ of the line of sight through the
+blob, the model's silhouette y(α, θ, φ) > 0 has a size and an offset from the window
 centre in template pixels; matching its box to the blob's box at the range gives the window
 centre and so the position on that pixel's ray, and the heading follows from θ and the bearing of
 the camera. Every hypothesis is then scored by the observation likelihood, and the particles are
