@@ -109,7 +109,8 @@ def body_to_world(pose: VehiclePose) -> tuple[torch.Tensor, torch.Tensor]:
 
 def check_sensor_like(camera: Camera) -> None:
     """Raise ValueError unless the camera's world frame is sensor-like (left-handed: det R = +1)."""
-    det = float(torch.linalg.det(camera.R.double()))
+    (a, b, c), (d, e, f), (g, h, i) = camera.R.tolist()  # a 3 x 3 determinant in Python: no tensor ops per call
+    det = a * (e * i - f * h) - b * (d * i - f * g) + c * (d * h - e * g)
     if det < 0:
         raise ValueError(f"Expected a camera whose world frame is sensor-like (x right, y up, z forward; "
                          f"det R = +1); got det R = {det:.3f}, a right-handed world such as from_opencv's")

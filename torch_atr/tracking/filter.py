@@ -409,7 +409,7 @@ class Tracker:
         row = {"x": mean[0], "y": mean[1], "z": mean[2], "heading": heading, "speed": mean[3], "alpha": alpha,
                "std_x": cov[0, 0].sqrt(), "std_y": cov[1, 1].sqrt(), "std_z": cov[2, 2].sqrt(),
                "std_speed": cov[3, 3].sqrt(), "heading_concentration": heading_r, "alpha_concentration": alpha_r,
-               "theta": theta, "phi": phi, "class": model.class_names[int(model.classify(alpha_t))],
+               "theta": theta, "phi": phi, "class": model.class_names[int(model.identity.labels[nearest[0]])],
                "nearest_1": model.vehicle_names[nearest[0]], "nearest_2": model.vehicle_names[nearest[1]],
                **{f"p_{name}": posterior[c] for c, name in enumerate(model.class_names)},
                **{f"best_{name}": best[i] for name, i in (("x", X), ("y", Y), ("z", Z), ("heading", HEADING),
@@ -441,7 +441,8 @@ class Tracker:
 
     def _overlap(self, mask: np.ndarray, row: dict) -> float:
         """Dice ξ (eq. 6.1) of the placed estimate and the segmented target mask: 2|F ∩ H| / (|F| + |H|),
-        the intersection and the placed silhouette counted inside its window only."""
+        the intersection and the placed silhouette counted inside its window only; |F| is the row's
+        ``mask_area_px``."""
         alpha, theta, phi, uv, side = self._estimate_window(row)
         if not bool(uv.isfinite().all() and side.isfinite().all()):
             return 0.0
@@ -450,7 +451,7 @@ class Tracker:
         c0, r0, c1, r1 = min(max(u0, 0), W), min(max(v0, 0), H), min(max(u1 + 1, 0), W), min(max(v1 + 1, 0), H)
         placed = place_silhouette(self.appearance(alpha, theta, phi)[0], uv[0] - uv.new_tensor([c0, r0]), side[0],
                                   (r1 - r0, c1 - c0)).cpu().numpy()
-        total = int(placed.sum()) + int(mask.sum())
+        total = int(placed.sum()) + row["mask_area_px"]
         return 2.0 * int((placed & mask[r0:r1, c0:c1]).sum()) / total if total else 1.0
 
     def _adapt(self, distance: tuple[torch.Tensor, tuple[int, int]], row: dict) -> None:

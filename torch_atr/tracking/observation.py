@@ -142,7 +142,9 @@ def sample_windows(distance: torch.Tensor, uv: torch.Tensor, side: torch.Tensor,
     cells = (2 * (uv - uv.new_tensor(origin) + steps[:, None, None] * side) + 1) / size - 1  # (L, N, 2)
     gx = cells[:, :, 0].T.to(distance.dtype)  # (N, L): columns
     gy = cells[:, :, 1].T.to(distance.dtype)  # (N, L): rows
-    grid = torch.stack([gx[:, None, :].expand(N, L, L), gy[:, :, None].expand(N, L, L)], dim=-1)  # (N, L, L, 2)
+    grid = torch.empty(N, L, L, 2, dtype=distance.dtype, device=distance.device)  # filled in place: no stack copy
+    grid[..., 0] = gx[:, None, :]
+    grid[..., 1] = gy[:, :, None]
     # One batch item per window, the image broadcast (not copied), so grid_sample runs in parallel.
     out = F.grid_sample(distance[None, None].expand(N, 1, H, W), grid, mode="bilinear", padding_mode="border",
                         align_corners=False)[:, 0].to(uv.dtype)
