@@ -170,25 +170,21 @@ def shortest_closed_path(D: torch.Tensor, labels: torch.Tensor | None = None, ma
 
 
 def _local_basis(x: torch.Tensor, knots: torch.Tensor, n: int) -> tuple[torch.Tensor, torch.Tensor]:
-    """The degree-3 B-spline basis at x inside its base interval (Cox-de Boor recursion, in the
-    triangular form of Piegl & Tiller's *The NURBS Book*, algorithm A2.2).
+    """The degree-3 B-spline basis at x inside its base interval (Cox-de Boor recursion).
 
     x: (N,); knots: (n + 4,) for n coefficients. Returns first: (N,) int64, the first of the 4
     coefficients that carry x, and weights: (N, 4) their basis values; differentiable in x.
     """
     span = (torch.searchsorted(knots, x.detach(), right=True) - 1).clamp(DEGREE, n - 1)  # t[ℓ] <= x < t[ℓ+1]
-    near = knots[span.unsqueeze(-1) + torch.arange(1 - DEGREE, DEGREE + 1, device=span.device)]  # t[ℓ-2 .. ℓ+3]
-    left = [None] + [x - near[:, DEGREE - j] for j in range(1, DEGREE + 1)]  # x − t[ℓ+1−j]
-    right = [None] + [near[:, DEGREE - 1 + j] - x for j in range(1, DEGREE + 1)]  # t[ℓ+j] − x
-    basis = [torch.ones_like(x)]
-    for j in range(1, DEGREE + 1):
-        saved = torch.zeros_like(x)
-        for r in range(j):
-            term = basis[r] / (right[r + 1] + left[j - r])
-            basis[r] = saved + right[r + 1] * term
-            saved = left[j - r] * term
-        basis.append(saved)
-    return span - DEGREE, torch.stack(basis, dim=-1)
+    unit = torch.eye(DEGREE + 1, dtype=knots.dtype, device=knots.device)
+    d = [unit[j].expand(x.shape[0], -1) for j in range(DEGREE + 1)]  # de Boor on the 4 unit vectors
+    for r in range(1, DEGREE + 1):
+        for j in range(DEGREE, r - 1, -1):
+            left = knots[span + j - DEGREE]
+            right = knots[span + j + 1 - r]
+            w = ((x - left) / (right - left)).unsqueeze(-1)
+            d[j] = (1.0 - w) * d[j - 1] + w * d[j]
+    return span - DEGREE, d[DEGREE]
 
 
 class IdentityManifold(nn.Module):
