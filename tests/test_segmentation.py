@@ -57,6 +57,23 @@ def _warmed(kind: str, seed: int = 0, cfg: SegmentationConfig | None = None):
     return seg, texture, rng
 
 
+@pytest.mark.parametrize("kind", ["uint8", "bgr"])
+def test_contrast_is_the_targets_median_difference_from_the_background(kind):
+    """The target adds 45 grey levels to a textured background (noise σ 2): its median contrast is
+    45, and a mask one third background still has a median of 45; a faint target reads fainter."""
+    seg, texture, rng = _warmed(kind)
+    target = _rect(40, 50, 30, 12)
+    assert seg.contrast(_frame(kind, texture, [target], rng), target) == pytest.approx(45, abs=2)
+    padded = _rect(40, 50, 30, 18)  # 12 rows of target, 6 of background
+    assert seg.contrast(_frame(kind, texture, [target], rng), padded) == pytest.approx(45, abs=2)
+    faint = _frame(kind, texture, [], rng) + (15 * target[..., None] if kind == "bgr" else 15 * target).astype(np.uint8)
+    assert seg.contrast(faint, target) == pytest.approx(15, abs=2)
+    with pytest.raises(ValueError, match=r"non-empty mask of the frames' size \(120, 160\)"):
+        seg.contrast(faint, np.zeros((H, W), bool))
+    with pytest.raises(RuntimeError, match="warm_up"):
+        ForegroundSegmenter().contrast(faint, target)
+
+
 @pytest.mark.parametrize("kind", ["uint16", "uint8", "bgr", "float32"])
 def test_moving_blob_iou(kind):
     seg, texture, rng = _warmed(kind)

@@ -275,6 +275,27 @@ class ForegroundSegmenter:
             raise RuntimeError("ForegroundSegmenter: call warm_up(frames) first")
         return _affine_uint8(self._grey(frame), *self._to_uint8_scale())
 
+    @property
+    def ready(self) -> bool:
+        """True once :meth:`warm_up` has learned a background."""
+        return self._mog is not None
+
+    def contrast(self, frame: np.ndarray, mask: np.ndarray) -> float:
+        """The target's median contrast: |frame − background| over the mask's pixels, in grey levels
+        of the uint8 scale the segmenter compares (IR mapped, the last gain undone).
+
+        Args:
+            frame: (H, W) or (H, W, 3) like the warm-up frames; mask: (H, W) bool, non-empty.
+        """
+        if not self.ready:
+            raise RuntimeError("ForegroundSegmenter: call warm_up(frames) before measuring contrast")
+        mask = _check_mask(mask)
+        if mask.shape != self._kind[0] or not mask.any():
+            raise ValueError(f"Expected a non-empty mask of the frames' size {self._kind[0]}; got shape {mask.shape}, "
+                             f"{int(mask.sum())} pixels")
+        image = _affine_uint8(self._grey(frame), *self._to_uint8_scale(*self.gain))
+        return float(np.median(np.abs(image[mask].astype(np.float64) - self._background[mask])))
+
     def warm_up(self, frames: Iterable[np.ndarray]) -> None:
         """Learn the background from target-free frames (a fresh model each call).
 

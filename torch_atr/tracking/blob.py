@@ -127,7 +127,7 @@ class BlobTracker(Tracker):
         log_lik = log_likelihood(z.to(y_box), y_box, self.cfg.filter.sigma)
         return torch.where(log_lik.isfinite(), log_lik, -math.inf).to(self.dtype)
 
-    def _initialise_blind(self, mask: np.ndarray, distance) -> None:
+    def _initialise_blind(self, mask: np.ndarray, distance, frame: np.ndarray | None) -> None:
         """A grid of (α, θ, φ) hypotheses laid on the first blob; particles around the best."""
         cfg = self.cfg.init
         alpha = torch.arange(cfg.alpha_steps, dtype=self.dtype, device=self.device) * (2 * math.pi / cfg.alpha_steps)

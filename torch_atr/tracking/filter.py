@@ -50,6 +50,7 @@ from torch_atr.tracking.initialise import (
     InitConfig,
     blind_hypotheses,
     blind_particles,
+    ground_row_from_contrast,
     truth_alpha,
     truth_particles,
 )
@@ -273,7 +274,7 @@ class Tracker:
         if observed:
             distance = self._frame_distance(mask, side)
         if not self.initialised and observed:
-            self._initialise_blind(mask, distance)
+            self._initialise_blind(mask, distance, frame)
         lost = True
         if self.initialised and observed:
             log_lik = self._log_likelihood(distance, self.particles)
@@ -378,19 +379,24 @@ class Tracker:
         log_lik = -torch.cat(sse) / scale  # eq. 5.2: −mean((z − y)²) / 2σ²
         return torch.where(log_lik.isfinite(), log_lik, -math.inf).to(self.dtype)
 
-    def _initialise_blind(self, mask: np.ndarray, distance: tuple[torch.Tensor, tuple[int, int]]) -> None:
+    def _initialise_blind(self, mask: np.ndarray, distance: tuple[torch.Tensor, tuple[int, int]],
+                          frame: np.ndarray | None) -> None:
         """Particles from the first blob (``initialise.blind_hypotheses``); ``distance`` is the
-        whole frame's."""
+        whole frame's; ``frame`` (None: a mask without its frame) gives the blob's contrast."""
+        known = frame is not None and self.segmenter.ready
+        contrast = self.segmenter.contrast(frame, mask) if known else math.nan
         blob = torch.from_numpy(mask).to(self.device)
         states, log_lik = blind_hypotheses(blob, distance[0], self.camera, self.appearance, self.cfg.init,
-                                           self.cfg.filter.sigma, self.camera_height_m)
+                                           self.cfg.filter.sigma, self.camera_height_m, contrast)
         classes = self.model.classify(states[:, ALPHA].to(self.dtype))
         self.reset(blind_particles(states, log_lik, self.cfg.filter.particles, self.cfg.init, self.camera,
                                    self.generator, classes))
         self._fresh = False  # weighed on this very frame
         best = states[log_lik.argmax()]
-        log.info("blind initialisation: best of %d hypotheses at x=%.1f z=%.1f m, α=%.2f (%s)", states.shape[0],
-                 best[X], best[Z], best[ALPHA], self.model.class_names[self.model.classify(best[ALPHA:ALPHA + 1])])
+        row = ground_row_from_contrast(contrast) if self.cfg.init.ground_row is None else self.cfg.init.ground_row
+        log.info("blind initialisation: best of %d hypotheses at x=%.1f z=%.1f m, α=%.2f (%s); blob contrast %.1f, "
+                 "ground row %+.2f", states.shape[0], best[X], best[Z], best[ALPHA],
+                 self.model.class_names[self.model.classify(best[ALPHA:ALPHA + 1])], contrast, row)
 
     def _estimate(self) -> dict:
         """The estimate row of the current weighted particles (module docstring, step 4)."""

@@ -5,13 +5,17 @@ positive speed (the thesis has no speed truth), and α₀ʲ at the true vehicle'
 training vehicle, else at the centre of its class's arc.
 
 Blind (what a real user has: one segmented blob and the camera). The range comes from the ground
-plane when the camera's height above flat ground is known: the vehicle meets the ground somewhere
-in the blob's lowest row, and the ray through that row's centre (pixel centres are integer
-coordinates; ``ground_row`` moves the point within the row) meets the plane at the range. The row's bottom edge, used before, put every start
-about half a row near (a row spans 18 m of range at 1000 m, 170 m at 3000 m, on the simulator);
-with the centre, the blind SENSIAC-like grid's mean range error (Method I) fell from 74 to 43 m
-at 1000-3500 m, though it rose at 4000-5000 m and in the low-contrast day scene (README, studies),
-where ``ground_row = 0.5`` (the bottom edge) did better.
+plane when the camera's height above flat ground is known: the vehicle meets the ground in or
+below the blob's lowest row, and the ray through that point meets the plane at the range. Pixel
+centres are integer coordinates, and ``ground_row`` is the contact's offset in rows below the
+centre of the lowest row. A pixel joins the blob when the vehicle covers enough of it, and the
+fainter the target the more it must cover, so the contact lies lower for faint targets: measured
+on the simulator's training vehicles (``scripts/ground_row.py``: 1000-5000 m, night and day, the
+vehicle's sub-row position varied), the best offset is about 27.6 / C − 0.93 rows for a blob of
+median contrast C grey levels against the background (−0.03 rows at 1000 m by night, 0.9 at
+5000 m, 1.4 at 3000 m by day; residual σ 0.39 rows, where a row's quantisation alone gives 0.29).
+``ground_row: null`` (the default) uses that; a number fixes the offset (0: the row's centre,
+0.5: its bottom edge). One row spans 18 m of range at 1000 m, 170 m at 3000 m, on the simulator.
 
 Without the height, each hypothesis takes the range at which its silhouette has the blob's size,
 which confuses a small vehicle near with a big one far (a car at 570 m for a tank at 1000 m,
@@ -57,7 +61,7 @@ class InitConfig:
     hypotheses: int = 16  # blind: particles are drawn around this many best hypotheses
     range_std: float = 0.01  # blind: relative σ of the range around a hypothesis's range
     camera_height_m: float | None = None  # blind: above flat ground; null: the sequence's, if it knows it
-    ground_row: float = 0.0  # blind: the ground contact, in rows below the centre of the blob's lowest row
+    ground_row: float | None = None  # blind: ground contact in rows below the lowest blob row's centre; null: from contrast
 
     def __post_init__(self) -> None:
         if self.mode not in INIT_MODES:
@@ -68,8 +72,8 @@ class InitConfig:
             value = getattr(self, key)
             if not (math.isfinite(value) and 0 <= value <= 1e3):
                 raise ConfigError(f"init.{key} must be in [0, 1e3]; got {value!r}")
-        if not (math.isfinite(self.ground_row) and -1 <= self.ground_row <= 1):
-            raise ConfigError(f"init.ground_row must be in [-1, 1] rows; got {self.ground_row!r}")
+        if self.ground_row is not None and not (math.isfinite(self.ground_row) and -1 <= self.ground_row <= 2):
+            raise ConfigError(f"init.ground_row must be in [-1, 2] rows or null; got {self.ground_row!r}")
         if self.camera_height_m is not None and not (math.isfinite(self.camera_height_m) and self.camera_height_m > 0):
             raise ConfigError(f"init.camera_height_m must be positive or null; got {self.camera_height_m!r}")
         if not math.isfinite(self.speed_mps):
@@ -77,6 +81,19 @@ class InitConfig:
         for key in ("alpha_steps", "azimuth_steps", "hypotheses"):
             if not 1 <= getattr(self, key) <= 10_000:
                 raise ConfigError(f"init.{key} must be in [1, 10000]; got {getattr(self, key)!r}")
+
+
+GROUND_ROW_CONTRAST = 27.6  # grey levels: the contact's offset is about this / C − GROUND_ROW_BIAS rows ...
+GROUND_ROW_BIAS = 0.93  # ... (module docstring; fitted by scripts/ground_row.py on training vehicles)
+
+
+def ground_row_from_contrast(contrast: float) -> float:
+    """The ground contact's offset in rows below the centre of the blob's lowest row, for a blob of
+    median contrast ``contrast`` grey levels (module docstring), within [−0.5, 2]; 0 (the row's
+    centre) when the contrast is unknown (NaN) or not positive."""
+    if not (math.isfinite(contrast) and contrast > 0):
+        return 0.0
+    return min(max(GROUND_ROW_CONTRAST / contrast - GROUND_ROW_BIAS, -0.5), 2.0)
 
 
 def truth_alpha(model, vehicle: str, vehicle_class: str, mode: str = "vehicle") -> float:
@@ -121,7 +138,7 @@ def ground_depth(camera: Camera, pixel: torch.Tensor, camera_height_m: float) ->
 
 
 def blind_hypotheses(blob: torch.Tensor, distance: torch.Tensor, camera: Camera, appearance: ShapeAppearance,
-                     cfg: InitConfig, sigma: float, camera_height_m: float = math.nan
+                     cfg: InitConfig, sigma: float, camera_height_m: float = math.nan, contrast: float = math.nan
                      ) -> tuple[torch.Tensor, torch.Tensor]:
     """Score a grid of (α, θ) hypotheses against one blob (module docstring).
 
@@ -132,6 +149,8 @@ def blind_hypotheses(blob: torch.Tensor, distance: torch.Tensor, camera: Camera,
         appearance: the predicted shapes (its model and method).
         cfg: the grid sizes; sigma: the likelihood σ.
         camera_height_m: the camera's height above flat ground (NaN: unknown, ranges from sizes).
+        contrast: the blob's median contrast in grey levels, for ``cfg.ground_row`` null
+            (:func:`ground_row_from_contrast`; NaN: unknown, the lowest row's centre).
     Returns:
         states: (M, 6) one particle per hypothesis (speed 0), M = alpha_steps × azimuth_steps,
         float64 on the appearance's device; log_lik: (M,) their log-likelihoods (−inf for a
@@ -152,8 +171,9 @@ def blind_hypotheses(blob: torch.Tensor, distance: torch.Tensor, camera: Camera,
     with torch.no_grad():
         shapes = model.reconstruct_grid(alpha.to(model.alphas), theta.to(model.alphas), phi.expand(B).to(model.alphas))
     boxes = silhouette_boxes(shapes.reshape(A * B, S, S) > 0).to(dtype)  # (M, 4) template pixels
-    # Range: from the ground under the blob's lowest row's centre, else where the silhouette has the blob's size.
-    ground = ground_depth(camera, torch.stack([(blob_box[0] + blob_box[2]) / 2, blob_box[3] + cfg.ground_row]),
+    # Range: from the ground at the contact below the blob's lowest row, else where the silhouette has the blob's size.
+    offset = ground_row_from_contrast(contrast) if cfg.ground_row is None else cfg.ground_row
+    ground = ground_depth(camera, torch.stack([(blob_box[0] + blob_box[2]) / 2, blob_box[3] + offset]),
                           camera_height_m) if math.isfinite(camera_height_m) else math.nan
     f = torch.stack([K[0, 0], K[1, 1]])
     side = f * model.template.window_m / ground if math.isfinite(ground) else None
