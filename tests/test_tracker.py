@@ -214,16 +214,18 @@ def _first_blob(vehicle: str, range_m: float, night: bool = True):
 
 @pytest.mark.parametrize("range_m, night", [(1000.0, True), (2000.0, True), (4000.0, True), (2000.0, False)])
 def test_blind_range_is_within_half_the_lowest_row(model, range_m, night):
-    """The blind start's range comes from the ground below the blob's lowest row, lower the fainter
-    the blob (``ground_row_from_contrast``), so it is within half that row's depth of the truth:
+    """With ``init.ground_row: null`` the blind start's range comes from the ground below the blob's
+    lowest row, lower the fainter the blob (``ground_row_from_contrast``), so it is within half
+    that row's depth of the truth:
     the reference is the span between the ground points that project to the row's top and bottom
-    edges. (The row's centre, used before, put the start 0.66 rows far at 4000 m by night and 1.14
+    edges. (The row's centre, the default, puts the start 0.66 rows far at 4000 m by night and 1.14
     rows far at 2000 m by day. The rule fits a mean: at 3000 m by night this blob misses by 0.54
     rows, the centre by 0.22.)"""
     seq, blob, row, col, contrast = _first_blob("bmp_2", range_m, night)
     states, log_lik = blind_hypotheses(torch.from_numpy(blob), signed_distance_px(blob), seq.camera,
-                                       ShapeAppearance(model, "I", 32), InitConfig(alpha_steps=6, azimuth_steps=6),
-                                       0.02, seq.camera_height_m, contrast)
+                                       ShapeAppearance(model, "I", 32),
+                                       InitConfig(alpha_steps=6, azimuth_steps=6, ground_row=None), 0.02,
+                                       seq.camera_height_m, contrast)
     truth = seq.truth(0)
     top, bottom = (_ground_depth_by_projection(seq.camera, seq.camera_height_m, col, row + edge, (truth.x, truth.z))
                    for edge in (-0.5, 0.5))
@@ -232,9 +234,9 @@ def test_blind_range_is_within_half_the_lowest_row(model, range_m, night):
 
 
 def test_tracker_takes_the_ground_row_from_the_first_blobs_contrast(model):
-    """Wiring: a blind Tracker measures the first blob's contrast and starts within half a row of
-    the truth by day at 2000 m; fixed at the row's centre it starts more than a row far, and a mask
-    given without its frame falls back to the centre."""
+    """Wiring: with ``init.ground_row: null`` a blind Tracker measures the first blob's contrast and
+    starts within half a row of the truth by day at 2000 m; at the row's centre (the default) it
+    starts more than a row far, and a mask given without its frame falls back to the centre."""
     seq = SyntheticSequence("bmp_2", SceneConfig(frames=150, range_m=2000.0, night=False))
     truth = seq.truth(0)
     seg = ForegroundSegmenter(tracker_segmentation())
@@ -244,8 +246,8 @@ def test_tracker_takes_the_ground_row_from_the_first_blobs_contrast(model):
     top, bottom = (_ground_depth_by_projection(seq.camera, seq.camera_height_m, col, row + edge, (truth.x, truth.z))
                    for edge in (-0.5, 0.5))
     errors = {}
-    for name, overrides, use_frame in (("rule", [], True), ("centre", ["init.ground_row=0.0"], True),
-                                       ("mask only", [], False)):
+    for name, overrides, use_frame in (("rule", ["init.ground_row=null"], True), ("centre", [], True),
+                                       ("mask only", ["init.ground_row=null"], False)):
         tracker = Tracker(model, seq.camera, _config("filter.particles=300", "init.alpha_steps=12", "init.azimuth_steps=12",
                                                      f"init.camera_height_m={seq.camera_height_m}", *overrides), seed=0)
         tracker.warm_up(seq.warmup_frames(20))
