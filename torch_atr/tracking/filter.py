@@ -50,7 +50,6 @@ from torch_atr.tracking.initialise import (
     InitConfig,
     blind_hypotheses,
     blind_particles,
-    ground_row_from_contrast,
     truth_alpha,
     truth_particles,
 )
@@ -382,9 +381,10 @@ class Tracker:
     def _initialise_blind(self, mask: np.ndarray, distance: tuple[torch.Tensor, tuple[int, int]],
                           frame: np.ndarray | None) -> None:
         """Particles from the first blob (``initialise.blind_hypotheses``); ``distance`` is the
-        whole frame's; ``frame`` (None: a mask without its frame) gives the blob's contrast."""
-        known = frame is not None and self.segmenter.ready
-        contrast = self.segmenter.contrast(frame, mask) if known else math.nan
+        whole frame's; ``frame`` (None: a mask without its frame) gives the blob's contrast, measured
+        only for ``init.ground_row`` null."""
+        wanted = self.cfg.init.ground_row is None and frame is not None and self.segmenter.ready
+        contrast = self.segmenter.contrast(frame, mask) if wanted else math.nan
         blob = torch.from_numpy(mask).to(self.device)
         states, log_lik = blind_hypotheses(blob, distance[0], self.camera, self.appearance, self.cfg.init,
                                            self.cfg.filter.sigma, self.camera_height_m, contrast)
@@ -393,10 +393,9 @@ class Tracker:
                                    self.generator, classes))
         self._fresh = False  # weighed on this very frame
         best = states[log_lik.argmax()]
-        row = ground_row_from_contrast(contrast) if self.cfg.init.ground_row is None else self.cfg.init.ground_row
-        log.info("blind initialisation: best of %d hypotheses at x=%.1f z=%.1f m, α=%.2f (%s); blob contrast %.1f, "
-                 "ground row %+.2f", states.shape[0], best[X], best[Z], best[ALPHA],
-                 self.model.class_names[self.model.classify(best[ALPHA:ALPHA + 1])], contrast, row)
+        name = self.model.class_names[self.model.classify(best[ALPHA:ALPHA + 1])]
+        log.info("blind initialisation: best of %d hypotheses at x=%.1f z=%.1f m, α=%.2f (%s); ground row %+.2f",
+                 states.shape[0], best[X], best[Z], best[ALPHA], name, self.cfg.init.contact_row(contrast))
 
     def _estimate(self) -> dict:
         """The estimate row of the current weighted particles (module docstring, step 4)."""

@@ -65,7 +65,7 @@ class InitConfig:
     hypotheses: int = 16  # blind: particles are drawn around this many best hypotheses
     range_std: float = 0.01  # blind: relative σ of the range around a hypothesis's range
     camera_height_m: float | None = None  # blind: above flat ground; null: the sequence's, if it knows it
-    ground_row: float | None = 0.0  # blind: ground contact in rows below the lowest blob row's centre; null: from contrast
+    ground_row: float | None = 0.0  # blind: contact in rows below the lowest blob row's centre; null: from contrast
 
     def __post_init__(self) -> None:
         if self.mode not in INIT_MODES:
@@ -85,6 +85,11 @@ class InitConfig:
         for key in ("alpha_steps", "azimuth_steps", "hypotheses"):
             if not 1 <= getattr(self, key) <= 10_000:
                 raise ConfigError(f"init.{key} must be in [1, 10000]; got {getattr(self, key)!r}")
+
+    def contact_row(self, contrast: float = math.nan) -> float:
+        """The ground contact in rows below the centre of the blob's lowest row: ``ground_row``, or
+        for null :func:`ground_row_from_contrast` of the blob's median contrast (grey levels)."""
+        return ground_row_from_contrast(contrast) if self.ground_row is None else self.ground_row
 
 
 GROUND_ROW_CONTRAST = 27.6  # grey levels: the contact's offset is about this / C − GROUND_ROW_BIAS rows ...
@@ -176,9 +181,8 @@ def blind_hypotheses(blob: torch.Tensor, distance: torch.Tensor, camera: Camera,
         shapes = model.reconstruct_grid(alpha.to(model.alphas), theta.to(model.alphas), phi.expand(B).to(model.alphas))
     boxes = silhouette_boxes(shapes.reshape(A * B, S, S) > 0).to(dtype)  # (M, 4) template pixels
     # Range: from the ground at the contact below the blob's lowest row, else where the silhouette has the blob's size.
-    offset = ground_row_from_contrast(contrast) if cfg.ground_row is None else cfg.ground_row
-    ground = ground_depth(camera, torch.stack([(blob_box[0] + blob_box[2]) / 2, blob_box[3] + offset]),
-                          camera_height_m) if math.isfinite(camera_height_m) else math.nan
+    contact = torch.stack([(blob_box[0] + blob_box[2]) / 2, blob_box[3] + cfg.contact_row(contrast)])
+    ground = ground_depth(camera, contact, camera_height_m) if math.isfinite(camera_height_m) else math.nan
     f = torch.stack([K[0, 0], K[1, 1]])
     side = f * model.template.window_m / ground if math.isfinite(ground) else None
     centre_px, side = blob_windows(boxes, blob_box, S, side)
