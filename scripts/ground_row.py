@@ -9,11 +9,13 @@ sub-row positions (the camera's tilt fixed, the range stepped by a sixth of a ro
 offset's quantisation averages out. The offset is then fitted as a / C − b against the blob's
 median contrast C (``ForegroundSegmenter.contrast``).
 
-    python scripts/ground_row.py [--step 6] [--vehicles NAME ...] [--json OUT]
+    python scripts/ground_row.py [--step 6] [--vehicles NAME ...] [--grid] [--json OUT]
 
 The "rule" column is the shipped ``ground_row_from_contrast``; ``--vehicles`` with the test split
 (2s3_akatsiya bmp_2 brdm_2 btr_70 ford_f150 isuzu_rodeo t_72 zsu_23_4) validates it on vehicles it
-was not fitted on.
+was not fitted on. ``--grid`` measures at the blind SENSIAC-like grid's geometry instead: by night
+at 1000-3500 m in 500 m steps, the camera aimed at the circle's centre (one sub-row position per
+range, the one the grid's tracked runs see).
 
 Prints the mean offset, contrast and blob height per scene, the fit, and the mean absolute error
 in rows of the fit and of fixed offsets. About 8 minutes on 2 cores at ``--step 6``.
@@ -41,11 +43,12 @@ from torch_atr.tracking.initialise import ground_row_from_contrast
 log = logging.getLogger("ground_row")
 SHIPPED = Path(__file__).resolve().parents[1] / "checkpoints" / "default.pt"
 RANGES = (1000, 2000, 3000, 4000, 5000)
+GRID_RANGES = (1000, 1500, 2000, 2500, 3000, 3500)  # the SENSIAC-like grid's
 PHASES = 6  # sub-row positions per range
 ROW_M_AT_1KM = 18.0  # metres of range per image row at 1000 m on the simulator (grows as range²)
 
 
-def measure(vehicle: str, range_m: float, tilt_deg: float, night: bool) -> dict | None:
+def measure(vehicle: str, range_m: float, tilt_deg: float | None, night: bool) -> dict | None:
     """The first frame's blob: offset r* − k in rows, median contrast, height; None if no blob."""
     seq = SyntheticSequence(vehicle, SceneConfig(range_m=range_m, frames=1, night=night, tilt_deg=tilt_deg))
     segmenter = ForegroundSegmenter(tracker_segmentation())
@@ -67,17 +70,21 @@ def main() -> None:
     parser.add_argument("--step", type=int, default=6, help="every step-th training vehicle")
     parser.add_argument("--vehicles", nargs="+", help="measure these instead (e.g. the test split, to validate "
                         "the shipped rule; the fit printed is then theirs, not the rule's)")
+    parser.add_argument("--grid", action="store_true", help="the SENSIAC-like grid's geometry (module docstring)")
     parser.add_argument("--checkpoint", default=str(SHIPPED))
     parser.add_argument("--json", help="also write every measurement here")
     args = parser.parse_args()
     logging.basicConfig(level=logging.INFO, format="%(message)s")
     vehicles = args.vehicles or GenerativeShapeModel.from_checkpoint(args.checkpoint).vehicle_names[::args.step]
     found = []
-    for night in (True, False):
-        for nominal in RANGES:
-            tilt = math.degrees(math.atan2(SceneConfig().camera_height_m, nominal))  # aimed at the nominal range
-            for phase in range(PHASES):
-                range_m = nominal + phase * ROW_M_AT_1KM * (nominal / 1000) ** 2 / PHASES
+    scenes, ranges, phases = ((True,), GRID_RANGES, 1) if args.grid else ((True, False), RANGES, PHASES)
+    for night in scenes:
+        for nominal in ranges:
+            # Aimed at the nominal range, so the range steps move the vehicle across the rows; the grid's aims
+            # at its circle's centre (tilt None), as the tracked runs do.
+            tilt = None if args.grid else math.degrees(math.atan2(SceneConfig().camera_height_m, nominal))
+            for phase in range(phases):
+                range_m = nominal + phase * ROW_M_AT_1KM * (nominal / 1000) ** 2 / phases
                 for vehicle in vehicles:
                     m = measure(vehicle, range_m, tilt, night)
                     if m is not None:
@@ -88,8 +95,8 @@ def main() -> None:
              len(found), len(vehicles), a, b, np.std(offset - (a / contrast - b)), np.std(offset))
     log.info("%-6s %6s %6s %8s %9s %7s | mean |error| in rows: %s", "scene", "range", "blobs", "offset", "contrast",
              "height", "rule  0.0   0.5")
-    for night in (True, False):
-        for nominal in RANGES:
+    for night in scenes:
+        for nominal in ranges:
             rows = [m for m in found if m["night"] == night and m["range_m"] == nominal]
             if not rows:
                 continue
