@@ -169,6 +169,15 @@ def test_the_quick_studies_run_every_setting(tmp_path):
         ("range_4000_5000", 4000.0), ("day", 1000.0), ("occlusion", 1000.0), ("turret", 1000.0)]
 
 
+def test_tracker_overrides_after_the_options_reach_the_tracker(tmp_path):
+    """``... --out DIR key=value``, as the README writes it: the override is parsed (argparse's
+    plain parse_args left it to no argument and exited) and a bad key is named."""
+    from torch_atr.config import ConfigError
+
+    with pytest.raises(ConfigError, match="unknown config key.*init.nope"):
+        main([*QUICK, "--out", str(tmp_path / "bad"), "init.nope=1"])
+
+
 def test_the_combined_report_nests_each_report_and_points_into_its_folder(tmp_path):
     from torch_atr.experiments.combined import write_combined_report
 

@@ -61,7 +61,7 @@ def main(argv: list[str] | None = None) -> dict:
     parser.add_argument("--scene", nargs="+", default=[], metavar="KEY=VALUE",
                         help="simulator scene overrides: night=false, occluder_width_m=3, turret_sweep_deg=60")
     parser.add_argument("overrides", nargs="*", help="tracker config overrides, key=value")
-    args = parser.parse_args(argv)
+    args = parser.parse_intermixed_args(argv)  # overrides after options too: plain parse_args gives them to none
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s: %(message)s", datefmt="%H:%M:%S")
     if args.experiment == "unseen":
         fields = unseen_fields(args.quick) | (dict(FULL) if args.full else {})
