@@ -199,6 +199,8 @@ def test_the_combined_report_nests_each_report_and_points_into_its_folder(tmp_pa
         write_combined_report(tmp_path, ("a", "b"), wall_s=3.0)
     with pytest.raises(ValueError, match="all: --frames cannot be given"):
         main(["all", "--frames", "10", "--out", str(tmp_path / "c")])
+    with pytest.raises(ValueError, match=r"all: tracker overrides \(key=value\) cannot be given"):
+        main(["all", "--out", str(tmp_path / "c"), "init.ground_row=null"])
 
 
 @pytest.mark.slow

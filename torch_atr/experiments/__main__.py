@@ -134,8 +134,8 @@ def _visible(args: argparse.Namespace, given: dict, out: Path) -> dict:
 
 def _all(args: argparse.Namespace, out: Path) -> dict:
     passed = {"--init": args.init, "--seed": args.seed, "--checkpoint": args.checkpoint}
-    given = [f"--{k}" for k in ("full", "ray", "frames", "particles", "vehicles", "ranges", "methods", "scene",
-                                "overrides") if getattr(args, k)]
+    given = [f"--{k}" for k in ("full", "ray", "frames", "particles", "vehicles", "ranges", "methods", "scene")
+             if getattr(args, k)] + (["tracker overrides (key=value)"] if args.overrides else [])
     if given:
         raise ConfigError(f"all: {', '.join(given)} cannot be given; run that experiment alone to change it")
     _check_out(out)
