@@ -7,12 +7,13 @@
 """
 
 from torch_atr.tracking.appearance import METHODS, ShapeAppearance
-from torch_atr.tracking.filter import AdaptConfig, FilterConfig, Tracker, TrackerConfig, TrackResult
+from torch_atr.tracking.filter import AdaptConfig, FilterConfig, RedetectConfig, Tracker, TrackerConfig, TrackResult
 from torch_atr.tracking.initialise import InitConfig
 from torch_atr.tracking.motion import MotionConfig, predict
 from torch_atr.tracking.resampling import SCHEMES, effective_sample_size, resample
 
 __all__ = [
-    "AdaptConfig", "FilterConfig", "InitConfig", "METHODS", "MotionConfig", "SCHEMES", "ShapeAppearance",
+    "AdaptConfig", "FilterConfig", "InitConfig", "METHODS", "MotionConfig", "RedetectConfig", "SCHEMES",
+    "ShapeAppearance",
     "TrackResult", "Tracker", "TrackerConfig", "effective_sample_size", "predict", "resample",
 ]

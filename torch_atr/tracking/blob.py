@@ -146,6 +146,10 @@ class BlobTracker(Tracker):
         self._reset_views(grid[pick] + noise * half_steps)
         self._fresh = False  # weighed on this very frame
 
+    def _redetect(self, mask, distance, frame, log_lik: torch.Tensor) -> torch.Tensor:
+        """No re-detection: its hypotheses are placed by the camera, which this tracker has none of."""
+        return log_lik
+
     def _estimate(self) -> dict:
         model, p = self.model, self.particles
         w = self.log_weights.exp().to(torch.float64)

@@ -27,7 +27,7 @@ from __future__ import annotations
 import logging
 import math
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 import torch
@@ -47,6 +47,7 @@ from torch_atr.tracking.estimates import (
 )
 from torch_atr.tracking.ground import half_heights, interpolate_periodic
 from torch_atr.tracking.initialise import (
+    HypothesisGrid,
     InitConfig,
     blind_hypotheses,
     blind_particles,
@@ -76,6 +77,7 @@ from torch_atr.tracking.resampling import SCHEMES, effective_sample_size, resamp
 log = logging.getLogger(__name__)
 
 _BLOCK = 2048  # particles weighed at once (_log_likelihood)
+_GRID_TOLERANCE = 0.01  # rad: re-detection reuses the grid's silhouette boxes within this of their elevation
 
 
 @dataclass(frozen=True)
@@ -126,6 +128,32 @@ class AdaptConfig:
             raise ConfigError(f"adapt: expected every >= 0, steps in [1, 1000], lr in (0, 1]; got {self}")
 
 
+@dataclass(frozen=True)
+class RedetectConfig:
+    """Re-detection, a data-driven proposal (as in the boosted particle filter, Okuma et al. 2004):
+    every ``every`` frames the blob is searched as at the blind start
+    (``initialise.blind_hypotheses``), and when hypotheses explain the frame better than every
+    particle by more than ``margin`` (log-likelihood), the ``share`` of the particles that explain
+    it worst are redrawn around the best of them (``initialise.blind_particles``) and weighed with
+    the rest. With ``keep_range`` the hypotheses are placed at the estimated range and the redrawn
+    particles spread over the particles' range spread (the blob's lowest row, which places the
+    blind start, is 18 m of range at 1000 m); their speed is the estimated velocity along their
+    heading. 0 turns it off; the blob tracker (no camera) has none.
+
+    Measured (README, "Measured: tracking"): every 10 frames, the blind T-72 at 1000 m is
+    recognised in 98 % of frames over three seeds, not 33 %, and its aspect error from the truth is
+    0.29 rad, not 0.37; each search costs about 30 ms at 1000 particles."""
+
+    every: int = 10  # frames between searches; 0: off
+    margin: float = 5.0  # log-likelihood by which a hypothesis must beat every particle
+    share: float = 0.2  # of the particles redrawn
+    keep_range: bool = True  # place the hypotheses at the estimated range (else: the blob's ground row)
+
+    def __post_init__(self) -> None:
+        if not (0 <= self.every and math.isfinite(self.margin) and self.margin >= 0 and 0 < self.share <= 1):
+            raise ConfigError(f"redetect: expected every >= 0, margin >= 0, share in (0, 1]; got {self}")
+
+
 def tracker_segmentation() -> SegmentationConfig:
     """The segmentation the tracker defaults to: the frozen thesis model plus feedback (the
     background keeps learning away from the predicted target every 5th frame, gain compensated)."""
@@ -141,6 +169,7 @@ class TrackerConfig:
     init: InitConfig = field(default_factory=InitConfig)
     segmentation: SegmentationConfig = field(default_factory=tracker_segmentation)
     adapt: AdaptConfig = field(default_factory=AdaptConfig)
+    redetect: RedetectConfig = field(default_factory=RedetectConfig)
 
 
 @dataclass
@@ -208,6 +237,7 @@ class Tracker:
         self._fresh = False  # the particles describe the coming frame (just initialised): no prediction
         self._optimiser = (torch.optim.Adam([self.model.rbf.log_width], lr=self.cfg.adapt.lr)
                            if self.cfg.adapt.every else None)
+        self._grid = HypothesisGrid(self.model, self.cfg.init, _GRID_TOLERANCE)  # blind start, re-detection
 
     # --- set-up -----------------------------------------------------------------------------
     def warm_up(self, frames) -> None:
@@ -272,11 +302,15 @@ class Tracker:
         observed = 0 < area <= self.cfg.filter.max_foreground * mask.size
         if observed:
             distance = self._frame_distance(mask, side)
-        if not self.initialised and observed:
+        started = not self.initialised and observed
+        if started:
             self._initialise_blind(mask, distance, frame)
         lost = True
         if self.initialised and observed:
             log_lik = self._log_likelihood(distance, self.particles)
+            every = self.cfg.redetect.every
+            if every and not started and self._frames and self._frames % every == 0:
+                log_lik = self._redetect(mask, distance, frame, log_lik)
             if log_lik.max() >= math.log(torch.finfo(self.dtype).tiny):
                 self.log_weights = torch.log_softmax(self.log_weights + log_lik, dim=0)
                 lost = False
@@ -387,7 +421,7 @@ class Tracker:
         contrast = self.segmenter.contrast(frame, mask) if wanted else math.nan
         blob = torch.from_numpy(mask).to(self.device)
         states, log_lik = blind_hypotheses(blob, distance[0], self.camera, self.appearance, self.cfg.init,
-                                           self.cfg.filter.sigma, self.camera_height_m, contrast)
+                                           self.cfg.filter.sigma, self.camera_height_m, contrast, grid=self._grid)
         classes = self.model.classify(states[:, ALPHA].to(self.dtype))
         self.reset(blind_particles(states, log_lik, self.cfg.filter.particles, self.cfg.init, self.camera,
                                    self.generator, classes))
@@ -396,6 +430,42 @@ class Tracker:
         name = self.model.class_names[self.model.classify(best[ALPHA:ALPHA + 1])]
         log.info("blind initialisation: best of %d hypotheses at x=%.1f z=%.1f m, α=%.2f (%s); ground row %+.2f",
                  states.shape[0], best[X], best[Z], best[ALPHA], name, self.cfg.init.contact_row(contrast))
+
+    def _redetect(self, mask: np.ndarray, distance: tuple[torch.Tensor, tuple[int, int]], frame: np.ndarray | None,
+                  log_lik: torch.Tensor) -> torch.Tensor:
+        """Re-detection (``RedetectConfig``): the worst-explaining particles redrawn around the blob's
+        hypotheses that beat every particle by the margin, in place; returns the (N,) log-likelihoods
+        with theirs."""
+        rc = self.cfg.redetect
+        wanted = self.cfg.init.ground_row is None and frame is not None and self.segmenter.ready
+        contrast = self.segmenter.contrast(frame, mask) if wanted else math.nan
+        w = self.log_weights.exp()
+        depths = self.particles[:, X:Z + 1] @ self.camera.R[2].to(w) + float(self.camera.t[2])  # (N,) sensor z
+        depth = float((w * depths).sum())
+        spread = float((w * (depths - depth).square()).sum().sqrt()) / depth
+        states, hyp = blind_hypotheses(torch.from_numpy(mask).to(self.device), distance[0], self.camera,
+                                       self.appearance, self.cfg.init, self.cfg.filter.sigma, self.camera_height_m,
+                                       contrast, distance[1], depth if rc.keep_range else math.nan, self._grid)
+        best = float(log_lik.max())
+        better = hyp > best + rc.margin
+        if not bool(better.any()):
+            return log_lik
+        n = self.particles.shape[0]
+        m = max(1, round(rc.share * n))
+        init = replace(self.cfg.init, range_std=spread) if rc.keep_range else self.cfg.init
+        new = blind_particles(states, torch.where(better, hyp, -math.inf), m, init, self.camera,
+                              self.generator).to(self.dtype)
+        velocity = (w[:, None] * self.particles[:, SPEED, None] * torch.stack(
+            [self.particles[:, HEADING].sin(), self.particles[:, HEADING].cos()], dim=1)).sum(0)  # (vx, vz)
+        new[:, SPEED] = velocity[0] * new[:, HEADING].sin() + velocity[1] * new[:, HEADING].cos()
+        worst = (self.log_weights + log_lik).topk(m, largest=False).indices
+        self.particles[worst] = new
+        self.log_weights[worst] = -math.log(n)
+        log_lik = log_lik.clone()
+        log_lik[worst] = self._log_likelihood(distance, new)
+        log.debug("frame %d: re-detection redrew %d particles (best hypothesis %.1f, best particle %.1f)",
+                  self._frames, m, float(hyp.max()), best)
+        return log_lik
 
     def _estimate(self) -> dict:
         """The estimate row of the current weighted particles (module docstring, step 4)."""
@@ -469,6 +539,7 @@ class Tracker:
                 loss = (self.appearance(alpha, theta, phi) - z).square().mean()
                 loss.backward()
                 self._optimiser.step()
+        self._grid.forget()  # the widths changed the silhouettes
 
     # --- a whole sequence -------------------------------------------------------------------
     @torch.no_grad()

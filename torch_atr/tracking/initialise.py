@@ -146,20 +146,60 @@ def ground_depth(camera: Camera, pixel: torch.Tensor, camera_height_m: float) ->
     return float((R @ point + t)[2])
 
 
+class HypothesisGrid:
+    """The blind start's (α, θ) grid and the boxes of its silhouettes y(α, θ, φ) > 0, kept for the
+    last elevation φ: a later call within ``tolerance`` radians of it reuses them (re-detection
+    searches the same grid every few frames, and at a steady elevation their cost, most of a
+    search's, need not be paid again).
+
+    Args:
+        model: the generative shape model; cfg: the grid sizes (``alpha_steps``, ``azimuth_steps``).
+        tolerance: radians of φ within which the boxes are reused (0: only at the same φ).
+    """
+
+    def __init__(self, model, cfg: InitConfig, tolerance: float = 0.0):
+        self.model, self.tolerance = model, tolerance
+        device = model.alphas.device
+        self.alpha = torch.arange(cfg.alpha_steps, dtype=torch.float64, device=device) * (2 * math.pi / cfg.alpha_steps)
+        self.theta = torch.arange(cfg.azimuth_steps, dtype=torch.float64, device=device) * (
+            2 * math.pi / cfg.azimuth_steps)
+        self._phi, self._boxes = math.nan, None
+
+    def boxes(self, phi: float) -> torch.Tensor:
+        """(A·B, 4) float64 silhouette boxes [c0, r0, c1, r1] in template pixels, α-major, at ``phi``."""
+        if not abs(phi - self._phi) <= self.tolerance:
+            model, S, B = self.model, self.model.template.size_px, self.theta.shape[0]
+            a, t = self.alpha.to(model.alphas), self.theta.to(model.alphas)
+            with torch.no_grad():
+                shapes = model.reconstruct_grid(a, t, t.new_full((B,), phi))
+            self._phi, self._boxes = phi, silhouette_boxes(shapes.reshape(-1, S, S) > 0).to(torch.float64)
+        return self._boxes
+
+    def forget(self) -> None:
+        """Drop the kept boxes (after the model's shapes change)."""
+        self._phi, self._boxes = math.nan, None
+
+
 def blind_hypotheses(blob: torch.Tensor, distance: torch.Tensor, camera: Camera, appearance: ShapeAppearance,
-                     cfg: InitConfig, sigma: float, camera_height_m: float = math.nan, contrast: float = math.nan
-                     ) -> tuple[torch.Tensor, torch.Tensor]:
+                     cfg: InitConfig, sigma: float, camera_height_m: float = math.nan, contrast: float = math.nan,
+                     origin: tuple[int, int] = (0, 0), known_depth: float = math.nan,
+                     grid: HypothesisGrid | None = None) -> tuple[torch.Tensor, torch.Tensor]:
     """Score a grid of (α, θ) hypotheses against one blob (module docstring).
 
     Args:
         blob: (H, W) bool, the target blob (non-empty).
-        distance: (H, W) the frame's signed distance in image pixels.
+        distance: (H, W) the frame's signed distance in image pixels, or a region of it whose
+            (0, 0) is the frame pixel ``origin`` (``observation.frame_distance``).
         camera: the scene's camera (sensor-like, ground-levelled world frame).
         appearance: the predicted shapes (its model and method).
         cfg: the grid sizes; sigma: the likelihood σ.
         camera_height_m: the camera's height above flat ground (NaN: unknown, ranges from sizes).
         contrast: the blob's median contrast in grey levels, for ``cfg.ground_row`` null
             (:func:`ground_row_from_contrast`; NaN: unknown, the lowest row's centre).
+        origin: (u0, v0) the frame pixel of ``distance[0, 0]`` when it is a region.
+        known_depth: the range to place every hypothesis at (depth along the optical axis, m), e.g.
+            a tracker's estimate; NaN: from the ground, or from the blob's size.
+        grid: the (α, θ) grid's silhouette boxes, kept between calls (default: computed here).
     Returns:
         states: (M, 6) one particle per hypothesis (speed 0), M = alpha_steps × azimuth_steps,
         float64 on the appearance's device; log_lik: (M,) their log-likelihoods (−inf for a
@@ -174,15 +214,13 @@ def blind_hypotheses(blob: torch.Tensor, distance: torch.Tensor, camera: Camera,
     R, t, K = (camera.R.to(device, dtype), camera.t.to(device, dtype), camera.K.to(device, dtype))
     ray = R.T @ camera.pixel_rays((blob_box[:2] + blob_box[2:]) / 2)  # world direction through the blob centre
     phi = torch.asin((-ray[1] / ray.norm()).clamp(-1, 1))  # elevation of the camera seen from the target
-    alpha = torch.arange(cfg.alpha_steps, dtype=dtype, device=device) * (2 * math.pi / cfg.alpha_steps)
-    theta = torch.arange(cfg.azimuth_steps, dtype=dtype, device=device) * (2 * math.pi / cfg.azimuth_steps)
+    grid = HypothesisGrid(model, cfg) if grid is None else grid
+    alpha, theta, boxes = grid.alpha.to(device, dtype), grid.theta.to(device, dtype), grid.boxes(float(phi))
     A, B, S = alpha.shape[0], theta.shape[0], model.template.size_px
-    with torch.no_grad():
-        shapes = model.reconstruct_grid(alpha.to(model.alphas), theta.to(model.alphas), phi.expand(B).to(model.alphas))
-    boxes = silhouette_boxes(shapes.reshape(A * B, S, S) > 0).to(dtype)  # (M, 4) template pixels
     # Range: from the ground at the contact below the blob's lowest row, else where the silhouette has the blob's size.
     contact = torch.stack([(blob_box[0] + blob_box[2]) / 2, blob_box[3] + cfg.contact_row(contrast)])
-    ground = ground_depth(camera, contact, camera_height_m) if math.isfinite(camera_height_m) else math.nan
+    ground = known_depth if math.isfinite(known_depth) else (
+        ground_depth(camera, contact, camera_height_m) if math.isfinite(camera_height_m) else math.nan)
     f = torch.stack([K[0, 0], K[1, 1]])
     side = f * model.template.window_m / ground if math.isfinite(ground) else None
     centre_px, side = blob_windows(boxes, blob_box, S, side)
@@ -198,7 +236,7 @@ def blind_hypotheses(blob: torch.Tensor, distance: torch.Tensor, camera: Camera,
     states[:, ALPHA] = alpha.repeat_interleave(B)
     valid = (depth > 0) & states.isfinite().all(dim=1)  # an empty silhouette places nothing
     states = torch.where(valid[:, None], states, 0.0)
-    z = observe(distance, camera, states[:, X:Z + 1], model.template, appearance.size)
+    z = observe(distance, camera, states[:, X:Z + 1], model.template, appearance.size, origin)
     with torch.no_grad():
         y = appearance(states[:, ALPHA], th, phi.expand(A * B)).to(z)
     log_lik = torch.where(valid, log_likelihood(z, y, sigma), -math.inf)
