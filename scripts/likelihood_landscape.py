@@ -11,9 +11,11 @@ then scores that frame's segmented mask (eq. 5.2, ``Tracker.score``; higher is b
   y ±0.3 m, heading ±0.8 rad), every α.
 
     python scripts/likelihood_landscape.py --vehicle t_72 --seed 2 --frame 150 [--init truth] [--classes]
+        [--set key=value ...]
 
 The README's T-72 findings ("Measured: tracking") come from seeds 0 and 2 at frame 150
-(truth start) and seed 1 at frames 0 and 100 with ``--classes``.
+(truth start) and seed 1 at frames 0 and 100 with ``--classes``, all before re-detection
+(``--set redetect.every=0`` reproduces them).
 """
 
 from __future__ import annotations
@@ -53,6 +55,7 @@ def main() -> None:
     parser.add_argument("--init", choices=["truth", "blind"], default="truth")
     parser.add_argument("--classes", action="store_true", help="also the best per class around the truth")
     parser.add_argument("--checkpoint", default="checkpoints/default.pt")
+    parser.add_argument("--set", nargs="*", default=[], metavar="KEY=VALUE", help="tracker config overrides")
     args = parser.parse_args()
     logging.basicConfig(level=logging.WARNING)
 
@@ -60,7 +63,7 @@ def main() -> None:
     if not 0 <= args.frame < args.frames:
         parser.error(f"--frame must lie in [0, --frames); got {args.frame}")
     seq = SyntheticSequence(args.vehicle, SceneConfig(range_m=args.range, frames=args.frames, seed=args.seed))
-    tracker = Tracker(model, seq.camera, load_config(TrackerConfig, None, [f"init.mode={args.init}"]), seed=args.seed)
+    tracker = Tracker(model, seq.camera, load_config(TrackerConfig, None, [f"init.mode={args.init}", *args.set]), seed=args.seed)
     row = tracker.run(seq, frames=args.frame + 1, progress=False, snapshots=0).rows[-1]
     truth, mask = seq.truth(args.frame), tracker.last_mask
     classes = model.classify(ALPHAS.to(model.alphas))

@@ -7,7 +7,9 @@ Per frame (Table 5.1, with the segmentation of chapter 3.1 in front):
    compensated, and the blob nearest the predicted centre is kept;
 3. weigh: the blob's signed distance in image pixels, sampled in each particle's window and
    compared with its predicted shape (Methods I–IV), eq. 5.2 in log space, normalised by
-   log-sum-exp;
+   log-sum-exp; every ``redetect.every`` frames the blob is also searched as at the blind start,
+   and the worst-explaining particles are redrawn around hypotheses that beat them all
+   (``RedetectConfig``);
 4. estimate (Table 5.1 step 3): weighted means, circular means of h and α, the maximum-weight
    particle, the class posterior, the two nearest training vehicles, the ESS and the view Θ;
 5. resample (step 4) when the ESS falls below ``resample_ess`` · N (1.0: every frame, the
