@@ -439,7 +439,8 @@ class Tracker:
         hypotheses that beat every particle by the margin, in place; returns the (N,) log-likelihoods
         with theirs."""
         rc = self.cfg.redetect
-        wanted = self.cfg.init.ground_row is None and frame is not None and self.segmenter.ready
+        wanted = (not rc.keep_range and self.cfg.init.ground_row is None and frame is not None
+                  and self.segmenter.ready)  # the ground row places the hypotheses only without keep_range
         contrast = self.segmenter.contrast(frame, mask) if wanted else math.nan
         w = self.log_weights.exp()
         depths = self.particles[:, X:Z + 1] @ self.camera.R[2].to(w) + float(self.camera.t[2])  # (N,) sensor z
