@@ -112,3 +112,21 @@ def test_redetection_that_never_fires_leaves_the_run_as_it_was(model, btr):
 def test_bad_redetection_settings_are_named(override):
     with pytest.raises(ConfigError, match="redetect"):
         load_config(TrackerConfig, None, [override])
+
+
+def test_redetection_with_every_particle_behind_the_camera_places_nothing(model, btr):
+    """At a non-positive estimated range no hypothesis is valid, so nothing is redrawn (the run is
+    the one without re-detection) and the estimates stay finite."""
+    def run(every: int) -> list[dict]:
+        cfg = load_config(TrackerConfig, None, ["filter.particles=50", "init.alpha_steps=8", "init.azimuth_steps=8",
+                                                f"redetect.every={every}"])
+        tracker = Tracker(model, btr.camera, cfg, seed=1)
+        tracker.warm_up(btr.warmup_frames(20))
+        truth = btr.truth(0)
+        behind = torch.tensor([truth.x, truth.y, -truth.z, truth.heading, 0.0, 1.0]).repeat(50, 1)
+        tracker.reset(behind + torch.randn(50, 6, generator=torch.Generator().manual_seed(0)) * 0.1)
+        return [tracker.step(btr.frame(i)) for i in range(3)]
+
+    plain, searched = run(0), run(1)
+    assert [{**r, "step_ms": 0} for r in plain] == [{**r, "step_ms": 0} for r in searched]
+    assert all(math.isfinite(v) for r in searched for v in r.values() if isinstance(v, float))

@@ -446,9 +446,8 @@ class Tracker:
                   and self.segmenter.ready)  # the ground row places the hypotheses only without keep_range
         contrast = self.segmenter.contrast(frame, mask) if wanted else math.nan
         w = self.log_weights.exp()
-        depths = self.particles[:, X:Z + 1] @ self.camera.R[2].to(w) + float(self.camera.t[2])  # (N,) sensor z
+        depths = self.camera.world_to_sensor(self.particles[:, X:Z + 1])[:, 2].to(w)  # (N,) along the optical axis
         depth = float((w * depths).sum())
-        spread = float((w * (depths - depth).square()).sum().sqrt()) / depth
         states, hyp = blind_hypotheses(torch.from_numpy(mask).to(self.device), distance[0], self.camera,
                                        self.appearance, self.cfg.init, self.cfg.filter.sigma, self.camera_height_m,
                                        contrast, distance[1], depth if rc.keep_range else math.nan, self._grid)
@@ -458,7 +457,9 @@ class Tracker:
             return log_lik
         n = self.particles.shape[0]
         m = max(1, round(rc.share * n))
-        init = replace(self.cfg.init, range_std=spread) if rc.keep_range else self.cfg.init
+        init = self.cfg.init
+        if rc.keep_range:  # the particles' relative range spread; depth > 0 here, or no hypothesis is valid
+            init = replace(init, range_std=float((w * (depths - depth).square()).sum().sqrt()) / depth)
         new = blind_particles(states, torch.where(better, hyp, -math.inf), m, init, self.camera,
                               self.generator).to(self.dtype)
         velocity = (w[:, None] * self.particles[:, SPEED, None] * torch.stack(
