@@ -13,6 +13,7 @@ from torch_atr.data.synthetic import SceneConfig, SyntheticSequence
 from torch_atr.model import GenerativeShapeModel
 from torch_atr.shape import signed_distance_px
 from torch_atr.tracking import ShapeAppearance, Tracker, TrackerConfig
+from torch_atr.tracking.filter import RedetectConfig
 from torch_atr.tracking.initialise import HypothesisGrid, InitConfig, blind_hypotheses, truth_alpha
 from torch_atr.tracking.motion import ALPHA
 
@@ -71,12 +72,12 @@ def test_hypotheses_at_a_known_depth_all_lie_at_it(model, btr):
     assert torch.allclose(depth, torch.full_like(depth, 987.0), atol=1e-6)
 
 
-def _wrong_class_run(model, seq, every: int, margin: float = 5.0, frames: int = 21) -> list[dict]:
+def _wrong_class_run(model, seq, every: int, margin: float = 5.0, frames: int = 21, until: int = 0) -> list[dict]:
     """The thesis's start on the truth, but every particle's α on the car class's centre (the BTR-70
     is an APC); rows of ``frames`` frames."""
     cfg = load_config(TrackerConfig, None, ["init.mode=truth", "filter.particles=200", "init.alpha_steps=24",
                                             "init.azimuth_steps=24", f"redetect.every={every}",
-                                            f"redetect.margin={margin}"])
+                                            f"redetect.margin={margin}", f"redetect.until={until}"])
     tracker = Tracker(model, seq.camera, cfg, seed=3)
     tracker.warm_up(seq.warmup_frames(20))
     tracker.initialise(seq.truth(0))
@@ -107,8 +108,22 @@ def test_redetection_that_never_fires_leaves_the_run_as_it_was(model, btr):
         assert {**a, "step_ms": 0} == {**b, "step_ms": 0}
 
 
+def test_redetection_searches_every_kth_frame_up_to_until():
+    assert [f for f in range(100) if RedetectConfig(every=10, until=35).searches(f)] == [10, 20, 30]
+    assert [f for f in range(45) if RedetectConfig(every=20).searches(f)] == [20, 40]
+    assert not any(RedetectConfig(until=50).searches(f) for f in range(100))
+
+
+def test_redetection_ends_at_until(model, btr):
+    """A search due after ``until`` is not made: the stuck run stays the control run."""
+    without = _wrong_class_run(model, btr, every=0)
+    ended = _wrong_class_run(model, btr, every=10, until=9)
+    for a, b in zip(without, ended):
+        assert {**a, "step_ms": 0} == {**b, "step_ms": 0}
+
+
 @pytest.mark.parametrize("override", ["redetect.every=-1", "redetect.margin=-1", "redetect.share=0",
-                                      "redetect.share=1.5"])
+                                      "redetect.share=1.5", "redetect.until=-1"])
 def test_bad_redetection_settings_are_named(override):
     with pytest.raises(ConfigError, match="redetect"):
         load_config(TrackerConfig, None, [override])
