@@ -122,6 +122,23 @@ def test_redetection_ends_at_until(model, btr):
         assert {**a, "step_ms": 0} == {**b, "step_ms": 0}
 
 
+def test_redetection_counts_frames_from_the_track_start(model, btr):
+    """A target first seen at frame 5 (blind start there) is searched 5 and 10 frames later."""
+    cfg = load_config(TrackerConfig, None, ["filter.particles=100", "init.alpha_steps=12", "init.azimuth_steps=12",
+                                            "redetect.every=5", "redetect.until=10"])
+    tracker = Tracker(model, btr.camera, cfg, seed=0)
+    tracker.warm_up(btr.warmup_frames(20))
+    searched = []
+    search = tracker._redetect
+    tracker._redetect = lambda *args: (searched.append(tracker._frames), search(*args))[1]
+    empty = np.zeros(btr.frame(0).shape[:2], dtype=bool)
+    for _ in range(5):
+        tracker.step(mask=empty)
+    for i in range(len(btr)):
+        tracker.step(btr.frame(i))
+    assert searched == [10, 15]
+
+
 @pytest.mark.parametrize("override", ["redetect.every=-1", "redetect.margin=-1", "redetect.share=0",
                                       "redetect.share=1.5", "redetect.until=-1"])
 def test_bad_redetection_settings_are_named(override):
