@@ -11,7 +11,8 @@ particles, each with its own prediction, view, model query (full size, pooled), 
 likelihood — on the same frames, segmentation included; the speed-up is the ratio of the two
 medians at the same particle count, measured in this run. Frames per second are the median
 step's; the rate over all frames is printed beside it, since re-detection searches the blob on
-every 10th frame only (``redetect.every``) and the median does not see it.
+a few frames only (by default once, 10 frames after the start; ``redetect``) and the median does
+not see it.
 
     python benchmarks/bench_track.py [--particles 250 500 1000 2000 4000 8000 16000] [--frames 60]
         [--device cpu] [--checkpoint checkpoints/default.pt] [--set filter.likelihood_px=16] [--json OUT]

@@ -110,8 +110,9 @@ def test_redetection_that_never_fires_leaves_the_run_as_it_was(model, btr):
 
 def test_redetection_searches_every_kth_frame_up_to_until():
     assert [f for f in range(100) if RedetectConfig(every=10, until=35).searches(f)] == [10, 20, 30]
-    assert [f for f in range(45) if RedetectConfig(every=20).searches(f)] == [20, 40]
-    assert not any(RedetectConfig(until=50).searches(f) for f in range(100))
+    assert [f for f in range(45) if RedetectConfig(every=20, until=0).searches(f)] == [20, 40]
+    assert [f for f in range(100) if RedetectConfig().searches(f)] == [10]  # the default: one search
+    assert not any(RedetectConfig(every=0, until=50).searches(f) for f in range(100))
 
 
 def test_redetection_ends_at_until(model, btr):
