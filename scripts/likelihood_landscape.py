@@ -15,7 +15,7 @@ then scores that frame's segmented mask (eq. 5.2, ``Tracker.score``; higher is b
 
 The README's T-72 findings ("Measured: tracking") come from seeds 0 and 2 at frame 150
 (truth start) and seed 1 at frames 0 and 100 with ``--classes``, with the tracker's defaults;
-``--set`` tries an option, e.g. ``redetect.every=10``.
+``--set`` tries an option, e.g. ``redetect.until=0`` (search all through the run).
 """
 
 from __future__ import annotations

@@ -163,6 +163,9 @@ class RedetectConfig:
         if not (0 <= self.every and 0 <= self.until and math.isfinite(self.margin) and self.margin >= 0
                 and 0 < self.share <= 1):
             raise ConfigError(f"redetect: expected every >= 0, until >= 0, margin >= 0, share in (0, 1]; got {self}")
+        if 0 < self.until < self.every:
+            raise ConfigError(f"redetect.every={self.every} is after redetect.until={self.until}, so no frame would be "
+                              f"searched; set until=0 to search all through the run, or every=0 for no search")
 
     def searches(self, frame: int) -> bool:
         """Whether the frame ``frame`` frames after the track's start is searched."""
