@@ -64,7 +64,8 @@ def main() -> None:
     if not 0 <= args.frame < args.frames:
         parser.error(f"--frame must lie in [0, --frames); got {args.frame}")
     seq = SyntheticSequence(args.vehicle, SceneConfig(range_m=args.range, frames=args.frames, seed=args.seed))
-    tracker = Tracker(model, seq.camera, load_config(TrackerConfig, None, [f"init.mode={args.init}", *args.set]), seed=args.seed)
+    cfg = load_config(TrackerConfig, None, [f"init.mode={args.init}", *args.set])
+    tracker = Tracker(model, seq.camera, cfg, seed=args.seed)
     row = tracker.run(seq, frames=args.frame + 1, progress=False, snapshots=0).rows[-1]
     truth, mask = seq.truth(args.frame), tracker.last_mask
     classes = model.classify(ALPHAS.to(model.alphas))

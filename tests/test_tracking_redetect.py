@@ -122,9 +122,13 @@ def test_redetection_counts_frames_from_the_track_start(model, btr):
                                             "redetect.every=5", "redetect.until=10"])
     tracker = Tracker(model, btr.camera, cfg, seed=0)
     tracker.warm_up(btr.warmup_frames(20))
-    searched = []
-    search = tracker._redetect
-    tracker._redetect = lambda *args: (searched.append(tracker._frames), search(*args))[1]
+    searched, search = [], tracker._redetect
+
+    def spy(*args):
+        searched.append(tracker._frames)
+        return search(*args)
+
+    tracker._redetect = spy
     empty = np.zeros(btr.frame(0).shape[:2], dtype=bool)
     for _ in range(5):
         tracker.step(mask=empty)

@@ -7,9 +7,9 @@ Per frame (Table 5.1, with the segmentation of chapter 3.1 in front):
    compensated, and the blob nearest the predicted centre is kept;
 3. weigh: the blob's signed distance in image pixels, sampled in each particle's window and
    compared with its predicted shape (Methods I–IV), eq. 5.2 in log space, normalised by
-   log-sum-exp; every ``redetect.every`` frames the blob is also searched as at the blind start,
-   and the worst-explaining particles are redrawn around hypotheses that beat them all
-   (``RedetectConfig``);
+   log-sum-exp; on the frames ``RedetectConfig`` names (by default once, 10 frames after the
+   track's start) the blob is also searched as at the blind start, and the worst-explaining
+   particles are redrawn around hypotheses that beat them all;
 4. estimate (Table 5.1 step 3): weighted means, circular means of h and α, the maximum-weight
    particle, the class posterior, the two nearest training vehicles, the ESS and the view Θ;
 5. resample (step 4) when the ESS falls below ``resample_ess`` · N (1.0: every frame, the
@@ -167,10 +167,9 @@ class RedetectConfig:
             raise ConfigError(f"redetect.every={self.every} is after redetect.until={self.until}, so no frame would be "
                               f"searched; set until=0 to search all through the run, or every=0 for no search")
 
-    def searches(self, frame: int) -> bool:
-        """Whether the frame ``frame`` frames after the track's start is searched."""
-        return (self.every > 0 and frame > 0 and frame % self.every == 0
-                and (self.until == 0 or frame <= self.until))
+    def searches(self, k: int) -> bool:
+        """Whether the k-th frame after the track's start (k = 0: the start itself) is searched."""
+        return self.every > 0 and k > 0 and k % self.every == 0 and (self.until == 0 or k <= self.until)
 
 
 def tracker_segmentation() -> SegmentationConfig:
@@ -323,13 +322,12 @@ class Tracker:
         observed = 0 < area <= self.cfg.filter.max_foreground * mask.size
         if observed:
             distance = self._frame_distance(mask, side)
-        started = not self.initialised and observed
-        if started:
+        if not self.initialised and observed:
             self._initialise_blind(mask, distance, frame)
         lost = True
         if self.initialised and observed:
             log_lik = self._log_likelihood(distance, self.particles)
-            if not started and self.cfg.redetect.searches(self._frames - self._start):
+            if self.cfg.redetect.searches(self._frames - self._start):  # never at the start (reset)
                 log_lik = self._redetect(mask, distance, frame, log_lik)
             if log_lik.max() >= math.log(torch.finfo(self.dtype).tiny):
                 self.log_weights = torch.log_softmax(self.log_weights + log_lik, dim=0)
