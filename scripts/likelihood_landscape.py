@@ -13,10 +13,10 @@ then scores that frame's segmented mask (eq. 5.2, ``Tracker.score``; higher is b
     python scripts/likelihood_landscape.py --vehicle t_72 --seed 2 --frame 150 [--init truth] [--classes]
         [--set key=value ...]
 
-The README's T-72 findings ("Measured: tracking") come from seeds 0 and 2 at frame 150
-(truth start) and seed 1 at frames 0 and 100 with ``--classes``, with the tracker's defaults
-before re-detection's search at frame 10 (``--set redetect.every=0``);
-``--set`` tries an option, e.g. ``redetect.until=0`` (search all through the run).
+The T-72 findings of docs/tracking.md (the README's "Measured: tracking") come from seeds 0 and 2 at
+frame 150 (truth start) and seed 1 at frames 0 and 100 with ``--classes``, with the tracker's
+defaults before re-detection's search at frame 10 (``--set redetect.every=0``); ``--set`` tries an
+option, e.g. ``redetect.until=0`` (search all through the run).
 """
 
 from __future__ import annotations

@@ -144,7 +144,7 @@ class RedetectConfig:
     ``until`` frames after it (0: to the end). ``every`` 0 turns it off; the blob tracker (no
     camera) has none.
 
-    Measured (README, "Measured: tracking"): the default, one search 10 frames after the start,
+    Measured (docs/tracking.md): the default, one search 10 frames after the start,
     mends a blind start that one frame's blob put on the wrong class (the blind T-72 at 1000 m
     over 10 seeds: recognised in 99 % of frames, not 80 %, converging within 60 frames in 10
     runs, not 8) and changes nothing on the SENSIAC-like grid, the unseen meshes or the studies
@@ -195,7 +195,7 @@ class TrackResult:
     """What :meth:`Tracker.run` returns.
 
     Attributes:
-        rows: one dict per frame (the columns of ``estimates.csv``; README, "Outputs").
+        rows: one dict per frame (the columns of ``estimates.csv``; README, "Command line").
         snapshots: a few frames for figures: dicts with ``frame`` (index), ``image`` (H, W) uint8,
             ``mask`` (H, W) bool segmented and ``silhouette`` (H, W) bool the placed estimate.
         seconds: wall time of the tracking loop (segmentation included, reading frames excluded).
@@ -296,7 +296,7 @@ class Tracker:
     @torch.no_grad()
     def step(self, frame: np.ndarray | None = None, dt: float | None = None, mask: np.ndarray | None = None
              ) -> dict:
-        """Track one frame: returns its estimate row (README, "Outputs").
+        """Track one frame: returns its estimate row (README, "Command line").
 
         Args:
             frame: (H, W) or (H, W, 3), the warm-up frames' size and dtype.

@@ -1,6 +1,6 @@
 """``track.py``'s job: its typed config, the metrics of a run and the files it writes.
 
-Outputs of a run folder (README, "Outputs"): ``estimates.csv`` (one row per frame),
+Outputs of a run folder (README, "Command line"): ``estimates.csv`` (one row per frame),
 ``metrics.json``, ``config.yaml`` (the resolved config) and PNG figures, each written atomically.
 """
 
