@@ -13,6 +13,30 @@ def test_yaml_then_overrides_then_types(tmp_path):
     assert isinstance(cfg.template.window_m, float)
 
 
+def test_a_section_keeps_its_own_defaults_for_the_keys_not_given(tmp_path):
+    """The tracker's segmentation section defaults to the feedback segmentation, not to
+    SegmentationConfig()'s frozen background: one key given, in an override or a YAML section,
+    one or two levels down, must leave the section's other defaults as they were."""
+    import dataclasses
+
+    from torch_atr.segmentation import SegmentationConfig
+    from torch_atr.tracking import TrackerConfig
+    from torch_atr.tracking.filter import tracker_segmentation
+    from torch_atr.tracking.job import TrackConfig
+
+    feedback = tracker_segmentation()
+    assert feedback != SegmentationConfig()  # else this test could not fail
+    expected = dataclasses.replace(feedback, var_threshold=16.0)
+    assert load_config(TrackerConfig, None, ["segmentation.var_threshold=16"]).segmentation == expected
+    path = tmp_path / "t.yaml"
+    path.write_text("tracker:\n  segmentation:\n    var_threshold: 16\n")
+    job = load_config(TrackConfig, path, ["tracker.filter.particles=10"])
+    assert job.tracker.segmentation == expected
+    assert job.tracker.filter.particles == 10 and job.tracker.filter.sigma == TrackerConfig().filter.sigma
+    with pytest.raises(ConfigError, match="segmentation.var_threshold=-1"):
+        load_config(TrackerConfig, None, ["segmentation.var_threshold=-1"])
+
+
 @pytest.mark.parametrize("text, match", [
     ("nme: a\n", "unknown config key.*nme"),
     ("template:\n  sizepx: 3\n", "template.sizepx"),

@@ -117,15 +117,34 @@ def _check_type(key: str, value: Any, tp: Any) -> Any:
     raise ConfigError(f"{key}: unsupported config type {tp}")
 
 
-def _build(cls: type[T], data: dict, prefix: str = "") -> T:
+def _field_default(field: dataclasses.Field) -> Any:
+    """A dataclass field's default value (its factory called), or MISSING."""
+    if field.default is not dataclasses.MISSING:
+        return field.default
+    if field.default_factory is not dataclasses.MISSING:
+        return field.default_factory()
+    return dataclasses.MISSING
+
+
+def _build(cls: type[T], data: dict, prefix: str = "", base: Any = None) -> T:
+    """``cls`` from ``data``: the keys it gives on top of ``base`` (an instance of ``cls``; None:
+    the class's defaults). A nested section builds on the field's own default, so a section whose
+    default differs from its class's (``TrackerConfig.segmentation``) keeps the keys not given."""
     hints = typing.get_type_hints(cls)
-    fields = {f.name for f in dataclasses.fields(cls)}
-    unknown = sorted(set(data) - fields, key=str)
+    fields = {f.name: f for f in dataclasses.fields(cls)}
+    unknown = sorted(set(data) - set(fields), key=str)
     if unknown:
         raise ConfigError(f"unknown config key(s) {', '.join(prefix + str(k) for k in unknown)}; "
                           f"known: {', '.join(prefix + k for k in sorted(fields))}")
-    kwargs = {k: _check_type(prefix + k, v, hints[k]) for k, v in data.items()}
-    return cls(**kwargs)
+    kwargs = {}
+    for k, v in data.items():
+        tp = hints[k]
+        default = getattr(base, k) if base is not None else _field_default(fields[k])
+        if dataclasses.is_dataclass(tp) and isinstance(v, dict) and isinstance(default, tp):
+            kwargs[k] = _build(tp, v, f"{prefix}{k}.", default)
+        else:
+            kwargs[k] = _check_type(prefix + k, v, tp)
+    return cls(**kwargs) if base is None else dataclasses.replace(base, **kwargs)
 
 
 def config_from_dict(cls: type[T], data: dict) -> T:
