@@ -9,8 +9,8 @@ from scipy import ndimage
 
 from torch_atr._checks import to_grey
 from torch_atr.config import ConfigError, load_config
-from torch_atr.segmentation import (ForegroundSegmenter, SegmentationConfig, clean_mask, normalise_ir,
-                                    select_blob)
+from torch_atr.segmentation import (ForegroundSegmenter, SegmentationConfig, clean_mask, extend_thin_parts,
+                                    normalise_ir, select_blob)
 from torch_atr.shape import iou
 
 H, W = 120, 160
@@ -176,6 +176,9 @@ def test_config_validation_and_loading(tmp_path):
         history=50, open_px=0, headroom=0.25)
     with pytest.raises(ConfigError, match="histroy"):
         load_config(SegmentationConfig, overrides=["histroy=3"])
+    for bad in (-1.0, 36.0, 50.0):  # thin parts need a threshold below var_threshold (36)
+        with pytest.raises(ConfigError, match=f"thin_threshold={bad}"):
+            SegmentationConfig(thin_threshold=bad)
 
 
 def test_normalise_ir_matches_interp():
@@ -239,3 +242,60 @@ def test_select_blob_empty_and_full():
     assert not select_blob(np.zeros((5, 6), bool)).any()
     assert select_blob(np.ones((5, 6), bool), near=(100.0, -3.0)).all()
     assert not select_blob(_rect(5, 5, 2, 2), min_area=5).any()
+
+
+def _tank_scene():
+    """A hull (rows 10-19, cols 10-29), a 1 px barrel from its side (row 14, cols 30-37), a 1 px
+    halo all round the hull (its 3 x 3 dilation), and a faint speck apart (row 30, cols 50-55)."""
+    hull = np.zeros((40, 60), dtype=bool)
+    hull[10:20, 10:30] = True
+    barrel = np.zeros_like(hull)
+    barrel[14, 30:38] = True
+    halo = ndimage.binary_dilation(hull, np.ones((3, 3), bool)) & ~hull & ~barrel
+    speck = np.zeros_like(hull)
+    speck[30, 50:56] = True
+    return hull, barrel, halo, speck
+
+
+def _near(mask: np.ndarray, pixel: tuple[int, int]) -> np.ndarray:
+    """Pixels within one (Chebyshev) of ``pixel``."""
+    out = np.zeros_like(mask)
+    out[pixel[0] - 1:pixel[0] + 2, pixel[1] - 1:pixel[1] + 2] = True
+    return out
+
+
+def test_thin_parts_join_the_blob_but_the_halo_does_not():
+    hull, barrel, halo, speck = _tank_scene()
+    out = extend_thin_parts(hull, hull | barrel | halo | speck)
+    assert (out >= hull).all() and (out[barrel]).all()  # the whole barrel, its root through the ring
+    extra = out & ~hull & ~barrel
+    assert not (extra & ~_near(out, (14, 30))).any()  # at most the halo beside the barrel's root
+    assert not out[speck].any()  # not connected to the hull
+    assert (extend_thin_parts(hull, hull | halo) == hull).all()  # a halo alone adds nothing
+    stub = np.zeros_like(hull)
+    stub[14, 30:32] = True  # reaches one pixel beyond the ring: part of a halo, not a barrel
+    assert (extend_thin_parts(hull, hull | stub) == hull).all()
+    empty = np.zeros_like(hull)
+    assert not extend_thin_parts(empty, barrel).any()
+    with pytest.raises(ValueError, match="low of the blob's shape"):
+        extend_thin_parts(hull, barrel[:, :10])
+
+
+def test_segmenter_finds_the_faint_barrel_only_with_thin_parts():
+    """Warm-up frames with noise of σ = 1 grey level put MOG2's variance at its floor, so
+    var_threshold 36 keeps differences above about 12 grey levels and 9 above about 6. The hull is
+    +40, the barrel and the halo +9: the barrel joins at thin_threshold 9, never the halo."""
+    rng = np.random.default_rng(0)
+    warm = [(100 + rng.normal(0, 1.0, (40, 60))).round().astype(np.uint8) for _ in range(50)]
+    hull, barrel, halo, speck = _tank_scene()
+    frame = np.full((40, 60), 100, np.uint8)
+    frame[hull] = 140
+    frame[barrel | halo | speck] = 109
+    masks = {}
+    for thin in (0.0, 9.0):
+        seg = ForegroundSegmenter(SegmentationConfig(open_px=0, close_px=0, thin_threshold=thin))
+        seg.warm_up(warm)
+        masks[thin] = seg(frame)
+    assert (masks[0.0] == hull).all()
+    assert (masks[9.0] >= hull | barrel).all()
+    assert not (masks[9.0] & ~hull & ~barrel & ~_near(hull, (14, 30))).any()

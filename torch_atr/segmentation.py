@@ -19,6 +19,13 @@ tracker turns on and feeds with its prediction:
   background image, frame ≈ a·background + b, are fitted by least squares on a fixed grid of
   pixels outside ``exclude`` (the worst-fitting 20 % dropped and the fit repeated) and undone.
 
+Thin parts (``thin_threshold`` > 0, off by default). Blur takes a gun barrel a pixel or two wide
+below MOG2's threshold at range, and a tank without its gun has an APC's silhouette. A lower
+threshold finds it, but also a blur halo all round the vehicle, which makes a small far vehicle
+look bigger. So the frame is compared a second time at ``thin_threshold``, and only parts that
+reach at least ``_THIN_REACH_PX`` beyond a one-pixel ring round the target blob, connected to it
+through pixels above that threshold, join the blob (:func:`extend_thin_parts`).
+
 16-bit IR (and float) frames are mapped to uint8 by one fixed linear map chosen on the warm-up
 frames, so the map does not change from frame to frame and MOG2's statistics stay valid: the
 robust range [lo, hi] between two percentiles of the warm-up pixels is widened by ``headroom``
@@ -67,6 +74,7 @@ class SegmentationConfig:
     low_percentile: float = 1.0  # IR normalisation: lo = this percentile of the warm-up pixels
     high_percentile: float = 99.0  # IR normalisation: hi = this percentile of the warm-up pixels
     headroom: float = 0.5  # IR normalisation: [lo, hi] widened by this fraction of hi - lo on each side
+    thin_threshold: float = 0.0  # MOG2 threshold finding thin parts (gun barrels) beyond the blob; 0: off
 
     def __post_init__(self) -> None:
         checks = {
@@ -81,12 +89,14 @@ class SegmentationConfig:
             "low_percentile": 0 <= self.low_percentile < self.high_percentile,
             "high_percentile": self.high_percentile <= 100,
             "headroom": self.headroom >= 0,
+            "thin_threshold": self.thin_threshold == 0 or 0 < self.thin_threshold < self.var_threshold,
         }
         bad = [k for k, ok in checks.items() if not ok]
         if bad:
             raise ConfigError("segmentation: bad value(s) " + ", ".join(f"{k}={getattr(self, k)!r}" for k in bad)
                               + " (history, warmup_frames, learning_interval >= 1; var_threshold > 0; learning_rate in [0, 1] or -1; "
-                              "open_px, close_px, min_area_px, headroom >= 0; 0 <= low < high <= 100 percentiles)")
+                              "open_px, close_px, min_area_px, headroom >= 0; 0 <= low < high <= 100 percentiles; "
+                              "thin_threshold 0 or in (0, var_threshold))")
 
 
 def normalise_ir(frame: np.ndarray, lo: float, hi: float) -> np.ndarray:
@@ -188,6 +198,8 @@ Box = tuple[float, float, float, float]  # (u0, v0, u1, v1) pixels, inclusive co
 _GAIN_STRIDE = 7  # the gain fit samples every 7th pixel in each direction
 _GAIN_TRIM = 0.2  # ... and refits without the worst-fitting fifth
 _FOREGROUND_MARGIN_PX = 7  # the detected foreground is grown by this before a selective update
+_THIN_RING_PX = 1  # thin parts: the ring round the blob that a blur halo fills ...
+_THIN_REACH_PX = 2.0  # ... and how far beyond it a part must reach to join the blob
 
 
 def _box_mask(shape: tuple[int, int], box: Box | None) -> np.ndarray:
@@ -206,6 +218,47 @@ def _box_mask(shape: tuple[int, int], box: Box | None) -> np.ndarray:
     r0, r1 = int(np.clip(np.floor(v0), 0, H)), int(np.clip(np.ceil(v1) + 1, 0, H))
     out[r0:r1, c0:c1] = True
     return out
+
+
+def extend_thin_parts(blob: np.ndarray, low: np.ndarray, ring_px: int = _THIN_RING_PX,
+                      reach_px: float = _THIN_REACH_PX) -> np.ndarray:
+    """The blob with the thin parts a lower threshold found (module docstring, "Thin parts").
+
+    The ring is the blob dilated by an elliptic ``ring_px`` radius. A connected part of ``low``
+    outside the ring joins when some pixel of it lies at least ``reach_px`` (Euclidean) beyond
+    the ring and it is 8-connected to the blob through ``low``; the ``low`` pixels of the ring
+    next to it join too, joining it to the blob. A halo at most ``reach_px`` thick beyond the
+    ring, and anything not connected to the blob, stay out.
+
+    Args:
+        blob: (H, W) bool, the target blob; low: (H, W) bool, the foreground at the lower threshold.
+    Returns:
+        (H, W) bool, a superset of ``blob``.
+    """
+    blob, low = _check_mask(blob), _check_mask(low)
+    if low.shape != blob.shape:
+        raise ValueError(f"Expected low of the blob's shape {blob.shape}; got {low.shape}")
+    if not blob.any():
+        return blob
+    disk = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * ring_px + 1,) * 2)
+    ring = cv2.dilate(blob.view(np.uint8), disk).astype(bool)
+    _, labels = cv2.connectedComponents((low | blob).view(np.uint8), connectivity=8)
+    beyond = np.isin(labels, np.unique(labels[blob])) & ~ring  # reachable from the blob, outside the ring
+    if not beyond.any():
+        return blob
+    reach = cv2.distanceTransform((~ring).view(np.uint8), cv2.DIST_L2, 3)  # from the ring
+    n, parts = cv2.connectedComponents(beyond.view(np.uint8), connectivity=8)
+    far = np.zeros(n)
+    np.maximum.at(far, parts[beyond], reach[beyond])
+    keep = far >= reach_px
+    keep[0] = False  # label 0: not beyond the ring
+    thin = keep[parts]
+    if not thin.any():
+        return blob
+    bridge = thin
+    for _ in range(ring_px):  # through the ring, one pixel at a time
+        bridge = bridge | (ring & low & cv2.dilate(bridge.view(np.uint8), np.ones((3, 3), np.uint8)).astype(bool))
+    return blob | bridge
 
 
 def fit_gain(frame: np.ndarray, background: np.ndarray, valid: np.ndarray) -> tuple[float, float]:
@@ -363,6 +416,11 @@ class ForegroundSegmenter:
         raw = self._mog.apply(image, learningRate=min(cfg.learning_rate, 0.0)) == 255  # 127 = shadow
         self._frames += 1
         mask = select_blob(clean_mask(raw, cfg.open_px, cfg.close_px), near, cfg.min_area_px)
+        if cfg.thin_threshold > 0:  # the same comparison at the lower threshold; nothing learned
+            self._mog.setVarThreshold(cfg.thin_threshold)
+            low = self._mog.apply(image, learningRate=0.0) == 255
+            self._mog.setVarThreshold(cfg.var_threshold)
+            mask = extend_thin_parts(mask, low)
         if learn:  # selective update: the background image stands in where the target may be
             grown = cv2.dilate(raw.astype(np.uint8), cv2.getStructuringElement(
                 cv2.MORPH_ELLIPSE, (2 * _FOREGROUND_MARGIN_PX + 1,) * 2)).astype(bool)
