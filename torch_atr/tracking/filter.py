@@ -174,8 +174,9 @@ class RedetectConfig:
 
 def tracker_segmentation() -> SegmentationConfig:
     """The segmentation the tracker defaults to: the frozen thesis model plus feedback (the
-    background keeps learning away from the predicted target every 5th frame, gain compensated)."""
-    return SegmentationConfig(learning_rate=0.01, learning_interval=5, compensate_gain=True)
+    background keeps learning away from the predicted target every 5th frame, gain compensated),
+    and thin parts found at MOG2 threshold 9 (a far tank's gun; README, "Experiments")."""
+    return SegmentationConfig(learning_rate=0.01, learning_interval=5, compensate_gain=True, thin_threshold=9.0)
 
 
 @dataclass(frozen=True)

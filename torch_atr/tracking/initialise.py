@@ -19,7 +19,9 @@ median contrast C grey levels against the background (−0.03 rows at 1000 m by 
 The rule is not the default because tracked runs did not bear it out: on the blind SENSIAC-like
 grid (night, 1000-3500 m), where its first ground rows are no better than the centre's (mean error
 0.28 against 0.29 rows at that geometry: ``scripts/ground_row.py --grid``), Method I's mean range
-error rose from 43 to 65 m (docs/tracking.md, "Choices behind the defaults").
+error rose from 43 to 65 m (docs/tracking.md, "Choices behind the defaults"). The rule was fitted on
+masks without thin parts (``segmentation.thin_threshold``), which by day join fainter pieces below
+the blob: turn them off with it.
 
 Without the height, each hypothesis takes the range at which its silhouette has the blob's size,
 which confuses a small vehicle near with a big one far (a car at 570 m for a tank at 1000 m,
