@@ -43,7 +43,7 @@ from torch_atr.data.synthetic import MAX_FRAME_PIXELS, SceneConfig, SyntheticSeq
 from torch_atr.model import GenerativeShapeModel, load_checkpoint
 from torch_atr.tracking.job import TrackConfig
 from torch_atr.training import MAX_VIEWS, TrainConfig
-from torch_atr.validate import MAX_IMAGE_PIXELS, InputError
+from torch_atr.validate import MAX_IMAGE_PIXELS, InputError, show
 from torch_atr.vehicles import load_catalog_vehicle
 
 OUR_ERRORS = (InputError, FileNotFoundError)  # ConfigError is an InputError
@@ -602,7 +602,7 @@ def _synthetic_property(t72, spec):
             frame = seq.frame(0) if small else None
             truth = seq.truth(0) if small else None
         except OUR_ERRORS as exc:
-            assert_names(exc, spec, "scene")
+            assert_names(exc, spec, show(spec), "scene")  # a long spec is shown shortened
             return
     event("accepted, rendered" if frame is not None else "accepted")
     assert vehicle == "t_72"
