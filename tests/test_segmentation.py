@@ -272,9 +272,14 @@ def test_thin_parts_join_the_blob_but_the_halo_does_not():
     assert not (extra & ~_near(out, (14, 30))).any()  # at most the halo beside the barrel's root
     assert not out[speck].any()  # not connected to the hull
     assert (extend_thin_parts(hull, hull | halo) == hull).all()  # a halo alone adds nothing
-    stub = np.zeros_like(hull)
-    stub[14, 30:32] = True  # reaches one pixel beyond the ring: part of a halo, not a barrel
-    assert (extend_thin_parts(hull, hull | stub) == hull).all()
+    for beyond, joins in ((1, False), (2, False), (3, True)):  # pixels straight out beyond the ring (col 30)
+        stub = np.zeros_like(hull)
+        stub[14, 30:31 + beyond] = True
+        assert (extend_thin_parts(hull, hull | stub) > hull).any() == joins, beyond
+    for beyond, joins in ((1, False), (2, True)):  # diagonally out from the hull's corner (19, 29)
+        stub = np.zeros_like(hull)
+        stub[np.arange(20, 20 + beyond), np.arange(30, 30 + beyond)] = True
+        assert (extend_thin_parts(hull, hull | stub) > hull).any() == joins, beyond
     empty = np.zeros_like(hull)
     assert not extend_thin_parts(empty, barrel).any()
     with pytest.raises(ValueError, match="low of the blob's shape"):

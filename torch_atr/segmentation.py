@@ -23,8 +23,10 @@ Thin parts (``thin_threshold`` > 0, off by default). Blur takes a gun barrel a p
 below MOG2's threshold at range, and a tank without its gun has an APC's silhouette. A lower
 threshold finds it, but also a blur halo all round the vehicle, which makes a small far vehicle
 look bigger. So the frame is compared a second time at ``thin_threshold``, and only parts that
-reach at least ``_THIN_REACH_PX`` beyond a one-pixel ring round the target blob, connected to it
-through pixels above that threshold, join the blob (:func:`extend_thin_parts`).
+reach at least 3 px straight out (2 px diagonally) beyond a one-pixel ring round the target blob,
+connected to it through pixels above that threshold, join the blob (:func:`extend_thin_parts`).
+The second comparison learns nothing, but with ``learning_rate`` −1 it counts as a frame in
+OpenCV's automatic rate.
 
 16-bit IR (and float) frames are mapped to uint8 by one fixed linear map chosen on the warm-up
 frames, so the map does not change from frame to frame and MOG2's statistics stay valid: the
@@ -199,7 +201,7 @@ _GAIN_STRIDE = 7  # the gain fit samples every 7th pixel in each direction
 _GAIN_TRIM = 0.2  # ... and refits without the worst-fitting fifth
 _FOREGROUND_MARGIN_PX = 7  # the detected foreground is grown by this before a selective update
 _THIN_RING_PX = 1  # thin parts: the ring round the blob that a blur halo fills ...
-_THIN_REACH_PX = 2.0  # ... and how far beyond it a part must reach to join the blob
+_THIN_REACH_PX = 2.0  # ... and how far beyond it a part must reach (3 x 3 chamfer: 3 px straight, 2 diagonally)
 
 
 def _box_mask(shape: tuple[int, int], box: Box | None) -> np.ndarray:
@@ -225,8 +227,10 @@ def extend_thin_parts(blob: np.ndarray, low: np.ndarray, ring_px: int = _THIN_RI
     """The blob with the thin parts a lower threshold found (module docstring, "Thin parts").
 
     The ring is the blob dilated by an elliptic ``ring_px`` radius. A connected part of ``low``
-    outside the ring joins when some pixel of it lies at least ``reach_px`` (Euclidean) beyond
-    the ring and it is 8-connected to the blob through ``low``; the ``low`` pixels of the ring
+    outside the ring joins when some pixel of it lies at least ``reach_px`` beyond the ring and it
+    is 8-connected to the blob through ``low``. Distances are OpenCV's 3 × 3 chamfer approximation
+    of the Euclidean one (steps 0.955 straight, 1.3693 diagonal), so with the default 2.0 a part
+    must reach 3 px straight out or 2 diagonally; the ``low`` pixels of the ring
     next to it join too, joining it to the blob. A halo at most ``reach_px`` thick beyond the
     ring, and anything not connected to the blob, stay out.
 
@@ -416,7 +420,7 @@ class ForegroundSegmenter:
         raw = self._mog.apply(image, learningRate=min(cfg.learning_rate, 0.0)) == 255  # 127 = shadow
         self._frames += 1
         mask = select_blob(clean_mask(raw, cfg.open_px, cfg.close_px), near, cfg.min_area_px)
-        if cfg.thin_threshold > 0:  # the same comparison at the lower threshold; nothing learned
+        if cfg.thin_threshold > 0 and mask.any():  # the same comparison at the lower threshold; nothing learned
             self._mog.setVarThreshold(cfg.thin_threshold)
             low = self._mog.apply(image, learningRate=0.0) == 255
             self._mog.setVarThreshold(cfg.var_threshold)
