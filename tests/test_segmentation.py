@@ -280,6 +280,10 @@ def test_thin_parts_join_the_blob_but_the_halo_does_not():
         stub = np.zeros_like(hull)
         stub[np.arange(20, 20 + beyond), np.arange(30, 30 + beyond)] = True
         assert (extend_thin_parts(hull, hull | stub) > hull).any() == joins, beyond
+    corner = [m[10:, 10:] for m in (hull, barrel, halo)]  # the hull at the image's corner, its ring cut off
+    out = extend_thin_parts(corner[0], corner[0] | corner[1] | corner[2])
+    assert (out >= corner[0]).all() and out[corner[1]].all() and not (out & ~corner[0] & ~corner[1]
+                                                                       & ~_near(out, (4, 20))).any()
     empty = np.zeros_like(hull)
     assert not extend_thin_parts(empty, barrel).any()
     with pytest.raises(ValueError, match="low of the blob's shape"):

@@ -244,12 +244,17 @@ def extend_thin_parts(blob: np.ndarray, low: np.ndarray, ring_px: int = _THIN_RI
         raise ValueError(f"Expected low of the blob's shape {blob.shape}; got {low.shape}")
     if not blob.any():
         return blob
+    _, labels, stats, _ = cv2.connectedComponentsWithStats((low | blob).view(np.uint8), connectivity=8)
+    touching = np.unique(labels[blob])  # the components holding the blob: all the rest is done in their box
+    corner = stats[touching, :2]  # (left, top) of each, then (right, bottom) past its end
+    (c0, r0), (c1, r1) = corner.min(0) - ring_px, (corner + stats[touching, 2:4]).max(0) + ring_px
+    box = np.s_[max(r0, 0):r1, max(c0, 0):c1]  # grown by the ring, which lies in it
+    out, blob, low, labels = blob, blob[box], low[box], labels[box]
     disk = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * ring_px + 1,) * 2)
     ring = cv2.dilate(blob.view(np.uint8), disk).astype(bool)
-    _, labels = cv2.connectedComponents((low | blob).view(np.uint8), connectivity=8)
-    beyond = np.isin(labels, np.unique(labels[blob])) & ~ring  # reachable from the blob, outside the ring
+    beyond = np.isin(labels, touching) & ~ring  # reachable from the blob, outside the ring
     if not beyond.any():
-        return blob
+        return out
     reach = cv2.distanceTransform((~ring).view(np.uint8), cv2.DIST_L2, 3)  # from the ring
     n, parts = cv2.connectedComponents(beyond.view(np.uint8), connectivity=8)
     far = np.zeros(n)
@@ -258,11 +263,12 @@ def extend_thin_parts(blob: np.ndarray, low: np.ndarray, ring_px: int = _THIN_RI
     keep[0] = False  # label 0: not beyond the ring
     thin = keep[parts]
     if not thin.any():
-        return blob
+        return out
     bridge = thin
     for _ in range(ring_px):  # through the ring, one pixel at a time
         bridge = bridge | (ring & low & cv2.dilate(bridge.view(np.uint8), np.ones((3, 3), np.uint8)).astype(bool))
-    return blob | bridge
+    out[box] |= bridge  # out is _check_mask's copy, not the caller's array
+    return out
 
 
 def fit_gain(frame: np.ndarray, background: np.ndarray, valid: np.ndarray) -> tuple[float, float]:
