@@ -137,6 +137,27 @@ def test_redetection_counts_frames_from_the_track_start(model, btr):
     assert searched == [10, 15]
 
 
+@pytest.mark.parametrize("after_truth", [False, True])
+def test_redetection_follows_a_start_on_the_truth_only_when_asked(model, btr, after_truth):
+    """After ``initialise`` (the truth) the default never searches; ``after_truth`` searches at
+    frame 10 as after a blind start."""
+    cfg = load_config(TrackerConfig, None, ["init.mode=truth", "filter.particles=100", "init.alpha_steps=12",
+                                            "init.azimuth_steps=12", f"redetect.after_truth={after_truth}"])
+    tracker = Tracker(model, btr.camera, cfg, seed=0)
+    tracker.warm_up(btr.warmup_frames(20))
+    tracker.initialise(btr.truth(0))
+    searched, search = [], tracker._redetect
+
+    def spy(*args):
+        searched.append(tracker._frames)
+        return search(*args)
+
+    tracker._redetect = spy
+    for i in range(12):
+        tracker.step(btr.frame(i))
+    assert searched == ([10] if after_truth else [])
+
+
 @pytest.mark.parametrize("override", ["redetect.every=-1", "redetect.margin=-1", "redetect.share=0",
                                       "redetect.share=1.5", "redetect.until=-1", "redetect.every=30"])
 def test_bad_redetection_settings_are_named(override):

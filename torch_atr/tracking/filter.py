@@ -142,7 +142,9 @@ class RedetectConfig:
     blind start, is 18 m of range at 1000 m); their speed is the estimated velocity along their
     heading. Searches are made ``every``, 2 ``every``, ... frames after the track's start, up to
     ``until`` frames after it (0: to the end). ``every`` 0 turns it off; the blob tracker (no
-    camera) has none.
+    camera) has none. It follows a blind start or :meth:`Tracker.reset`; after the thesis's start
+    on the truth (:meth:`Tracker.initialise`) only with ``after_truth``, since that start is right
+    by construction and the search, which mends a wrong one, only costs there (below).
 
     Measured (docs/tracking.md): the default, one search 10 frames after the start,
     mends a blind start that one frame's blob put on the wrong class (the blind T-72 at 1000 m
@@ -159,6 +161,7 @@ class RedetectConfig:
     share: float = 0.2  # of the particles redrawn
     keep_range: bool = True  # place the hypotheses at the estimated range (else: the blob's ground row)
     until: int = 10  # the last frame searched, counted from the track's start; 0: to the end
+    after_truth: bool = False  # also search after a start on the truth (Tracker.initialise)
 
     def __post_init__(self) -> None:
         if not (0 <= self.every and 0 <= self.until and math.isfinite(self.margin) and self.margin >= 0
@@ -254,6 +257,7 @@ class Tracker:
         self.camera_height_m = math.nan if height is None else height  # above the ground (blind start)
         self._frames = 0
         self._start = 0  # the frame the track started at (reset); re-detection counts from it
+        self._searching = True  # whether re-detection follows the current start
         self._half_heights: torch.Tensor | None = None  # H(α)/2 on a grid of α (ground contact)
         self._fresh = False  # the particles describe the coming frame (just initialised): no prediction
         self._optimiser = (torch.optim.Adam([self.model.rbf.log_width], lr=self.cfg.adapt.lr)
@@ -277,6 +281,7 @@ class Tracker:
         position = torch.tensor([truth.x, truth.y, truth.z], dtype=self.dtype, device=self.device)
         self.reset(truth_particles(position, truth.heading, alpha, self.cfg.filter.particles, self.cfg.init,
                                    self.generator))
+        self._searching = self.cfg.redetect.after_truth
 
     def reset(self, particles: torch.Tensor) -> None:
         """Start from given particles: (N, 6) [x, y, z, h, v, α] describing the coming frame
@@ -289,6 +294,7 @@ class Tracker:
                                       dtype=self.dtype, device=self.device)
         self._fresh = True
         self._start = self._frames
+        self._searching = True  # re-detection follows this start (initialise: only with after_truth)
 
     @property
     def initialised(self) -> bool:
@@ -329,7 +335,7 @@ class Tracker:
         lost = True
         if self.initialised and observed:
             log_lik = self._log_likelihood(distance, self.particles)
-            if self.cfg.redetect.searches(self._frames - self._start):  # never at the start (reset)
+            if self._searching and self.cfg.redetect.searches(self._frames - self._start):  # never at the start
                 log_lik = self._redetect(mask, distance, frame, log_lik)
             if log_lik.max() >= math.log(torch.finfo(self.dtype).tiny):
                 self.log_weights = torch.log_softmax(self.log_weights + log_lik, dim=0)
