@@ -115,13 +115,8 @@ def test_redetection_searches_every_kth_frame_up_to_until():
     assert not any(RedetectConfig(every=0, until=50).searches(f) for f in range(100))
 
 
-def test_redetection_counts_frames_from_the_track_start(model, btr):
-    """A target first seen at frame 5 (blind start there) is searched 5 and 10 frames later, and
-    not at 15 and 20 (after ``until``)."""
-    cfg = load_config(TrackerConfig, None, ["filter.particles=100", "init.alpha_steps=12", "init.azimuth_steps=12",
-                                            "redetect.every=5", "redetect.until=10"])
-    tracker = Tracker(model, btr.camera, cfg, seed=0)
-    tracker.warm_up(btr.warmup_frames(20))
+def _spy_searches(tracker: Tracker) -> list[int]:
+    """The list that the tracker's re-detection searches will append their frame numbers to."""
     searched, search = [], tracker._redetect
 
     def spy(*args):
@@ -129,6 +124,17 @@ def test_redetection_counts_frames_from_the_track_start(model, btr):
         return search(*args)
 
     tracker._redetect = spy
+    return searched
+
+
+def test_redetection_counts_frames_from_the_track_start(model, btr):
+    """A target first seen at frame 5 (blind start there) is searched 5 and 10 frames later, and
+    not at 15 and 20 (after ``until``)."""
+    cfg = load_config(TrackerConfig, None, ["filter.particles=100", "init.alpha_steps=12", "init.azimuth_steps=12",
+                                            "redetect.every=5", "redetect.until=10"])
+    tracker = Tracker(model, btr.camera, cfg, seed=0)
+    tracker.warm_up(btr.warmup_frames(20))
+    searched = _spy_searches(tracker)
     empty = np.zeros(btr.frame(0).shape[:2], dtype=bool)
     for _ in range(5):
         tracker.step(mask=empty)
@@ -146,13 +152,7 @@ def test_redetection_follows_a_start_on_the_truth_only_when_asked(model, btr, af
     tracker = Tracker(model, btr.camera, cfg, seed=0)
     tracker.warm_up(btr.warmup_frames(20))
     tracker.initialise(btr.truth(0))
-    searched, search = [], tracker._redetect
-
-    def spy(*args):
-        searched.append(tracker._frames)
-        return search(*args)
-
-    tracker._redetect = spy
+    searched = _spy_searches(tracker)
     for i in range(12):
         tracker.step(btr.frame(i))
     assert searched == ([10] if after_truth else [])
