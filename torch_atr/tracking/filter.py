@@ -150,11 +150,11 @@ class RedetectConfig:
     mends a blind start that one frame's blob put on the wrong class (the blind T-72 at 1000 m
     over 10 seeds: recognised in 99 % of frames, not 80 %, converging within 60 frames in 10
     runs, not 8) and changes nothing on the blind SENSIAC-like grid, the unseen meshes or the
-    studies beyond a few cells; from the truth it puts the grid's tanks at 3000–3500 m on the APC
-    arc (38 % of frames recognised, 98–100 % with ``every`` 0). Searching on through the run (``until`` 0) trusts one frame's blob
-    every ``every`` frames, and a blob the scene corrupts is then fitted by the wrong vehicle:
-    behind a berm, recognition at 1000 m fell from 93 to 61 %, and by day from 40 to 23 %. Each
-    search costs about 57 ms at 1000 particles on 2 cores."""
+    studies beyond a few cells; from the truth it put the grid's tanks at 3000–3500 m on the APC
+    arc (38 % of frames recognised, 98–100 % without it). Searching on through the run
+    (``until`` 0) trusts one frame's blob every ``every`` frames, and a blob the scene corrupts
+    is then fitted by the wrong vehicle: behind a berm, recognition at 1000 m fell from 93 to
+    61 %, and by day from 40 to 23 %. Each search costs about 57 ms at 1000 particles on 2 cores."""
 
     every: int = 10  # frames between searches; 0: off
     margin: float = 5.0  # log-likelihood by which a hypothesis must beat every particle
