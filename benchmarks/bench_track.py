@@ -8,8 +8,9 @@ tracker does per frame: segmentation (MOG2 with the tracker's feedback), the fra
 prediction, views, predicted shapes (Method I), windows, likelihoods, estimates, overlap and
 resampling. The reference does one step of Table 5.1 the straightforward way — a Python loop over
 particles, each with its own prediction, view, model query (full size, pooled), window and
-likelihood — on the same frames, segmentation included; the speed-up is the ratio of the two
-medians at the same particle count, measured in this run. Frames per second are the median
+likelihood — on the same frames, segmentation included, always on the CPU; the speed-up is the
+ratio of the two medians at the same particle count, measured in this run (with ``--device cuda``,
+the GPU's filter against the CPU's loop). Frames per second are the median
 step's; the rate over all frames is printed beside it, since re-detection searches the blob on
 a few frames only (by default once, 10 frames after the start; ``redetect``) and the median does
 not see it.
@@ -188,7 +189,8 @@ def main() -> None:
         log.info("N = %6d: %7.1f frames/s (%.2e particles/s; %.1f frames/s over all frames), 90th percentile "
                  "%.1f ms", n, fps, fps * n, rows[-1]["frames_per_second_mean"], rows[-1]["ms_per_frame_p90"])
     n_ref = args.reference_particles
-    ref = reference_fps(model, seq, frames[:args.reference_frames], n_ref, tracker_config(n_ref, args.set))
+    cpu_model = GenerativeShapeModel.from_checkpoint(args.checkpoint)  # the tracker moved `model` to --device
+    ref = reference_fps(cpu_model, seq, frames[:args.reference_frames], n_ref, tracker_config(n_ref, args.set))
     batched = next((r["frames_per_second"] for r in rows if r["particles"] == n_ref), None) or \
         tracker_fps(model, seq, frames, n_ref, args.device, args.skip, args.set)[0]
     log.info("per-particle reference at N = %d: %.3f frames/s; the batched filter is %.0fx faster", n_ref, ref,

@@ -1,6 +1,7 @@
 """The Tracker: Table 5.1 against a per-particle loop, Methods I-IV against the model and the
 rendered templates, robustness, determinism and seeded end-to-end runs on the simulator."""
 
+import copy
 import dataclasses
 import math
 from pathlib import Path
@@ -20,6 +21,7 @@ from torch_atr.render import render_mask
 from torch_atr.segmentation import ForegroundSegmenter
 from torch_atr.shape import signed_distance_px
 from torch_atr.tracking import METHODS, ShapeAppearance, Tracker, TrackerConfig
+from torch_atr.tracking import filter as filter_module
 from torch_atr.tracking.filter import tracker_segmentation
 from torch_atr.tracking.initialise import InitConfig, blind_hypotheses, ground_row_from_contrast
 from torch_atr.tracking.job import run_summary
@@ -119,6 +121,28 @@ def test_score_equals_the_per_particle_likelihood_and_leaves_the_filter_alone(mo
         tracker.score(np.zeros_like(mask), p)
     with pytest.raises(ValueError, match="particles"):
         tracker.score(mask, p[:, :5])
+
+
+DEVICES = ["cpu"] + (["cuda"] if torch.cuda.is_available() else [])
+
+
+@pytest.mark.parametrize("device", DEVICES)
+def test_score_in_small_blocks_on_every_device_equals_the_per_particle_likelihood(model, btr, device, monkeypatch):
+    """Eq. 5.2 weighed in blocks of 3 particles (so 11 particles cross two block edges), on each
+    device this machine has, against the per-particle reference; the CPU and a GPU must agree."""
+    monkeypatch.setattr(filter_module, "_BLOCK", {})
+    monkeypatch.setattr(filter_module, "_BLOCK_ACCELERATOR", 3)
+    t = btr.truth(0)
+    g = torch.Generator().manual_seed(1)
+    p = torch.tensor([t.x, t.y, t.z, t.heading, 5.0, 0.0]) + torch.randn(11, 6, generator=g) * \
+        torch.tensor([0.4, 0.1, 3.0, 0.4, 0.0, 0.0])
+    p[:, 5] = model.alphas[torch.arange(11) * 3]
+    mask = render_mask(btr.vehicle, btr.camera, btr.pose(0)).numpy()
+    tracker = Tracker(copy.deepcopy(model), btr.camera, _config("filter.likelihood_px=8", "filter.sigma=0.1"),
+                      device=device)
+    ref = torch.tensor([_reference_log_lik(model, btr.camera, mask, q, 8, 0.1) for q in p.double()],
+                       dtype=torch.float64)
+    torch.testing.assert_close(tracker.score(mask, p).double().cpu(), ref, atol=2e-3, rtol=0)
 
 
 @pytest.mark.parametrize("method", METHODS)
