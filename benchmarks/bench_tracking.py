@@ -8,7 +8,8 @@ and on the true class) and the errors after the first ``--settle`` frames (what 
 is held to). Every run is what ``python track.py`` does with the same settings.
 
     python benchmarks/bench_tracking.py [--vehicles t_72 isuzu_rodeo] [--ranges 1000] [--methods I II III IV]
-        [--inits truth blind] [--frames 300] [--particles 1000] [--seed 0] [--set key=value ...] [--json OUT]
+        [--inits truth blind] [--frames 300] [--particles 1000] [--seed 0] [--device cpu] [--set key=value ...]
+        [--json OUT]
 """
 
 from __future__ import annotations
@@ -42,6 +43,7 @@ def main() -> None:
     parser.add_argument("--settle", type=int, default=60, help="frames left out of the settled errors")
     parser.add_argument("--seed", type=int, default=0, help="the scene's and the tracker's seed")
     parser.add_argument("--checkpoint", default="checkpoints/default.pt")
+    parser.add_argument("--device", default="cpu", help="where the particles live (segmentation stays on the CPU)")
     parser.add_argument("--set", nargs="*", default=[], metavar="KEY=VALUE", help="tracker config overrides")
     parser.add_argument("--json", help="also write every number here")
     args = parser.parse_args()
@@ -60,7 +62,7 @@ def main() -> None:
                     cfg = load_config(TrackerConfig, None, [f"filter.particles={args.particles}",
                                                             f"filter.method={method}", f"init.mode={init}",
                                                             *args.set])
-                    tracker = Tracker(model, seq.camera, cfg, seed=args.seed,
+                    tracker = Tracker(model, seq.camera, cfg, device=args.device, seed=args.seed,
                                       templates=templates if method == "IV" else None)
                     start = time.perf_counter()
                     result = tracker.run(seq, progress=False, snapshots=0)
