@@ -195,6 +195,16 @@ def test_text_and_folders_are_not_checkpoints(tmp_path):
     assert not is_checkpoint(notes) and not is_checkpoint(tmp_path) and not is_checkpoint(tmp_path / "none.pt")
 
 
+def test_a_device_this_machine_lacks_is_named_not_blamed_on_the_file(saved):
+    """map_location naming a missing device: a ValueError about the device, not "corrupt"."""
+    missing = ["tpu", "cuda:x"] + ([] if torch.cuda.is_available() else ["cuda"])
+    for device in missing:
+        with pytest.raises(ValueError, match=rf"^device '{device}' is not available here") as info:
+            load_checkpoint(saved, map_location=device)
+        assert not isinstance(info.value, InputError)
+    assert load_checkpoint(saved, map_location="cpu")[0].alphas.device.type == "cpu"
+
+
 def test_save_replaces_a_checkpoint_but_never_another_file(model, saved, tmp_path):
     assert is_checkpoint(saved)
     model.save(saved, extra={"note": "second"})

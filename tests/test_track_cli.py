@@ -60,6 +60,7 @@ def test_an_existing_run_is_kept_unless_overwrite(run, tmp_path):
     (["tracker.filter.likelihood_px=7"], "likelihood_px=7 must divide"),
     (["--sequence", "synthetic:vehicle=nope"], "nope"),
     (["--checkpoint", "missing.pt"], "missing.pt"),
+    (["--device", "tpu"], "device 'tpu' is not available"),
 ])
 def test_user_errors_are_one_line(tmp_path, args, message):
     proc = subprocess.run([sys.executable, str(REPO / "track.py"), "--out", str(tmp_path / "x"), *args],

@@ -376,6 +376,8 @@ def test_bad_inputs_raise(model, btr):
         tracker.reset(torch.full((4, 6), math.nan))
     with pytest.raises(ValueError, match="mask to be a"):
         tracker.step(mask=np.zeros((4, 4)))
+    with pytest.raises(ValueError, match="device 'tpu' is not available"):
+        Tracker(model, btr.camera, _config("filter.particles=10"), device="tpu")
 
 
 def test_kernel_width_adaptation_moves_the_widths_towards_the_observation(btr):

@@ -9,6 +9,18 @@ import numpy as np
 import torch
 
 
+def check_device(name: str | torch.device) -> torch.device:
+    """The torch device ``name`` (``"cpu"``, ``"cuda"``, ``"cuda:1"``, ``"mps"``, ...) if this machine
+    has it; ``ValueError`` naming it otherwise (PyTorch would fail later, with less to go on)."""
+    try:
+        device = torch.device(name)
+        torch.empty(0, device=device)  # raises where the build or the machine lacks the device
+    except (RuntimeError, AssertionError, TypeError) as exc:
+        raise ValueError(f"device {str(name)!r} is not available here (PyTorch {torch.__version__}: "
+                         f"{' '.join(str(exc).split())}); try cpu") from None
+    return device
+
+
 def check_shape(name: str, x: torch.Tensor, shape: Sequence[int | str | None]) -> None:
     """Raise ``ValueError`` unless ``x`` has ``len(shape)`` dims matching ``shape``.
 

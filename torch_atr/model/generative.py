@@ -18,7 +18,7 @@ from torch import nn
 from tqdm import tqdm
 
 import torch_atr
-from torch_atr._checks import as_float_tensor, check_shape
+from torch_atr._checks import as_float_tensor, check_device, check_shape
 from torch_atr.config import ConfigError, ModelConfig, TemplateConfig, config_from_dict
 from torch_atr.io import atomic_torch_save, check_output_file
 from torch_atr.model.identity import DEGREE, IdentityManifold, dissimilarity, shortest_closed_path
@@ -481,7 +481,8 @@ def load_checkpoint(path: str | os.PathLike, map_location=None) -> tuple[Generat
     format and version, the content checksum (version 2; a version-1 file has none and loads
     with a warning), ``model_args`` (:func:`check_model_args`) and the state_dict against them
     (keys, shapes, dtypes, finite values, ``identity.order`` a permutation). Raises
-    FileNotFoundError for a missing file and InputError naming the file and the problem.
+    FileNotFoundError for a missing file, InputError naming the file and the problem, and
+    ValueError where ``map_location`` names a device this machine lacks.
     """
     path = Path(path)
     if not path.exists():
@@ -489,6 +490,8 @@ def load_checkpoint(path: str | os.PathLike, map_location=None) -> tuple[Generat
     if not path.is_file():
         raise InputError(f"{path}: expected a checkpoint file; it is a folder or a device")
     _check_archive(path)
+    if isinstance(map_location, (str, torch.device)):  # a missing device is not a corrupt file
+        map_location = check_device(map_location)
     try:
         with warnings.catch_warnings():  # a corrupt pickle header's protocol warning: our checks decide
             warnings.filterwarnings("ignore", message="Detected pickle protocol", category=UserWarning)

@@ -34,7 +34,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 import torch
 
-from torch_atr._checks import check_shape
+from torch_atr._checks import check_device, check_shape
 from torch_atr.camera import Camera
 from torch_atr.config import ConfigError
 from torch_atr.data.sequence import FrameTruth, Sequence
@@ -242,7 +242,7 @@ class Tracker:
     def __init__(self, model: GenerativeShapeModel, camera: Camera, config: TrackerConfig | None = None, *,
                  device: str | torch.device | None = None, seed: int = 0, templates: torch.Tensor | None = None):
         self.cfg = TrackerConfig() if config is None else config
-        self.device = torch.device(device) if device is not None else model.alphas.device
+        self.device = check_device(device) if device is not None else model.alphas.device
         self.model = model.to(self.device)
         self.camera = camera
         fc = self.cfg.filter
