@@ -81,7 +81,7 @@ log = logging.getLogger(__name__)
 # Particles weighed at once (_log_likelihood), by device type: 2048 keeps a block in the CPU's
 # cache; an accelerator wants few, large launches (an H200 at 100 000 particles: 6.0 frames/s in
 # blocks of 2048, 39 in one of 65 536; benchmarks/bench_track.py).
-_BLOCK = {"cpu": 2048}
+_BLOCK_CPU = 2048
 _BLOCK_ACCELERATOR = 65536
 _GRID_TOLERANCE = 0.01  # rad: re-detection reuses the grid's silhouette boxes within this of their elevation
 
@@ -428,14 +428,14 @@ class Tracker:
         """Eq. 5.2 per particle against the frame's (distance, origin); −inf where it is not finite.
         Returns (N,).
 
-        Particles are weighed in blocks (``_BLOCK``): on the CPU each block's sampling grid and
+        Particles are weighed in blocks (``_BLOCK_CPU``, ``_BLOCK_ACCELERATOR``): on the CPU each block's sampling grid and
         windows stay in its cache (measured: 8000 particles at once ran 2.6x slower than 4000, not
         2x); on an accelerator blocks are large, since there the time goes to launching kernels.
         """
         theta, phi = self._views(particles)
         scale = self.appearance.size ** 2 * 2.0 * self.cfg.filter.sigma ** 2
         sse = []
-        size = _BLOCK.get(particles.device.type, _BLOCK_ACCELERATOR)
+        size = _BLOCK_CPU if particles.device.type == "cpu" else _BLOCK_ACCELERATOR
         for block in torch.arange(particles.shape[0], device=particles.device).split(size):
             p = particles[block]
             z = observe(distance[0], self.camera, p[:, X:Z + 1], self.model.template, self.appearance.size,
