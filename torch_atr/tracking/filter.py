@@ -428,9 +428,10 @@ class Tracker:
         """Eq. 5.2 per particle against the frame's (distance, origin); −inf where it is not finite.
         Returns (N,).
 
-        Particles are weighed in blocks (``_BLOCK_CPU``, ``_BLOCK_ACCELERATOR``): on the CPU each block's sampling grid and
-        windows stay in its cache (measured: 8000 particles at once ran 2.6x slower than 4000, not
-        2x); on an accelerator blocks are large, since there the time goes to launching kernels.
+        Particles are weighed in blocks (``_BLOCK_CPU``, ``_BLOCK_ACCELERATOR``): on the CPU each
+        block's sampling grid and windows stay in its cache (measured: 8000 particles at once ran
+        2.6x slower than 4000, not 2x); on an accelerator blocks are large, since there the time
+        goes to launching kernels.
         """
         theta, phi = self._views(particles)
         scale = self.appearance.size ** 2 * 2.0 * self.cfg.filter.sigma ** 2
