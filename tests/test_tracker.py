@@ -187,10 +187,13 @@ def test_method_iv_needs_templates_of_the_right_shape(model):
         app.squared_errors(torch.zeros(3, 32, 32), torch.zeros(3), torch.zeros(3), torch.zeros(3))
 
 
-def test_truth_run_tracks_and_recognises_and_is_deterministic(model, btr):
-    """A seeded 40-frame run with the thesis's start meets loose bounds; the same seed gives the same rows."""
+@pytest.mark.parametrize("device", DEVICES)
+def test_truth_run_tracks_and_recognises_and_is_deterministic(model, btr, device):
+    """A seeded 40-frame run with the thesis's start meets loose bounds; the same seed gives the
+    same rows (on each device this machine has)."""
     cfg = _config("init.mode=truth", "filter.particles=300")
-    runs = [Tracker(model, btr.camera, cfg, seed=7).run(btr, progress=False) for _ in range(2)]
+    runs = [Tracker(copy.deepcopy(model), btr.camera, cfg, device=device, seed=7).run(btr, progress=False)
+            for _ in range(2)]
     for a, b in zip(runs[0].rows, runs[1].rows):
         assert {k: v for k, v in a.items() if k != "step_ms"} == {k: v for k, v in b.items() if k != "step_ms"}
     m = run_summary(runs[0], model, 20)
