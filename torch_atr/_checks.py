@@ -10,15 +10,16 @@ import torch
 
 
 def check_device(name: str | torch.device) -> torch.device:
-    """The torch device ``name`` (``"cpu"``, ``"cuda"``, ``"cuda:1"``, ``"mps"``, ...) if this machine
-    has it; ``ValueError`` naming it otherwise (PyTorch would fail later, with less to go on)."""
+    """The torch device ``name`` (``"cpu"``, ``"cuda"``, ``"cuda:1"``, ``"mps"``, ...) as a tensor on
+    it reports it (``"cpu:0"`` → cpu, ``"cuda"`` → cuda:0), if this machine has it and it holds
+    data; ``ValueError`` naming it otherwise (PyTorch would fail later, with less to go on)."""
     try:
-        device = torch.device(name)
-        torch.empty(0, device=device)  # raises where the build or the machine lacks the device
-    except (RuntimeError, AssertionError, TypeError) as exc:
+        probe = torch.zeros(1, device=torch.device(name))  # raises where the build or machine lacks it
+        probe.cpu()  # raises on a device without data (meta)
+    except (RuntimeError, AssertionError, TypeError, NotImplementedError) as exc:
         raise ValueError(f"device {str(name)!r} is not available here (PyTorch {torch.__version__}: "
                          f"{' '.join(str(exc).split())}); try cpu") from None
-    return device
+    return probe.device
 
 
 def check_shape(name: str, x: torch.Tensor, shape: Sequence[int | str | None]) -> None:
