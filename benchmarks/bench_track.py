@@ -189,8 +189,8 @@ def main() -> None:
         log.info("N = %6d: %7.1f frames/s (%.2e particles/s; %.1f frames/s over all frames), 90th percentile "
                  "%.1f ms", n, fps, fps * n, rows[-1]["frames_per_second_mean"], rows[-1]["ms_per_frame_p90"])
     n_ref = args.reference_particles
-    cpu_model = GenerativeShapeModel.from_checkpoint(args.checkpoint)  # the tracker moved `model` to --device
-    ref = reference_fps(cpu_model, seq, frames[:args.reference_frames], n_ref, tracker_config(n_ref, args.set))
+    ref = reference_fps(model.cpu(), seq, frames[:args.reference_frames], n_ref,  # each Tracker moved it to --device
+                        tracker_config(n_ref, args.set))
     batched = next((r["frames_per_second"] for r in rows if r["particles"] == n_ref), None) or \
         tracker_fps(model, seq, frames, n_ref, args.device, args.skip, args.set)[0]
     log.info("per-particle reference at N = %d: %.3f frames/s; the batched filter is %.0fx faster", n_ref, ref,

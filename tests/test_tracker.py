@@ -28,6 +28,7 @@ from torch_atr.tracking.job import run_summary
 
 CKPT = Path(__file__).resolve().parents[1] / "checkpoints" / "default.pt"
 TWO_PI = 2 * math.pi
+DEVICES = ["cpu"] + (["cuda"] if torch.cuda.is_available() else [])  # the devices tests run on here
 
 
 @pytest.fixture(scope="module")
@@ -121,9 +122,6 @@ def test_score_equals_the_per_particle_likelihood_and_leaves_the_filter_alone(mo
         tracker.score(np.zeros_like(mask), p)
     with pytest.raises(ValueError, match="particles"):
         tracker.score(mask, p[:, :5])
-
-
-DEVICES = ["cpu"] + (["cuda"] if torch.cuda.is_available() else [])
 
 
 @pytest.mark.parametrize("device", DEVICES)
