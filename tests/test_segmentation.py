@@ -9,7 +9,7 @@ from scipy import ndimage
 
 from torch_atr._checks import to_grey
 from torch_atr.config import ConfigError, load_config
-from torch_atr.segmentation import (ForegroundSegmenter, SegmentationConfig, clean_mask, extend_thin_parts,
+from torch_atr.segmentation import (_THIN_SEARCH_PX, ForegroundSegmenter, SegmentationConfig, clean_mask, extend_thin_parts,
                                     normalise_ir, select_blob)
 from torch_atr.shape import iou
 
@@ -288,6 +288,47 @@ def test_thin_parts_join_the_blob_but_the_halo_does_not():
     assert not extend_thin_parts(empty, barrel).any()
     with pytest.raises(ValueError, match="low of the blob's shape"):
         extend_thin_parts(hull, barrel[:, :10])
+
+
+def _thin_parts_reference(blob: np.ndarray, low: np.ndarray, ring_px: int = 1, reach_px: float = 2.0) -> np.ndarray:
+    """extend_thin_parts's rule on the whole frame, with scipy's labelling: the components of
+    low | blob holding the blob; their parts beyond the ring reaching ``reach_px`` past it (OpenCV's
+    3 x 3 chamfer, as documented); those parts and their low pixels in the ring next to them."""
+    eight = np.ones((3, 3), bool)
+    ring = ndimage.binary_dilation(blob, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * ring_px + 1,) * 2) > 0)
+    labels, _ = ndimage.label(low | blob, structure=eight)
+    beyond = np.isin(labels, np.unique(labels[blob])) & ~ring
+    reach = cv2.distanceTransform((~ring).astype(np.uint8), cv2.DIST_L2, 3)
+    parts, n = ndimage.label(beyond, structure=eight)
+    far = ndimage.maximum(reach, parts, np.arange(1, n + 1)) if n else []
+    bridge = np.isin(parts, 1 + np.flatnonzero(np.asarray(far) >= reach_px))
+    for _ in range(ring_px):
+        bridge |= ring & low & ndimage.binary_dilation(bridge, eight)
+    return blob | bridge
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_thin_parts_match_a_whole_frame_reference_however_far_a_part_reaches(seed):
+    """Components are labelled near the blob first (_THIN_SEARCH_PX): parts that snake beyond
+    that margin, or to the image's edge, must come out as labelling the whole frame gives them."""
+    rng = np.random.default_rng(seed)
+    H, W = 120, 200
+    blob = np.zeros((H, W), bool)
+    r, c = rng.integers(10, H - 30), rng.integers(10, W - 50)
+    blob[r:r + 15, c:c + 35] = True
+    low = rng.random((H, W)) < 0.02  # noise at the lower threshold
+    for steps, side in ((150, int(rng.choice([-1, 1]))), (rng.integers(4, 150), -1), (rng.integers(4, 150), 1)):
+        y, x = r + rng.integers(0, 15), (c - 1, c + 35)[side > 0]  # walks out from the blob's left or right edge
+        for _ in range(steps):
+            low[y, x] = True
+            y, x = np.clip(y + rng.integers(-1, 2), 0, H - 1), np.clip(x + side * rng.integers(0, 2), 0, W - 1)
+    out = extend_thin_parts(blob, low)
+    np.testing.assert_array_equal(out, _thin_parts_reference(blob, low))
+    cols = np.flatnonzero(out.any(0))
+    assert cols[0] < c - _THIN_SEARCH_PX or cols[-1] >= c + 35 + _THIN_SEARCH_PX  # beyond the first search
+    corner = np.s_[r - 5:, c - 5:]  # the blob near the image's top-left corner
+    np.testing.assert_array_equal(extend_thin_parts(blob[corner], low[corner]),
+                                  _thin_parts_reference(blob[corner], low[corner]))
 
 
 def test_segmenter_finds_the_faint_barrel_only_with_thin_parts():
