@@ -9,8 +9,8 @@ from scipy import ndimage
 
 from torch_atr._checks import to_grey
 from torch_atr.config import ConfigError, load_config
-from torch_atr.segmentation import (_THIN_SEARCH_PX, ForegroundSegmenter, SegmentationConfig, clean_mask, extend_thin_parts,
-                                    normalise_ir, select_blob)
+from torch_atr.segmentation import (_THIN_SEARCH_PX, ForegroundSegmenter, SegmentationConfig, clean_mask,
+                                    extend_thin_parts, normalise_ir, select_blob)
 from torch_atr.shape import iou
 
 H, W = 120, 160
