@@ -185,7 +185,8 @@ class HypothesisGrid:
 def blind_hypotheses(blob: torch.Tensor, distance: torch.Tensor, camera: Camera, appearance: ShapeAppearance,
                      cfg: InitConfig, sigma: float, camera_height_m: float = math.nan, contrast: float = math.nan,
                      origin: tuple[int, int] = (0, 0), known_depth: float = math.nan,
-                     grid: HypothesisGrid | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+                     grid: HypothesisGrid | None = None, alpha_index: torch.Tensor | None = None
+                     ) -> tuple[torch.Tensor, torch.Tensor]:
     """Score a grid of (α, θ) hypotheses against one blob (module docstring).
 
     Args:
@@ -202,8 +203,9 @@ def blind_hypotheses(blob: torch.Tensor, distance: torch.Tensor, camera: Camera,
         known_depth: the range to place every hypothesis at (depth along the optical axis, m), e.g.
             a tracker's estimate; NaN: from the ground, or from the blob's size.
         grid: the (α, θ) grid's silhouette boxes, kept between calls (default: computed here).
+        alpha_index: (A,) the grid's α to score (indices into ``grid.alpha``); default all of them.
     Returns:
-        states: (M, 6) one particle per hypothesis (speed 0), M = alpha_steps × azimuth_steps,
+        states: (M, 6) one particle per hypothesis (speed 0), M = A × azimuth_steps (α-major),
         float64 on the appearance's device; log_lik: (M,) their log-likelihoods (−inf for a
         hypothesis whose silhouette is empty).
     """
@@ -218,6 +220,9 @@ def blind_hypotheses(blob: torch.Tensor, distance: torch.Tensor, camera: Camera,
     phi = torch.asin((-ray[1] / ray.norm()).clamp(-1, 1))  # elevation of the camera seen from the target
     grid = HypothesisGrid(model, cfg) if grid is None else grid
     alpha, theta, boxes = grid.alpha.to(device, dtype), grid.theta.to(device, dtype), grid.boxes(float(phi))
+    if alpha_index is not None:
+        alpha_index = alpha_index.to(device)
+        alpha, boxes = alpha[alpha_index], boxes.view(alpha.shape[0], -1, 4)[alpha_index].reshape(-1, 4)
     A, B, S = alpha.shape[0], theta.shape[0], model.template.size_px
     # Range: from the ground at the contact below the blob's lowest row, else where the silhouette has the blob's size.
     contact = torch.stack([(blob_box[0] + blob_box[2]) / 2, blob_box[3] + cfg.contact_row(contrast)])
