@@ -240,20 +240,19 @@ def _components_holding(blob: np.ndarray, both: np.ndarray, rect: tuple[int, int
     H, W = both.shape
     x, y, w, h = rect
     pad = _THIN_SEARCH_PX
-    r0, r1, c0, c1 = max(y - pad, 0), min(y + h + pad, H), max(x - pad, 0), min(x + w + pad, W)
-    while True:
+    for r0, r1, c0, c1 in ((max(y - pad, 0), min(y + h + pad, H), max(x - pad, 0), min(x + w + pad, W)),
+                           (0, H, 0, W)):
         _, labels, stats, _ = cv2.connectedComponentsWithStats(both[r0:r1, c0:c1].view(np.uint8), connectivity=8)
         touching = np.unique(labels[blob[r0:r1, c0:c1]])
         corner = stats[touching, :2]  # (left, top) of each, then (right, bottom) past its end, in the region
         (left, top), (right, bottom) = corner.min(0) - ring_px, (corner + stats[touching, 2:4]).max(0) + ring_px
-        inside = ((left > 0 or c0 == 0) and (top > 0 or r0 == 0) and (right < c1 - c0 or c1 == W)
-                  and (bottom < r1 - r0 or r1 == H))  # off the region's edge: no part of them outside it
-        if inside or (r0, r1, c0, c1) == (0, H, 0, W):
+        # Off the region's edges (or on the image's), no part of them lies outside the region.
+        if (left > 0 or c0 == 0) and (top > 0 or r0 == 0) and (right < c1 - c0 or c1 == W) and (
+                bottom < r1 - r0 or r1 == H):
             break
-        r0, r1, c0, c1 = 0, H, 0, W
-    rows, cols = slice(max(top, 0), bottom), slice(max(left, 0), right)  # numpy clips the ends at the region's
-    return labels[rows, cols], touching, (slice(r0 + rows.start, r0 + min(bottom, r1 - r0)),
-                                          slice(c0 + cols.start, c0 + min(right, c1 - c0)))
+    top, left = max(top, 0), max(left, 0)
+    bottom, right = min(bottom, r1 - r0), min(right, c1 - c0)  # the ring clipped at the image's edges
+    return labels[top:bottom, left:right], touching, np.s_[r0 + top:r0 + bottom, c0 + left:c0 + right]
 
 
 def extend_thin_parts(blob: np.ndarray, low: np.ndarray, ring_px: int = _THIN_RING_PX,
