@@ -76,7 +76,8 @@ def test_hypotheses_at_a_known_depth_all_lie_at_it(model, btr):
 
 
 def test_hypotheses_of_chosen_alphas_are_those_rows_of_the_whole_grid(model, btr):
-    """``alpha_index`` scores the grid's rows of those α only (α-major), the same as the whole grid does."""
+    """``alpha_index`` scores the grid's rows of those α only (α-major), the same as the whole grid does
+    (an indexing check: the whole grid's boxes are tested against per-view reconstructions above)."""
     mask = np.zeros((512, 640), dtype=bool)
     mask[250:262, 300:340] = True
     args = (torch.from_numpy(mask), signed_distance_px(mask), btr.camera, ShapeAppearance(model, "I", 32),
@@ -189,9 +190,9 @@ def _spy_searches(tracker: Tracker) -> list[int]:
     """The list that the tracker's re-detection searches will append their frame numbers to."""
     searched, search = [], tracker._redetect
 
-    def spy(*args):
+    def spy(*args, **kwargs):
         searched.append(tracker._frames)
-        return search(*args)
+        return search(*args, **kwargs)
 
     tracker._redetect = spy
     return searched
@@ -226,6 +227,20 @@ def test_redetection_follows_a_start_on_the_truth_only_when_asked(model, btr, af
     for i in range(12):
         tracker.step(btr.frame(i))
     assert searched == ([10] if after_truth else [])
+
+
+def test_view_searches_follow_a_start_on_the_truth_too(model, btr):
+    """View searches keep the identity, so unlike the full search they follow the thesis's start:
+    every 5th frame, frame 10 included (no full search there after a truth start)."""
+    cfg = load_config(TrackerConfig, None, ["init.mode=truth", "filter.particles=100", "init.alpha_steps=12",
+                                            "init.azimuth_steps=12", "redetect.view_every=5"])
+    tracker = Tracker(model, btr.camera, cfg, seed=0)
+    tracker.warm_up(btr.warmup_frames(20))
+    tracker.initialise(btr.truth(0))
+    searched = _spy_searches(tracker)
+    for i in range(12):
+        tracker.step(btr.frame(i))
+    assert searched == [5, 10]
 
 
 @pytest.mark.parametrize("override", ["redetect.every=-1", "redetect.margin=-1", "redetect.share=0",
