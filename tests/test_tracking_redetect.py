@@ -214,33 +214,31 @@ def test_redetection_counts_frames_from_the_track_start(model, btr):
     assert searched == [10, 15]
 
 
+def _searches_after_a_truth_start(model, seq, *overrides: str) -> list[int]:
+    """The frames searched in the first 12 after ``initialise`` (the thesis's start on the truth)."""
+    cfg = load_config(TrackerConfig, None, ["init.mode=truth", "filter.particles=100", "init.alpha_steps=12",
+                                            "init.azimuth_steps=12", *overrides])
+    tracker = Tracker(model, seq.camera, cfg, seed=0)
+    tracker.warm_up(seq.warmup_frames(20))
+    tracker.initialise(seq.truth(0))
+    searched = _spy_searches(tracker)
+    for i in range(12):
+        tracker.step(seq.frame(i))
+    return searched
+
+
 @pytest.mark.parametrize("after_truth", [False, True])
 def test_redetection_follows_a_start_on_the_truth_only_when_asked(model, btr, after_truth):
     """After ``initialise`` (the truth) the default never searches; ``after_truth`` searches at
     frame 10 as after a blind start."""
-    cfg = load_config(TrackerConfig, None, ["init.mode=truth", "filter.particles=100", "init.alpha_steps=12",
-                                            "init.azimuth_steps=12", f"redetect.after_truth={after_truth}"])
-    tracker = Tracker(model, btr.camera, cfg, seed=0)
-    tracker.warm_up(btr.warmup_frames(20))
-    tracker.initialise(btr.truth(0))
-    searched = _spy_searches(tracker)
-    for i in range(12):
-        tracker.step(btr.frame(i))
+    searched = _searches_after_a_truth_start(model, btr, f"redetect.after_truth={after_truth}")
     assert searched == ([10] if after_truth else [])
 
 
 def test_view_searches_follow_a_start_on_the_truth_too(model, btr):
     """View searches keep the identity, so unlike the full search they follow the thesis's start:
     every 5th frame, frame 10 included (no full search there after a truth start)."""
-    cfg = load_config(TrackerConfig, None, ["init.mode=truth", "filter.particles=100", "init.alpha_steps=12",
-                                            "init.azimuth_steps=12", "redetect.view_every=5"])
-    tracker = Tracker(model, btr.camera, cfg, seed=0)
-    tracker.warm_up(btr.warmup_frames(20))
-    tracker.initialise(btr.truth(0))
-    searched = _spy_searches(tracker)
-    for i in range(12):
-        tracker.step(btr.frame(i))
-    assert searched == [5, 10]
+    assert _searches_after_a_truth_start(model, btr, "redetect.view_every=5") == [5, 10]
 
 
 @pytest.mark.parametrize("override", ["redetect.every=-1", "redetect.margin=-1", "redetect.share=0",
