@@ -111,7 +111,8 @@ def _angle(a: torch.Tensor | float) -> torch.Tensor:
 def test_view_search_turns_a_reversed_heading_round_and_keeps_the_identity(monkeypatch):
     """The particles' shapes cannot walk half a turn (the control run stays reversed); searching the
     view every frame finds the right one. Every hypothesis it scores lies within one grid step of
-    the particles' α (their circular mean), so the identity stays theirs."""
+    the particles' α (their circular mean), and the particles it redraws take α values the particles
+    held before it (drawn by weight), so the identity stays theirs."""
     model = GenerativeShapeModel.from_checkpoint(CKPT)
     seq = SyntheticSequence("t_72", SceneConfig(frames=10))
     without = _reversed_heading_run(model, seq, 0)
@@ -122,11 +123,15 @@ def test_view_search_turns_a_reversed_heading_round_and_keeps_the_identity(monke
         scored.append(states[:, ALPHA])
         return states, log_lik
 
-    estimates, search = [], Tracker._redetect
+    estimates, redrawn, search = [], [], Tracker._redetect
 
     def search_spy(self, *args, **kwargs):
         estimates.append(circular_mean(self.particles[:, ALPHA].double(), self.log_weights.exp().double())[0])
-        return search(self, *args, **kwargs)
+        before = self.particles.clone()
+        out = search(self, *args, **kwargs)
+        changed = (self.particles != before).any(1)
+        redrawn.append((int(changed.sum()), bool(torch.isin(self.particles[changed, ALPHA], before[:, ALPHA]).all())))
+        return out
 
     monkeypatch.setattr(filter_module, "blind_hypotheses", spy)
     monkeypatch.setattr(Tracker, "_redetect", search_spy)
@@ -136,6 +141,7 @@ def test_view_search_turns_a_reversed_heading_round_and_keeps_the_identity(monke
     assert all(r["class"] == "tank" and r["p_tank"] > 0.99 for r in with_)
     step = 2 * math.pi / 24  # the grid's α step
     assert len(scored) == 9 and all(_angle(a - e).abs().max() < 1.5 * step for a, e in zip(scored, estimates))
+    assert sum(n for n, _ in redrawn) > 0 and all(kept for _, kept in redrawn)  # redrawn with an α the particles had
 
 
 def test_view_searches_every_kth_frame_after_any_start():

@@ -163,14 +163,15 @@ class RedetectConfig:
     View searches (``view_every`` > 0, off by default) come every ``view_every`` frames after any
     start, all through the run (a frame of the full search above has no view search). They score
     the view alone: the 36 θ of the grid at the grid's α nearest to the particles' circular mean
-    and its two neighbours (108 hypotheses, a few ms), so the identity stays the particles' and a
-    corrupted blob cannot move it to another class. They mend a heading that went the wrong way
-    round where the silhouette is symmetric (head-on or tail-on) and then could not come back, the
-    shape's mirror image fitted with the window shifted: on 1000-frame laps at 1000 and 2000 m (8
-    test vehicles, 2 scene seeds) they fired in 8 of 32 and lowered Method I's aspect error in all
-    8 (the 2S3 at 1000 m 1.87 -> 0.42 rad), mean 1.19 -> 1.02 rad; the 300-frame bars' runs never
-    fired; behind a berm one sequence in 16 lost recognition (docs/tracking.md). What they cannot
-    mend is θ against π − θ: at a grazing view the two silhouettes are the same."""
+    and its two neighbours (108 hypotheses, a few ms); the particles they redraw take α values of
+    the particles (drawn by weight), so the search itself does not move the identity (the α walk
+    at the new view may). They mend a heading that went the wrong way round where the silhouette
+    is symmetric (head-on or tail-on) and then could not come back, the shape's mirror image
+    fitted with the window shifted: on 1000-frame laps at 1000 and 2000 m (8 test vehicles, 2
+    scene seeds) they fired in 8 of 32 and lowered Method I's aspect error in all 8 (the 2S3 at
+    1000 m 1.87 -> 0.41 rad), mean 1.19 -> 1.04 rad; the 300-frame bars' runs never fired; behind
+    a berm one sequence in 16 lost recognition at the new view (docs/tracking.md). What they
+    cannot mend is θ against π − θ: at a grazing view the two silhouettes are the same."""
 
     every: int = 10  # frames between searches; 0: off
     margin: float = 5.0  # log-likelihood by which a hypothesis must beat every particle
@@ -519,6 +520,8 @@ class Tracker:
             init = replace(init, range_std=float((w * (depths - depth).square()).sum().sqrt()) / depth)
         new = blind_particles(states, torch.where(better, hyp, -math.inf), m, init, self.camera,
                               self.generator).to(self.dtype)
+        if views_only:  # the identity stays the particles': the new ones take theirs, drawn by weight
+            new[:, ALPHA] = self.particles[torch.multinomial(w, m, replacement=True, generator=self.generator), ALPHA]
         velocity = (w[:, None] * self.particles[:, SPEED, None] * torch.stack(
             [self.particles[:, HEADING].sin(), self.particles[:, HEADING].cos()], dim=1)).sum(0)  # (vx, vz)
         new[:, SPEED] = velocity[0] * new[:, HEADING].sin() + velocity[1] * new[:, HEADING].cos()
