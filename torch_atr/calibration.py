@@ -228,7 +228,8 @@ def calibrate_checkerboard(images: Sequence[np.ndarray], pattern: tuple[int, int
             terms would not match the distortion kept.
     Returns:
         (camera, rms): the camera posed at the world origin (world = sensor frame), and the RMS
-        reprojection error in pixels.
+        reprojection error in pixels; the same to the last bit for the same images (OpenCV's
+        solver runs on one thread).
     Raises:
         ValueError: fewer than 3 images, an image of another size, an image without the
             board (naming its index), or a flag that adds distortion terms (naming it).
@@ -254,8 +255,13 @@ def calibrate_checkerboard(images: Sequence[np.ndarray], pattern: tuple[int, int
             raise ValueError(f"image {i}: no {pattern[0]}x{pattern[1]} checkerboard found")
         img_points.append(corners)
     height, width = size
-    rms, K, dist, _, _ = cv2.calibrateCamera([obj] * len(img_points), img_points, (width, height),
-                                             None, None, flags=flags)
+    threads = cv2.getNumThreads()
+    cv2.setNumThreads(1)  # on more threads its sums are not reproducible: the same images gave
+    try:  # cameras differing in the 12th digit, which a tracker's run then amplified
+        rms, K, dist, _, _ = cv2.calibrateCamera([obj] * len(img_points), img_points, (width, height),
+                                                 None, None, flags=flags)
+    finally:
+        cv2.setNumThreads(threads)
     logger.info("checkerboard calibration from %d images: rms %.3f px", len(img_points), rms)
     camera = Camera(K[0, 0], K[1, 1], K[0, 2], K[1, 2], width, height, dist=dist.ravel()[:5])
     return camera, float(rms)
