@@ -17,7 +17,7 @@ from torch_atr.tracking import ShapeAppearance, Tracker, TrackerConfig
 from torch_atr.tracking import filter as filter_module
 from torch_atr.tracking.estimates import circular_mean
 from torch_atr.tracking.filter import RedetectConfig
-from torch_atr.tracking.initialise import HypothesisGrid, InitConfig, blind_hypotheses, truth_alpha
+from torch_atr.tracking.initialise import HypothesisGrid, InitConfig, best_hypotheses, blind_hypotheses, truth_alpha
 from torch_atr.tracking.motion import ALPHA, HEADING
 
 CKPT = Path(__file__).resolve().parents[1] / "checkpoints" / "default.pt"
@@ -60,6 +60,25 @@ def test_hypothesis_grid_boxes_are_the_silhouettes_of_each_view_and_are_kept_wit
     assert torch.equal(grid.boxes(0.5), reference(0.5))
     grid.forget()
     assert grid.boxes(0.5) is not first and torch.equal(grid.boxes(0.5), reference(0.5))
+
+
+def test_best_hypotheses_keep_each_class_its_share_against_brute_force():
+    g = torch.Generator().manual_seed(0)
+    log_lik = torch.randn(500, generator=g, dtype=torch.float64)
+    log_lik[torch.randperm(500, generator=g)[:100]] = -math.inf
+    classes = torch.randint(0, 5, (500,), generator=g)
+    classes[log_lik.isinf()] = 5  # class 5 has no valid hypothesis: no share
+    ranked = sorted(range(500), key=lambda i: -log_lik[i].item())
+    for count, per_class in ((16, 3), (3, 1), (100, 20)):
+        expected = [[i for i in ranked if classes[i] == c and math.isfinite(log_lik[i])][:per_class] for c in range(5)]
+        got = best_hypotheses(log_lik, count, classes).tolist()
+        assert sorted(got) == sorted(i for e in expected for i in e)
+        for e in expected:  # best first within each class
+            assert [i for i in got if i in e] == e
+    assert best_hypotheses(log_lik, 16).tolist() == ranked[:16]
+    assert best_hypotheses(torch.full((4,), -math.inf), 16).numel() == 1  # never empty
+    with pytest.raises(ValueError, match="classes"):
+        best_hypotheses(log_lik, 16, classes[:10])
 
 
 def test_hypotheses_at_a_known_depth_all_lie_at_it(model, btr):

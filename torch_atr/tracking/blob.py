@@ -10,8 +10,10 @@ hypothesis) — and the frame's distance is compared there with eq. 5.2 as in th
 over the silhouette's box grown by τ, resampled to L × L. Comparing over the whole template window
 instead favours the smallest silhouettes (a car fills less of its 12 m window than a tank, so its
 boundary errors weigh less in the mean): every vehicle came out a car. The blind start scores a
-grid of (α, θ, φ) hypotheses the same way. Everything else (segmentation,
-weights, resampling, estimates, lost frames, outputs) is :class:`~torch_atr.tracking.Tracker`'s.
+grid of (α, θ, φ) hypotheses the same way and draws particles around the best of each class, as
+the 3D filter's does: without a range, cars seen from above explain many first blobs best.
+Everything else (segmentation, weights, resampling, estimates, lost frames, outputs) is
+:class:`~torch_atr.tracking.Tracker`'s.
 """
 
 from __future__ import annotations
@@ -26,6 +28,7 @@ from torch_atr.data.sequence import FrameTruth
 from torch_atr.pose import wrap_angle
 from torch_atr.tracking.estimates import circular_mean, class_posterior
 from torch_atr.tracking.filter import Tracker, TrackerConfig
+from torch_atr.tracking.initialise import best_hypotheses
 from torch_atr.tracking.motion import MotionConfig
 from torch_atr.tracking.observation import blob_windows, log_likelihood, observe_windows, silhouette_boxes
 from torch_atr.tracking.resampling import effective_sample_size
@@ -128,7 +131,7 @@ class BlobTracker(Tracker):
         return torch.where(log_lik.isfinite(), log_lik, -math.inf).to(self.dtype)
 
     def _initialise_blind(self, mask: np.ndarray, distance, frame: np.ndarray | None) -> None:
-        """A grid of (α, θ, φ) hypotheses laid on the first blob; particles around the best."""
+        """A grid of (α, θ, φ) hypotheses laid on the first blob; particles around the best of each class."""
         cfg = self.cfg.init
         alpha = torch.arange(cfg.alpha_steps, dtype=self.dtype, device=self.device) * (2 * math.pi / cfg.alpha_steps)
         theta = torch.arange(cfg.azimuth_steps, dtype=self.dtype, device=self.device) * (
@@ -137,7 +140,7 @@ class BlobTracker(Tracker):
         grid = torch.cartesian_prod(theta, phi, alpha)  # (M, 3) [θ, φ, α]
         self._set_blob(distance)
         log_lik = self._log_likelihood(distance, grid)
-        best = log_lik.argsort(descending=True)[:max(1, min(cfg.hypotheses, int(log_lik.isfinite().sum())))]
+        best = best_hypotheses(log_lik, cfg.hypotheses, self.model.classify(grid[:, ALPHA]))
         n = self.cfg.filter.particles
         pick = best[torch.arange(n, device=self.device) % best.shape[0]]
         noise = torch.randn(n, 3, generator=self.generator, dtype=self.dtype, device=self.device)

@@ -42,6 +42,7 @@ from dataclasses import dataclass
 
 import torch
 
+from torch_atr._checks import check_shape
 from torch_atr.camera import Camera
 from torch_atr.config import ConfigError
 from torch_atr.pose import camera_centre, wrap_angle
@@ -64,7 +65,7 @@ class InitConfig:
     alpha: str = "vehicle"  # truth: "vehicle" (its αₖ if a training vehicle, else its class centre) or "class"
     alpha_steps: int = 72  # blind: α hypotheses evenly over [0, 2π)
     azimuth_steps: int = 36  # blind: θ hypotheses evenly over [0, 2π)
-    hypotheses: int = 16  # blind: particles are drawn around this many best hypotheses
+    hypotheses: int = 16  # blind: particles are drawn around this many best hypotheses, an equal share per class
     range_std: float = 0.01  # blind: relative σ of the range around a hypothesis's range
     camera_height_m: float | None = None  # blind: above flat ground; null: the sequence's, if it knows it
     ground_row: float | None = 0.0  # blind: contact in rows below the lowest blob row's centre; null: from contrast
@@ -250,27 +251,41 @@ def blind_hypotheses(blob: torch.Tensor, distance: torch.Tensor, camera: Camera,
     return states, log_lik
 
 
+def best_hypotheses(log_lik: torch.Tensor, count: int, classes: torch.Tensor | None = None) -> torch.Tensor:
+    """Indices of the best hypotheses, best first within each class.
+
+    With classes, each class keeps its best ``count // C`` hypotheses (at least one; C the
+    classes with a finite hypothesis), so one frame's blob does not decide the class alone
+    (measured: the T-72's first blob put all 16 best hypotheses on APCs with one scene seed of
+    three; on an uncalibrated blob, cars seen from above took the best 16 of every test vehicle
+    but the SUV and the pick-up); the next frames' weights do. Without, the ``count`` best.
+
+    Args:
+        log_lik: (M,) hypotheses' log-likelihoods, −inf for invalid ones; count: how many to keep;
+        classes: (M,) the class of each hypothesis, or None.
+    Returns:
+        (K,) int64 indices into log_lik, K ≥ 1.
+    """
+    check_shape("log_lik", log_lik, ("M",))
+    order = log_lik.argsort(descending=True)[:max(1, int(log_lik.isfinite().sum()))]
+    if classes is None:
+        return order[:count]
+    check_shape("classes", classes, (log_lik.shape[0],))
+    present = classes[order].unique()
+    per_class = max(1, count // len(present))
+    return torch.cat([order[classes[order] == c][:per_class] for c in present])
+
+
 def blind_particles(states: torch.Tensor, log_lik: torch.Tensor, n: int, cfg: InitConfig, camera: Camera,
                     generator: torch.Generator | None = None, classes: torch.Tensor | None = None) -> torch.Tensor:
-    """N particles around the best hypotheses, in equal shares.
+    """N particles around the best hypotheses (:func:`best_hypotheses`), in equal shares.
 
     states: (M, 6) and log_lik: (M,) from :func:`blind_hypotheses`; camera: the scene's camera;
-    classes: (M,) the class of each hypothesis's α. With classes, each class keeps its best
-    ``cfg.hypotheses // C`` hypotheses (at least one), so one frame's blob does not decide the
-    class alone (measured: the T-72's first blob put all 16 best hypotheses on APCs with one
-    scene seed of three); the next frames' weights do. Without, the ``cfg.hypotheses`` best.
-    The jitter: α and h by half a grid step, the range by ``range_std`` (relative, along the
-    line of sight from the camera centre), the signed speed by ``speed_std_mps``. Returns
-    (N, 6) on ``states``' device and dtype.
+    classes: (M,) the class of each hypothesis's α, or None. The jitter: α and h by half a grid
+    step, the range by ``range_std`` (relative, along the line of sight from the camera centre),
+    the signed speed by ``speed_std_mps``. Returns (N, 6) on ``states``' device and dtype.
     """
-    finite = log_lik.isfinite()
-    order = log_lik.argsort(descending=True)[:max(1, int(finite.sum()))]
-    if classes is None:
-        best = order[:cfg.hypotheses]
-    else:
-        present = classes[order].unique()
-        per_class = max(1, cfg.hypotheses // len(present))
-        best = torch.cat([order[classes[order] == c][:per_class] for c in present])
+    best = best_hypotheses(log_lik, cfg.hypotheses, classes)
     pick = best[torch.arange(n, device=states.device) % best.shape[0]]
     out = states[pick].clone()
     noise = torch.randn(n, 4, generator=generator, dtype=states.dtype, device=states.device)
