@@ -58,11 +58,12 @@ def main(argv: list[str] | None = None) -> dict:
     flags = [f"{key}={getattr(args, flag)}" for flag, key in FLAGS.items() if getattr(args, flag) is not None]
     flags += [f"{name}=true" for name in ("tensorboard", "video") if getattr(args, name)]
     cfg = load_config(TrackConfig, args.config, flags + args.overrides)
-    out = check_output_dir(cfg.out, args.overwrite, "metrics.json", is_track_run, "tracking run")
 
-    # 1. The model, the sequence and (for Method IV) the training templates.
+    # 1. The model, the sequence and (for Method IV) the training templates. A bad input is
+    # reported before the run folder is checked: a typo in --sequence is not "runs/track exists".
     model = GenerativeShapeModel.from_checkpoint(resolve(cfg.checkpoint), map_location=cfg.device)
     sequence = open_sequence(cfg.sequence)
+    out = check_output_dir(cfg.out, args.overwrite, "metrics.json", is_track_run, "tracking run")
     templates = training_templates(model) if cfg.tracker.filter.method == "IV" else None
 
     # 2. Track: warm-up, initialisation and the particle filter over every frame; without a camera,

@@ -51,7 +51,9 @@ def main(argv: list[str] | None = None) -> dict:
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s: %(message)s", datefmt="%H:%M:%S")
     cfg = load_config(TrainConfig, args.config, args.overrides)
-    # Refuse to replace outputs before spending minutes on training.
+    # The training vehicles (the shipped split, or a folder of your own models): a bad catalog is
+    # named first. Then refuse to replace outputs before spending minutes on training.
+    vehicles = load_catalog("train") if cfg.catalog == "train" else load_catalog_folder(cfg.catalog)
     out_dir = check_output_dir(Path(cfg.log_dir) / cfg.name, args.overwrite, "report.json", is_train_report, "run")
     checkpoint = check_output_file(cfg.checkpoint, args.overwrite, is_checkpoint, "checkpoint")
     torch.manual_seed(cfg.seed)
@@ -65,9 +67,7 @@ def main(argv: list[str] | None = None) -> dict:
         log.info("%s: %.1f s", stage, now - clock)
         clock = now
 
-    # 1. The training vehicles (the shipped split, or a folder of your own models) rendered at the
-    # training, validation and held-out views.
-    vehicles = load_catalog("train") if cfg.catalog == "train" else load_catalog_folder(cfg.catalog)
+    # 1. The training vehicles rendered at the training, validation and held-out views.
     names, classes = [v.name for v in vehicles], [CLASS_NAMES.index(v.cls) for v in vehicles]
     theta, phi = cfg.views.grid()
     masks, signed = render_set(vehicles, theta, phi, cfg.template, "training views")

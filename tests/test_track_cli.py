@@ -52,6 +52,9 @@ def test_an_existing_run_is_kept_unless_overwrite(run, tmp_path):
     with pytest.raises(OSError, match="not empty"):
         track.main(["--sequence", SHORT, "--out", str(foreign), "--overwrite", "--frames", "2"])
     assert (foreign / "notes.txt").read_text() == "mine"
+    # A bad input is named first, not the run folder it would have gone to.
+    with pytest.raises(OSError, match="nope.mp4"):
+        track.main(["--sequence", f"video:{tmp_path / 'nope.mp4'}", "--out", str(out)])
 
 
 @pytest.mark.parametrize("args, message", [

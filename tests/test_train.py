@@ -144,6 +144,10 @@ def test_catalog_manifest_errors_name_the_entry(tmp_path):
     manifest.unlink()
     with pytest.raises(FileNotFoundError, match="catalog.yaml"):
         _run(tmp_path, f"catalog={folder}", *REDUCED)
+    # Named first, before the outputs: here a checkpoint of ours is in the way.
+    shutil.copy(REPO / "checkpoints" / "default.pt", tmp_path / "model.pt")
+    with pytest.raises(FileNotFoundError, match="catalog.yaml"):
+        _run(tmp_path, f"catalog={folder}", *REDUCED)
 
 
 def test_bad_config_key_and_type_are_named(tmp_path):
