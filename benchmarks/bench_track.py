@@ -10,7 +10,8 @@ resampling. The reference does one step of Table 5.1 the straightforward way —
 particles, each with its own prediction, view, model query (full size, pooled), window and
 likelihood — on the same frames, segmentation included, always on the CPU; the speed-up is the
 ratio of the two medians at the same particle count, measured in this run (with ``--device cuda``,
-the GPU's filter against the CPU's loop). Frames per second are the median
+the GPU's filter against the CPU's loop). The tracker's segmentation is also timed alone (no
+particles): the floor under every row. Frames per second are the median
 step's; the rate over all frames is printed beside it, since re-detection searches the blob on
 a few frames only (by default once, 10 frames after the start; ``redetect``) and the median does
 not see it.
@@ -137,6 +138,21 @@ def reference_fps(model, seq, frames, n: int, tracker_cfg: TrackerConfig) -> flo
     return 1.0 / statistics.median(times)
 
 
+def segmentation_ms(seq, frames, tracker_cfg: TrackerConfig) -> float:
+    """Median milliseconds of the tracker's segmentation alone (its settings, no predicted region),
+    outside the profiler: the floor under every frame's time, whatever the particle count."""
+    from torch_atr.segmentation import ForegroundSegmenter
+
+    seg = ForegroundSegmenter(tracker_cfg.segmentation)
+    seg.warm_up(seq.warmup_frames(50))
+    times = []
+    for frame in frames:
+        start = time.perf_counter()
+        seg(frame)
+        times.append(time.perf_counter() - start)
+    return 1e3 * statistics.median(times)
+
+
 def profile(model, seq, frames, n: int, device: str, overrides: list[str]) -> dict[str, float]:
     """Milliseconds per frame in each stage (cumulative, cProfile) at n particles."""
     cfg = tracker_config(n, overrides)
@@ -195,6 +211,9 @@ def main() -> None:
         tracker_fps(model, seq, frames, n_ref, args.device, args.skip, args.set)[0]
     log.info("per-particle reference at N = %d: %.3f frames/s; the batched filter is %.0fx faster", n_ref, ref,
              batched / ref)
+    seg_ms = segmentation_ms(seq, frames, tracker_config(n_ref, args.set))
+    log.info("segmentation alone (MOG2 with the tracker's settings, on the CPU): %.1f ms per frame (median of %d)",
+             seg_ms, len(frames))
     stages = profile(model, seq, frames, n_ref, args.device, args.set)
     log.info("where the time goes at N = %d (ms per frame, cumulative):", n_ref)
     for name, ms in sorted(stages.items(), key=lambda kv: -kv[1]):
@@ -202,7 +221,8 @@ def main() -> None:
     if args.json:
         atomic_write_text(json.dumps({"runs": rows, "reference": {"particles": n_ref, "frames_per_second": ref,
                                                                    "speed_up": batched / ref},
-                                      "profile_ms": stages, "threads": torch.get_num_threads()}, indent=2),
+                                      "segmentation_ms": seg_ms, "profile_ms": stages,
+                                      "threads": torch.get_num_threads()}, indent=2),
                           args.json)
 
 
