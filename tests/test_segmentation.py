@@ -10,7 +10,7 @@ from scipy import ndimage
 from torch_atr._checks import to_grey
 from torch_atr.config import ConfigError, load_config
 from torch_atr.segmentation import (_THIN_SEARCH_PX, ForegroundSegmenter, SegmentationConfig, clean_mask,
-                                    extend_thin_parts, normalise_ir, select_blob)
+                                    extend_thin_parts, normalise_ir, select_blob, static_background_frames)
 from torch_atr.shape import iou
 
 H, W = 120, 160
@@ -84,6 +84,41 @@ def test_moving_blob_iou(kind):
         assert mask.shape == (H, W) and mask.dtype == bool
         ious.append(_iou(mask, truth))
     assert min(ious) >= 0.8, ious
+
+
+@pytest.mark.parametrize("kind", ["uint16", "bgr", "float32"])
+def test_static_background_frames_take_out_a_target_that_moves(kind):
+    """A target in every warm-up frame, crossing the scene 3 px per frame (any pixel covered in at
+    most 7 of 35 frames): the frames lose it and keep the rest. MOG2 warmed on the raw frames
+    learned the target as background along its path; warmed on these, it finds it there."""
+    rng = np.random.default_rng(1)
+    texture = _background(rng)
+    truths = [_rect(3 * k, 50, 20, 10) for k in range(35)]
+    frames = [_frame(kind, texture, [t], rng) for t in truths]
+    level, amplitude, noise, _ = LEVELS[kind]
+    background = level + amplitude * texture  # the frames' noise-free background
+    clean = static_background_frames(frames)
+    greys = np.stack([to_grey("frame", frame, (frame.dtype,)) for frame in frames])
+    for grey, out, truth in zip(greys, clean, truths):
+        assert out.shape == (H, W) and out.dtype == grey.dtype
+        assert np.abs(out[truth] - background[truth]).max() < 6 * noise  # the target is gone
+        assert np.mean(out[~truth] == grey[~truth]) > 0.98  # the rest is as it was
+        assert (greys == out).any(axis=0).all()  # every value is the pixel's own in some frame: its noise
+    target = truths[17]  # where the target was in frames 11-23
+    found = {}
+    for name, warm in (("raw", frames), ("static", clean)):
+        seg = ForegroundSegmenter(SegmentationConfig(warmup_frames=35))
+        seg.warm_up(warm)
+        found[name] = _iou(seg(_frame(kind, texture, [target], rng)), target)
+    assert found["raw"] < 0.5 and found["static"] >= 0.8, found
+
+
+def test_static_background_frames_name_a_frame_that_differs():
+    frames = [np.zeros((H, W), np.uint8)] * 3 + [np.zeros((H, W + 1), np.uint8)]
+    with pytest.raises(ValueError, match="warm-up frame 3"):
+        static_background_frames(frames)
+    with pytest.raises(ValueError, match="at least one frame"):
+        static_background_frames([])
 
 
 def test_uint16_target_over_bright_background_is_kept():

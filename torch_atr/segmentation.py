@@ -40,7 +40,7 @@ from __future__ import annotations
 
 import logging
 from dataclasses import dataclass
-from typing import Iterable
+from typing import Iterable, Sequence
 
 import cv2
 import numpy as np
@@ -299,6 +299,52 @@ def extend_thin_parts(blob: np.ndarray, low: np.ndarray, ring_px: int = _THIN_RI
         bridge = bridge | (ring & low & cv2.dilate(bridge.view(np.uint8), np.ones((3, 3), np.uint8)).astype(bool))
     out[box] |= bridge  # out is _check_mask's copy, not the caller's array
     return out
+
+
+_MOVING_SIGMAS = 3.0  # static_background_frames: a pixel this many robust σ from its median moves
+_MAD_TO_SIGMA = 1.4826  # σ of a normal distribution per median absolute deviation
+_MEDIAN_ROWS = 64  # ... computed over blocks of this many rows, to bound the memory
+
+
+def static_background_frames(frames: Sequence[np.ndarray]) -> list[np.ndarray]:
+    """Warm-up frames with what moves taken out, for a sequence without target-free frames.
+
+    MOG2 learns whatever the warm-up frames show. Taken from the start of a clip whose vehicle is
+    there from the first frame, they teach it the vehicle as background, and the road it uncovers
+    later becomes a ghost blob that the tracker then follows. Here a pixel of a frame that lies
+    more than 3 robust σ from the pixel's median over the frames (σ = 1.4826 × its median
+    absolute deviation) is taken from the nearest frame where it does not: a target that covers a
+    pixel in fewer than half the frames is replaced by what it hides, with the background's own
+    noise (the median itself in its place would shrink the variance MOG2 learns there). Spread
+    the frames over the sequence so a moving target covers each pixel in few of them. Non-finite
+    pixels are left as they are.
+
+    Args:
+        frames: K frames, (H, W) or (H, W, 3) BGR, all the same size and dtype (uint8, uint16,
+            float32 or float64).
+    Returns:
+        K grey (H, W) frames of that dtype, for :meth:`ForegroundSegmenter.warm_up`.
+    """
+    greys = [to_grey(f"warm-up frame {i}", frame, _DTYPES) for i, frame in enumerate(frames)]
+    if not greys:
+        raise ValueError("static_background_frames needs at least one frame; got none")
+    for i, grey in enumerate(greys):
+        if (grey.shape, grey.dtype) != (greys[0].shape, greys[0].dtype):
+            raise ValueError(f"warm-up frame {i}: shape {frames[i].shape}, dtype {frames[i].dtype} differs from "
+                             f"frame 0's size {greys[0].shape}, dtype {greys[0].dtype}")
+    stack = np.stack(greys)  # (K, H, W)
+    k = np.arange(stack.shape[0])[:, None, None]
+    work = np.float64 if stack.dtype == np.float64 else np.float32
+    out = []
+    for r in range(0, stack.shape[1], _MEDIAN_ROWS):
+        block = stack[:, r:r + _MEDIAN_ROWS]
+        deviation = np.abs(block.astype(work) - np.median(block, axis=0))
+        moving = deviation > _MOVING_SIGMAS * _MAD_TO_SIGMA * np.median(deviation, axis=0)
+        before = np.maximum.accumulate(np.where(moving, -1, k), axis=0)  # the last still frame up to each
+        after = np.minimum.accumulate(np.where(moving, k.size, k)[::-1], axis=0)[::-1]  # the first from each
+        source = np.where(before >= 0, before, after)  # at least half the frames are still
+        out.append(np.take_along_axis(block, source, axis=0))
+    return list(np.concatenate(out, axis=1))
 
 
 def fit_gain(frame: np.ndarray, background: np.ndarray, valid: np.ndarray) -> tuple[float, float]:

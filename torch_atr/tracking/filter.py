@@ -40,7 +40,7 @@ from torch_atr.config import ConfigError
 from torch_atr.data.sequence import FrameTruth, Sequence
 from torch_atr.model import GenerativeShapeModel
 from torch_atr.pose import VehiclePose, camera_centre, view_of_pose
-from torch_atr.segmentation import ForegroundSegmenter, SegmentationConfig
+from torch_atr.segmentation import ForegroundSegmenter, SegmentationConfig, static_background_frames
 from torch_atr.tracking.appearance import METHODS, ShapeAppearance
 from torch_atr.tracking.estimates import (
     circular_mean,
@@ -615,6 +615,11 @@ class Tracker:
             ) -> TrackResult:
         """Track a sequence: warm up the background, initialise (``cfg.init.mode``), step every frame.
 
+        The background is learned from the sequence's target-free ``warmup_frames`` where it has
+        them (the simulator), else from frames spread evenly over the frames tracked, with what
+        moves taken out (``segmentation.static_background_frames``; README, "The background of
+        your own sequences").
+
         Args:
             sequence: an opened sequence with a camera (``data.open_sequence``).
             frames: track the first ``frames`` frames (default all).
@@ -632,9 +637,15 @@ class Tracker:
             self.dt = 1.0 / sequence.fps
         if self.cfg.init.camera_height_m is None:
             self.camera_height_m = sequence.camera_height_m
-        warmup = (sequence.warmup_frames(self.cfg.segmentation.warmup_frames) if hasattr(sequence, "warmup_frames")
-                  else (sequence.frame(i) for i in range(min(n, self.cfg.segmentation.warmup_frames))))
-        self.warm_up(warmup)
+        count = self.cfg.segmentation.warmup_frames
+        if hasattr(sequence, "warmup_frames"):
+            self.warm_up(sequence.warmup_frames(count))
+        else:  # no target-free frames: frames spread over the track, with what moves taken out
+            picks = sorted(set(np.linspace(0, n - 1, min(n, count)).round().astype(int).tolist()))
+            log.info("%s: no target-free frames; the background is learned from %d frames spread over the %d "
+                     "tracked, with moving parts taken out (segmentation.static_background_frames)", sequence.name,
+                     len(picks), n)
+            self.warm_up(static_background_frames([sequence.frame(i) for i in picks]))
         if self.cfg.init.mode == "truth":
             first = sequence.truth(0)
             if first is None:
