@@ -12,9 +12,9 @@ import torch
 import torch.nn.functional as F
 from scipy.optimize import fsolve
 
+from clips import Clip
 from references import bilinear
 from torch_atr.config import ConfigError, load_config
-from torch_atr.data.sequence import Sequence
 from torch_atr.data.synthetic import SceneConfig, SyntheticSequence
 from torch_atr.model import GenerativeShapeModel
 from torch_atr.pose import VehiclePose, view_of_pose
@@ -213,29 +213,12 @@ def test_blind_start_finds_the_vehicle(model, btr):
     assert abs(last[-1]["x"] - t.x) < 1.5 and abs(last[-1]["z"] - t.z) < 100
 
 
-class _Clip(Sequence):
-    """A simulated sequence as a user's clip: camera and truth, no target-free frames."""
-
-    def __init__(self, seq: SyntheticSequence):
-        self.seq, self.name, self.fps, self.camera, self.meta = seq, seq.name, seq.fps, seq.camera, {}
-        self.camera_height_m = seq.camera_height_m
-
-    def __len__(self) -> int:
-        return len(self.seq)
-
-    def _read_frame(self, i: int) -> np.ndarray:
-        return self.seq.frame(i)
-
-    def _truth(self, i: int):
-        return self.seq.truth(i)
-
-
 def test_a_clip_without_target_free_frames_is_tracked(model):
     """The BTR-70 is in every frame. Warmed on the clip's first frames, MOG2 learned it as
     background and the tracker followed the ghost it left (the T-72 at 1000 m: 23 m off, 0 %
     recognised); frames spread over the clip with the moving parts taken out give the road."""
     seq = SyntheticSequence("btr_70", SceneConfig(frames=120))
-    result = Tracker(model, seq.camera, _config("filter.particles=300"), seed=0).run(_Clip(seq), progress=False)
+    result = Tracker(model, seq.camera, _config("filter.particles=300"), seed=0).run(Clip(seq, warmup=False), progress=False)
     m = run_summary(result, model, 20)
     assert m["settled"]["recognition_accuracy"] >= 0.8 and m["settled"]["horizontal_error_m"] < 1.0
     assert m["settled"]["overlap_ratio"] > 0.8

@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 import torch
 
+from clips import Clip
 from torch_atr.config import load_config
-from torch_atr.data.sequence import Sequence
 from torch_atr.data.synthetic import SceneConfig, SyntheticSequence
 from torch_atr.evaluation import wrapped_abs
 from torch_atr.model import GenerativeShapeModel
@@ -17,25 +17,6 @@ from torch_atr.tracking.blob import BlobTracker, predict_views
 from torch_atr.tracking.motion import MotionConfig
 
 CKPT = Path(__file__).resolve().parents[1] / "checkpoints" / "default.pt"
-
-
-class Uncalibrated(Sequence):
-    """A simulated sequence without its camera: frames, target-free warm-up frames and truth."""
-
-    def __init__(self, seq: SyntheticSequence):
-        self.seq, self.name, self.fps, self.camera, self.meta = seq, seq.name, seq.fps, None, {}
-
-    def __len__(self) -> int:
-        return len(self.seq)
-
-    def _read_frame(self, i: int) -> np.ndarray:
-        return self.seq.frame(i)
-
-    def _truth(self, i: int):
-        return self.seq.truth(i)
-
-    def warmup_frames(self, n: int):
-        return self.seq.warmup_frames(n)
 
 
 def test_view_random_walk_wraps_and_reflects():
@@ -55,7 +36,7 @@ def test_blind_blob_tracking_recognises_and_follows_the_view(vehicle, vehicle_cl
     then pass for cars). The BTR-70's first blob is explained best by cars seen from 10° up; the
     APC side-on takes over in the next frames only if the blind start kept some of each class."""
     model = GenerativeShapeModel.from_checkpoint(CKPT)
-    seq = Uncalibrated(SyntheticSequence(vehicle, SceneConfig(frames=40)))
+    seq = Clip(SyntheticSequence(vehicle, SceneConfig(frames=40)), camera=False)
     result = BlobTracker(model, load_config(TrackerConfig, None, ["filter.particles=300"]), seed=0).run(
         seq, progress=False)
     rows = result.rows[10:]
