@@ -316,8 +316,9 @@ def static_background_frames(frames: Sequence[np.ndarray]) -> list[np.ndarray]:
     absolute deviation) is taken from the nearest frame where it does not: a target that covers a
     pixel in fewer than half the frames is replaced by what it hides, with the background's own
     noise (the median itself in its place would shrink the variance MOG2 learns there). Spread
-    the frames over the sequence so a moving target covers each pixel in few of them. Non-finite
-    pixels are left as they are.
+    the frames over the sequence so a moving target covers each pixel in few of them. A pixel
+    that is NaN in some frame is left as it is in every frame (the segmenter reads NaN as 0); an
+    infinite one counts as moving.
 
     Args:
         frames: K frames, (H, W) or (H, W, 3) BGR, all the same size and dtype (uint8, uint16,
