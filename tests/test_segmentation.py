@@ -113,6 +113,15 @@ def test_static_background_frames_take_out_a_target_that_moves(kind):
     assert found["raw"] < 0.5 and found["static"] >= 0.8, found
 
 
+def test_static_background_frames_leave_nan_pixels_and_replace_infinite_ones():
+    rng = np.random.default_rng(0)
+    frames = [rng.normal(290.0, 0.1, (H, W)).astype(np.float32) for _ in range(7)]
+    frames[2][3, 4], frames[5][1, 1] = np.nan, np.inf
+    out = static_background_frames(frames)
+    assert np.isnan(out[2][3, 4]) and all(o[3, 4] == f[3, 4] for o, f in zip(out[:2], frames[:2]))
+    assert out[5][1, 1] == frames[4][1, 1]  # from the nearest still frame before it
+
+
 def test_static_background_frames_name_a_frame_that_differs():
     frames = [np.zeros((H, W), np.uint8)] * 3 + [np.zeros((H, W + 1), np.uint8)]
     with pytest.raises(ValueError, match="warm-up frame 3"):
