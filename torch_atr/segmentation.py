@@ -40,10 +40,11 @@ from __future__ import annotations
 
 import logging
 from dataclasses import dataclass
-from typing import Iterable, Sequence
+from typing import Iterable
 
 import cv2
 import numpy as np
+from scipy.stats import median_abs_deviation
 
 from torch_atr._checks import to_grey
 from torch_atr.config import ConfigError
@@ -302,17 +303,33 @@ def extend_thin_parts(blob: np.ndarray, low: np.ndarray, ring_px: int = _THIN_RI
 
 
 _MOVING_SIGMAS = 3.0  # static_background_frames: a pixel this many robust σ from its median moves
-_MAD_TO_SIGMA = 1.4826  # σ of a normal distribution per median absolute deviation
 _MEDIAN_ROWS = 64  # ... computed over blocks of this many rows, to bound the memory
 
 
-def static_background_frames(frames: Sequence[np.ndarray]) -> list[np.ndarray]:
+def _grey_frames(frames: Iterable[np.ndarray], what: str, limit: int | None = None) -> list[np.ndarray]:
+    """Up to ``limit`` warm-up frames as (H, W) greys of their dtype, checked to share frame 0's
+    size and dtype; at least one."""
+    greys = []
+    for i, frame in enumerate(frames):
+        if i == limit:
+            break
+        grey = to_grey(f"warm-up frame {i}", frame, _DTYPES)
+        if greys and (grey.shape, grey.dtype) != (greys[0].shape, greys[0].dtype):
+            raise ValueError(f"warm-up frame {i}: shape {frame.shape}, dtype {frame.dtype} differs from "
+                             f"frame 0's size {greys[0].shape}, dtype {greys[0].dtype}")
+        greys.append(grey)
+    if not greys:
+        raise ValueError(f"{what} needs at least one frame; got none")
+    return greys
+
+
+def static_background_frames(frames: Iterable[np.ndarray]) -> list[np.ndarray]:
     """Warm-up frames with what moves taken out, for a sequence without target-free frames.
 
     MOG2 learns whatever the warm-up frames show. Taken from the start of a clip whose vehicle is
     there from the first frame, they teach it the vehicle as background, and the road it uncovers
     later becomes a ghost blob that the tracker then follows. Here a pixel of a frame that lies
-    more than 3 robust σ from the pixel's median over the frames (σ = 1.4826 × its median
+    more than 3 robust σ from the pixel's median over the frames (σ: scipy's normal-scaled median
     absolute deviation) is taken from the nearest frame where it does not: a target that covers a
     pixel in fewer than half the frames is replaced by what it hides, with the background's own
     noise (the median itself in its place would shrink the variance MOG2 learns there). Spread
@@ -321,31 +338,24 @@ def static_background_frames(frames: Sequence[np.ndarray]) -> list[np.ndarray]:
     infinite one counts as moving.
 
     Args:
-        frames: K frames, (H, W) or (H, W, 3) BGR, all the same size and dtype (uint8, uint16,
-            float32 or float64).
+        frames: K frames (an iterable, read once: each is kept only as grey), (H, W) or (H, W, 3)
+            BGR, all the same size and dtype (uint8, uint16, float32 or float64).
     Returns:
         K grey (H, W) frames of that dtype, for :meth:`ForegroundSegmenter.warm_up`.
     """
-    greys = [to_grey(f"warm-up frame {i}", frame, _DTYPES) for i, frame in enumerate(frames)]
-    if not greys:
-        raise ValueError("static_background_frames needs at least one frame; got none")
-    for i, grey in enumerate(greys):
-        if (grey.shape, grey.dtype) != (greys[0].shape, greys[0].dtype):
-            raise ValueError(f"warm-up frame {i}: shape {frames[i].shape}, dtype {frames[i].dtype} differs from "
-                             f"frame 0's size {greys[0].shape}, dtype {greys[0].dtype}")
-    stack = np.stack(greys)  # (K, H, W)
+    stack = np.stack(_grey_frames(frames, "static_background_frames"))  # (K, H, W)
     k = np.arange(stack.shape[0])[:, None, None]
     work = np.float64 if stack.dtype == np.float64 else np.float32
-    out = []
+    out = np.empty_like(stack)
     for r in range(0, stack.shape[1], _MEDIAN_ROWS):
-        block = stack[:, r:r + _MEDIAN_ROWS]
-        deviation = np.abs(block.astype(work) - np.median(block, axis=0))
-        moving = deviation > _MOVING_SIGMAS * _MAD_TO_SIGMA * np.median(deviation, axis=0)
+        block = stack[:, r:r + _MEDIAN_ROWS].astype(work)
+        sigma = median_abs_deviation(block, axis=0, scale="normal")
+        moving = np.abs(block - np.median(block, axis=0)) > _MOVING_SIGMAS * sigma
         before = np.maximum.accumulate(np.where(moving, -1, k), axis=0)  # the last still frame up to each
         after = np.minimum.accumulate(np.where(moving, k.size, k)[::-1], axis=0)[::-1]  # the first from each
         source = np.where(before >= 0, before, after)  # at least half the frames are still
-        out.append(np.take_along_axis(block, source, axis=0))
-    return list(np.concatenate(out, axis=1))
+        out[:, r:r + _MEDIAN_ROWS] = np.take_along_axis(stack[:, r:r + _MEDIAN_ROWS], source, axis=0)
+    return list(out)
 
 
 def fit_gain(frame: np.ndarray, background: np.ndarray, valid: np.ndarray) -> tuple[float, float]:
@@ -444,17 +454,7 @@ class ForegroundSegmenter:
                 ``cfg.warmup_frames`` are read from it.
         """
         cfg = self.cfg
-        greys = []
-        for i, frame in enumerate(frames):
-            if i == cfg.warmup_frames:
-                break
-            grey = to_grey(f"warm-up frame {i}", frame, _DTYPES)
-            if greys and (grey.shape, grey.dtype) != (greys[0].shape, greys[0].dtype):
-                raise ValueError(f"warm-up frame {i}: shape {frame.shape}, dtype {frame.dtype} differs from "
-                                 f"frame 0's size {greys[0].shape}, dtype {greys[0].dtype}")
-            greys.append(grey)
-        if not greys:
-            raise ValueError("warm_up needs at least one frame; got none")
+        greys = _grey_frames(frames, "warm_up", cfg.warmup_frames)
         self._kind = (greys[0].shape, greys[0].dtype)
         if greys[0].dtype == np.uint8:
             self.levels = None

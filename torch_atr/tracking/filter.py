@@ -645,7 +645,7 @@ class Tracker:
             log.info("%s: no target-free frames; the background is learned from %d frames spread over the %d "
                      "tracked, with moving parts taken out (segmentation.static_background_frames)", sequence.name,
                      len(picks), n)
-            self.warm_up(static_background_frames([sequence.frame(i) for i in picks]))
+            self.warm_up(static_background_frames(sequence.frame(i) for i in picks))
         if self.cfg.init.mode == "truth":
             first = sequence.truth(0)
             if first is None:
