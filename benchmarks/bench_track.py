@@ -40,6 +40,7 @@ from torch_atr.data.synthetic import SceneConfig, SyntheticSequence
 from torch_atr.io import atomic_write_text
 from torch_atr.model import GenerativeShapeModel
 from torch_atr.pose import VehiclePose, view_of_pose
+from torch_atr.segmentation import ForegroundSegmenter
 from torch_atr.shape import signed_distance_px
 from torch_atr.tracking import Tracker, TrackerConfig
 from torch_atr.tracking.motion import MotionConfig
@@ -118,12 +119,16 @@ def reference_step(model, camera, mask, particles: list[list[float]], motion: Mo
     return out
 
 
+def warmed_segmenter(seq, tracker_cfg: TrackerConfig) -> ForegroundSegmenter:
+    """The tracker's segmentation, warmed up on the sequence's target-free frames."""
+    seg = ForegroundSegmenter(tracker_cfg.segmentation)
+    seg.warm_up(seq.warmup_frames(tracker_cfg.segmentation.warmup_frames))
+    return seg
+
+
 def reference_fps(model, seq, frames, n: int, tracker_cfg: TrackerConfig) -> float:
     """Frames per second of the per-particle reference (segmentation included), over len(frames) frames."""
-    from torch_atr.segmentation import ForegroundSegmenter
-
-    seg = ForegroundSegmenter(tracker_cfg.segmentation)
-    seg.warm_up(seq.warmup_frames(50))
+    seg = warmed_segmenter(seq, tracker_cfg)
     t = seq.truth(0)
     g = torch.Generator().manual_seed(0)
     particles = [[t.x + r[0], t.y + r[1], t.z + r[2], t.heading, 1.0, 0.5] for r in torch.randn(n, 3, generator=g).tolist()]
@@ -141,10 +146,7 @@ def reference_fps(model, seq, frames, n: int, tracker_cfg: TrackerConfig) -> flo
 def segmentation_ms(seq, frames, tracker_cfg: TrackerConfig) -> float:
     """Median milliseconds of the tracker's segmentation alone (its settings, no predicted region),
     outside the profiler: the floor under every frame's time, whatever the particle count."""
-    from torch_atr.segmentation import ForegroundSegmenter
-
-    seg = ForegroundSegmenter(tracker_cfg.segmentation)
-    seg.warm_up(seq.warmup_frames(50))
+    seg = warmed_segmenter(seq, tracker_cfg)
     times = []
     for frame in frames:
         start = time.perf_counter()
