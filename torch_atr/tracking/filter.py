@@ -15,6 +15,10 @@ Per frame (Table 5.1, with the segmentation of chapter 3.1 in front):
 5. resample (step 4) when the ESS falls below ``resample_ess`` · N (1.0: every frame, the
    thesis's SIR filter).
 
+After a blind start the speeds are unknown: ``init.speed_frames`` frames after it (10 by default)
+every particle's speed is set from the blob's motion across the line of sight over those frames
+(``initialise.speeds_from_track``), before which they follow only their random walk from about 0.
+
 A frame gives no observation when its mask is empty or covers more than ``max_foreground`` of the
 image, and is lost when every particle's likelihood underflows (max log w below log of the
 smallest normal float): the filter then keeps its prediction, leaves the weights as they are and
@@ -53,6 +57,7 @@ from torch_atr.tracking.initialise import (
     InitConfig,
     blind_hypotheses,
     blind_particles,
+    speeds_from_track,
     truth_alpha,
     truth_particles,
 )
@@ -282,6 +287,8 @@ class Tracker:
         self._frames = 0
         self._start = 0  # the frame the track started at (reset); re-detection counts from it
         self._searching = True  # whether re-detection follows the current start
+        self._track: list[tuple[float, float]] | None = None  # (s since the start, blob column): speeds unknown
+        self._track_time: float | None = None  # seconds since the start, while the track is measured
         self._half_heights: torch.Tensor | None = None  # H(α)/2 on a grid of α (ground contact)
         self._fresh = False  # the particles describe the coming frame (just initialised): no prediction
         self._optimiser = (torch.optim.Adam([self.model.rbf.log_width], lr=self.cfg.adapt.lr)
@@ -306,6 +313,7 @@ class Tracker:
         self.reset(truth_particles(position, truth.heading, alpha, self.cfg.filter.particles, self.cfg.init,
                                    self.generator))
         self._searching = self.cfg.redetect.after_truth
+        self._track = None  # the thesis's small positive speed (init.speed_mps) stands
 
     def reset(self, particles: torch.Tensor) -> None:
         """Start from given particles: (N, 6) [x, y, z, h, v, α] describing the coming frame
@@ -319,6 +327,8 @@ class Tracker:
         self._fresh = True
         self._start = self._frames
         self._searching = True  # re-detection follows this start (initialise: only with after_truth)
+        self._track = [] if self.cfg.init.speed_frames else None  # speeds measured from the track (blind)
+        self._track_time = None
 
     @property
     def initialised(self) -> bool:
@@ -374,6 +384,8 @@ class Tracker:
                 row["overlap"] = self._overlap(mask, row)
             if not lost and self._optimiser is not None and self._frames % self.cfg.adapt.every == 0:
                 self._adapt(distance, row)
+            if self._track is not None:
+                self._measure_speed(mask if observed else None, row, dt)
             threshold = self.cfg.filter.resample_ess
             row["resampled"] = int(threshold >= 1 or row["ess"] < threshold * self.particles.shape[0])
             if row["resampled"]:
@@ -534,6 +546,31 @@ class Tracker:
         log.debug("frame %d: re-detection redrew %d particles (best hypothesis %.1f, best particle %.1f)",
                   self._frames, m, float(hyp.max()), best)
         return log_lik
+
+    def _measure_speed(self, mask: np.ndarray | None, row: dict, dt: float) -> None:
+        """After a blind start (``init.speed_frames``): record the blob's mean column (``mask``, None
+        when the frame gave no observation), and ``speed_frames`` frames after the start set every
+        particle's speed from the blob's motion across the line of sight at the estimate's depth
+        (``initialise.speeds_from_track``). Until then the speeds follow only their random walk from
+        about 0 and lag the vehicle (a vehicle at 10 m/s at 1000 m outran the windows)."""
+        elapsed = 0.0 if self._track_time is None else self._track_time + dt
+        self._track_time = elapsed
+        if mask is not None:
+            columns = mask.sum(axis=0)
+            self._track.append((elapsed, float(columns @ np.arange(columns.shape[0])) / float(columns.sum())))
+        if self._frames - self._start < self.cfg.init.speed_frames:
+            return
+        track, self._track = self._track, None
+        if len(track) < 3:
+            return
+        depth = float(self.camera.world_to_sensor(torch.tensor([float(row[k]) for k in "xyz"], dtype=torch.float64))[2])
+        times, columns = torch.tensor(track, dtype=torch.float64).unbind(1)
+        lateral = (columns - self.camera.cx) * (depth / self.camera.fx)  # metres along the camera's x axis
+        axis = self.camera.R[0].to(self.device, self.dtype)  # the camera's x axis in the world frame
+        self.particles[:, SPEED] = speeds_from_track(times, lateral, axis, self.particles[:, HEADING],
+                                                     self.particles[:, SPEED], self.cfg.init.speed_std_mps)
+        log.debug("frame %d: speeds set from the blob's motion across the line of sight, weighted mean %.2f m/s",
+                  self._frames, float(self.log_weights.exp() @ self.particles[:, SPEED]))
 
     def _estimate(self) -> dict:
         """The estimate row of the current weighted particles (module docstring, step 4)."""

@@ -23,6 +23,11 @@ error rose from 43 to 65 m (docs/tracking.md, "Choices behind the defaults"). Th
 masks without thin parts (``segmentation.thin_threshold``), which by day join fainter pieces below
 the blob: turn them off with it.
 
+The first blob says nothing of the speed: the particles' signed speeds start at 0 ± ``speed_std_mps``,
+and ``speed_frames`` frames later the blob's motion across the line of sight sets them
+(:func:`speeds_from_track`; a random walk of σ²_v = 1 (m/s)²/s alone took about 60 frames to
+reach a vehicle's 5 m/s, and lost one at 10 m/s at 1000 m).
+
 Without the height, each hypothesis takes the range at which its silhouette has the blob's size,
 which confuses a small vehicle near with a big one far (a car at 570 m for a tank at 1000 m,
 measured), so give the height when you know it.
@@ -69,6 +74,7 @@ class InitConfig:
     range_std: float = 0.01  # blind: relative σ of the range around a hypothesis's range
     camera_height_m: float | None = None  # blind: above flat ground; null: the sequence's, if it knows it
     ground_row: float | None = 0.0  # blind: contact in rows below the lowest blob row's centre; null: from contrast
+    speed_frames: int = 10  # blind: speeds set from the track's lateral motion over this many frames; 0: off
 
     def __post_init__(self) -> None:
         if self.mode not in INIT_MODES:
@@ -85,6 +91,8 @@ class InitConfig:
             raise ConfigError(f"init.camera_height_m must be positive or null; got {self.camera_height_m!r}")
         if not math.isfinite(self.speed_mps):
             raise ConfigError(f"init.speed_mps must be finite; got {self.speed_mps!r}")
+        if not 0 <= self.speed_frames <= 10_000 or self.speed_frames == 1:
+            raise ConfigError(f"init.speed_frames must be 0 (off) or in [2, 10000]; got {self.speed_frames!r}")
         for key in ("alpha_steps", "azimuth_steps", "hypotheses"):
             if not 1 <= getattr(self, key) <= 10_000:
                 raise ConfigError(f"init.{key} must be in [1, 10000]; got {getattr(self, key)!r}")
@@ -296,3 +304,56 @@ def blind_particles(states: torch.Tensor, log_lik: torch.Tensor, n: int, cfg: In
     out[:, ALPHA] = wrap_angle(out[:, ALPHA] + noise[:, 2] * math.pi / cfg.alpha_steps)
     out[:, SPEED] = noise[:, 3] * cfg.speed_std_mps
     return out
+
+
+SPEED_MEASUREMENT_FLOOR_MPS = 0.1  # the lateral velocity's σ is at least this (the blob's outline changes)
+
+
+def speeds_from_track(times: torch.Tensor, lateral: torch.Tensor, axis: torch.Tensor, heading: torch.Tensor,
+                      speed: torch.Tensor, prior_std: float) -> torch.Tensor:
+    """The particles' speeds given the blob's motion across the line of sight since a blind start.
+
+    The blob's column is measured to a fraction of a pixel every frame (centimetres at 1000 m),
+    while the range converges slowly (one image row is 18 m at 1000 m) and the particles' speeds
+    lag (they start near 0 and follow only by the speed noise). The least-squares slope u ± σ_u of
+    the lateral positions over time measures v·s, with s the lateral component of the heading's unit
+    vector; each particle's speed is the posterior mean of v under its prior N(v₀, σ₀²):
+
+        v = (v₀/σ₀² + s u/σ_u²) / (1/σ₀² + s²/σ_u²),   σ_u = max(slope's standard error, 0.1 m/s)
+
+    so a particle seen side-on takes u/s, one heading along the line of sight keeps v₀.
+
+    Args:
+        times: (T,) seconds, T >= 3, not all equal.
+        lateral: (T,) metres, the blob's position along ``axis``.
+        axis: (3,) unit vector of the camera's x axis in the world frame.
+        heading: (N,) radians, from +z towards +x.
+        speed: (N,) m/s, the prior means v₀.
+        prior_std: σ₀ in m/s, >= 0 (0: the speeds stay v₀).
+    Returns:
+        (N,) speeds in m/s, ``speed``'s dtype and device.
+    """
+    check_shape("times", times, ("T",))
+    check_shape("lateral", lateral, (times.shape[0],))
+    check_shape("axis", axis, (3,))
+    check_shape("heading", heading, ("N",))
+    check_shape("speed", speed, (heading.shape[0],))
+    if times.shape[0] < 3:
+        raise ValueError(f"Expected at least 3 track points; got {times.shape[0]}")
+    if not (math.isfinite(prior_std) and prior_std >= 0):
+        raise ValueError(f"Expected a finite prior_std >= 0; got {prior_std!r}")
+    t = times.to(torch.float64) - times.to(torch.float64).mean()
+    sxx = float(t.square().sum())
+    if not sxx > 0:
+        raise ValueError("Expected track points at different times")
+    y = lateral.to(torch.float64)
+    slope = float((t * y).sum()) / sxx
+    residual = y - y.mean() - slope * t
+    se = math.sqrt(float(residual.square().sum()) / (t.shape[0] - 2) / sxx)
+    var_u = max(se, SPEED_MEASUREMENT_FLOOR_MPS) ** 2
+    if prior_std == 0:
+        return speed.clone()
+    axis = axis.to(speed)
+    s = axis[0] * heading.sin() + axis[2] * heading.cos()
+    precision = 1 / prior_std ** 2
+    return (speed * precision + s * slope / var_u) / (precision + s.square() / var_u)
