@@ -565,7 +565,8 @@ class Tracker:
             return
         depth = float(self.camera.world_to_sensor(torch.tensor([float(row[k]) for k in "xyz"], dtype=torch.float64))[2])
         times, columns = torch.tensor(track, dtype=torch.float64).unbind(1)
-        lateral = (columns - self.camera.cx) * (depth / self.camera.fx)  # metres along the camera's x axis
+        lateral = (columns - self.camera.cx) * (depth / self.camera.fx)  # metres along the camera's x axis;
+        # lens distortion is left out: it bends a column by far less than the blob moves in 10 frames
         axis = self.camera.R[0].to(self.device, self.dtype)  # the camera's x axis in the world frame
         self.particles[:, SPEED] = speeds_from_track(times, lateral, axis, self.particles[:, HEADING],
                                                      self.particles[:, SPEED], self.cfg.init.speed_std_mps)
