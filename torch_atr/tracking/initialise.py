@@ -66,7 +66,7 @@ class InitConfig:
     position_std_m: float = 1.0  # truth: σ of x, y, z around the truth (the thesis's N(X₀, 1))
     heading_std_rad: float = 0.1  # truth: σ of the heading around the truth
     speed_mps: float = 1.0  # truth: the initial speed, small and positive (no speed truth in the thesis)
-    speed_std_mps: float = 1.0  # σ of the initial speed (truth), or of the unknown signed speed (blind)
+    speed_std_mps: float = 1.0  # σ of the initial speed (truth), or of the unknown signed speed (blind; speed_frames)
     alpha: str = "vehicle"  # truth: "vehicle" (its αₖ if a training vehicle, else its class centre) or "class"
     alpha_steps: int = 72  # blind: α hypotheses evenly over [0, 2π)
     azimuth_steps: int = 36  # blind: θ hypotheses evenly over [0, 2π)
