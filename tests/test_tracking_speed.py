@@ -100,3 +100,26 @@ def test_a_start_on_the_truth_keeps_its_speeds(model):
                     seed=0).run(seq, progress=False).rows for f in (0, 10)]
     for a, b in zip(*rows):
         assert {k: v for k, v in a.items() if k != "step_ms"} == {k: v for k, v in b.items() if k != "step_ms"}
+
+
+def test_an_estimate_behind_the_camera_leaves_the_speeds_alone(model):
+    """Particles behind the camera have no lateral scale (their depth is negative): the speeds are
+    not set from the blob, so the run is the one without the measurement."""
+    seq = SyntheticSequence("btr_70", SceneConfig(frames=12))
+    mask = np.zeros((seq.camera.height, seq.camera.width), dtype=bool)
+    particles = torch.zeros(50, 6, dtype=torch.float64)
+    particles[:, 2] = -100.0  # 100 m behind the camera
+    particles[:, 4] = 2.0
+    rows = []
+    for frames in (0, 10):
+        tracker = Tracker(model, seq.camera, _config("filter.particles=50", f"init.speed_frames={frames}"), seed=0)
+        tracker.reset(particles)
+        run = []
+        for i in range(12):
+            mask[:] = False
+            mask[200:210, 300 + 3 * i:330 + 3 * i] = True  # a blob moving right
+            run.append(tracker.step(mask=mask.copy()))
+        rows.append(run)
+    for a, b in zip(*rows):
+        assert {k: v for k, v in a.items() if k != "step_ms"} == {k: v for k, v in b.items() if k != "step_ms"}
+    assert all(math.isfinite(r["speed"]) for r in rows[1])

@@ -564,6 +564,8 @@ class Tracker:
         if len(track) < 3:
             return
         depth = float(self.camera.world_to_sensor(torch.tensor([float(row[k]) for k in "xyz"], dtype=torch.float64))[2])
+        if not depth > 0:  # an estimate at or behind the camera has no lateral scale: the speeds stay
+            return
         times, columns = torch.tensor(track, dtype=torch.float64).unbind(1)
         lateral = (columns - self.camera.cx) * (depth / self.camera.fx)  # metres along the camera's x axis;
         # lens distortion is left out: it bends a column by far less than the blob moves in 10 frames
