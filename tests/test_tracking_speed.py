@@ -65,7 +65,9 @@ def test_side_on_particles_take_the_lateral_speed_and_head_on_ones_keep_theirs()
 
 @pytest.mark.parametrize("times, lateral, prior", [([0.0, 0.1], [0.0, 1.0], 1.0), ([0.2] * 3, [0.0, 1.0, 2.0], 1.0),
                                                    ([0.0, 0.1, 0.2], [0.0, 1.0], 1.0),
-                                                   ([0.0, 0.1, 0.2], [0.0, 1.0, 2.0], -1.0)])
+                                                   ([0.0, 0.1, 0.2], [0.0, 1.0, 2.0], -1.0),
+                                                   ([0.0, 0.1, 0.2], [0.0, math.nan, 2.0], 1.0),
+                                                   ([0.0, math.inf, 0.2], [0.0, 1.0, 2.0], 1.0)])
 def test_bad_tracks_are_refused(times, lateral, prior):
     with pytest.raises(ValueError):
         speeds_from_track(torch.tensor(times), torch.tensor(lateral), torch.tensor([1.0, 0, 0]), torch.zeros(2),

@@ -324,8 +324,8 @@ def speeds_from_track(times: torch.Tensor, lateral: torch.Tensor, axis: torch.Te
     so a particle seen side-on takes u/s, one heading along the line of sight keeps v₀.
 
     Args:
-        times: (T,) seconds, T >= 3, not all equal.
-        lateral: (T,) metres, the blob's position along ``axis``.
+        times: (T,) seconds, T >= 3, finite, not all equal.
+        lateral: (T,) metres, the blob's position along ``axis``, finite.
         axis: (3,) unit vector of the camera's x axis in the world frame.
         heading: (N,) radians, from +z towards +x.
         speed: (N,) m/s, the prior means v₀.
@@ -340,8 +340,12 @@ def speeds_from_track(times: torch.Tensor, lateral: torch.Tensor, axis: torch.Te
     check_shape("speed", speed, (heading.shape[0],))
     if times.shape[0] < 3:
         raise ValueError(f"Expected at least 3 track points; got {times.shape[0]}")
+    if not bool(times.isfinite().all() and lateral.isfinite().all()):
+        raise ValueError("Expected finite track times and lateral positions")
     if not (math.isfinite(prior_std) and prior_std >= 0):
         raise ValueError(f"Expected a finite prior_std >= 0; got {prior_std!r}")
+    if prior_std == 0:
+        return speed.clone()
     t = times.to(torch.float64) - times.to(torch.float64).mean()
     sxx = float(t.square().sum())
     if not sxx > 0:
@@ -351,8 +355,6 @@ def speeds_from_track(times: torch.Tensor, lateral: torch.Tensor, axis: torch.Te
     residual = y - y.mean() - slope * t
     se = math.sqrt(float(residual.square().sum()) / (t.shape[0] - 2) / sxx)
     var_u = max(se, SPEED_MEASUREMENT_FLOOR_MPS) ** 2
-    if prior_std == 0:
-        return speed.clone()
     axis = axis.to(speed)
     s = axis[0] * heading.sin() + axis[2] * heading.cos()
     precision = 1 / prior_std ** 2
