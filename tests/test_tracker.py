@@ -213,6 +213,19 @@ def test_blind_start_finds_the_vehicle(model, btr):
     assert abs(last[-1]["x"] - t.x) < 1.5 and abs(last[-1]["z"] - t.z) < 100
 
 
+def test_a_blind_start_by_hand_without_the_camera_height_says_so(model, btr, caplog):
+    """Stepping by hand, the blind start has no ground plane unless init.camera_height_m is set
+    (run() takes the sequence's); its ranges then come from the blob's size alone, so it warns."""
+    for overrides, warned in (((), True), ((f"init.camera_height_m={btr.camera_height_m}",), False)):
+        tracker = Tracker(model, btr.camera, _config("filter.particles=100", "init.alpha_steps=6",
+                                                     "init.azimuth_steps=6", *overrides), seed=0)
+        tracker.warm_up(btr.warmup_frames(20))
+        caplog.clear()
+        with caplog.at_level("WARNING", logger="torch_atr.tracking.filter"):
+            tracker.step(btr.frame(0))
+        assert any("init.camera_height_m" in r.getMessage() for r in caplog.records) == warned, overrides
+
+
 def test_a_clip_without_target_free_frames_is_tracked(model):
     """The BTR-70 is in every frame. Warmed on the clip's first frames, MOG2 learned it as
     background and the tracker followed the ghost it left (the T-72 at 1000 m: 23 m off, 0 %

@@ -261,7 +261,8 @@ class Tracker:
         templates: (K, V, S, S) training templates for Method IV (see ``ShapeAppearance``).
 
     Use :meth:`run` on a whole sequence, or :meth:`warm_up`, optionally :meth:`initialise`, and
-    :meth:`step` per frame for live use.
+    :meth:`step` per frame for live use; a blind start by hand needs ``init.camera_height_m`` for
+    its ranges (:meth:`run` takes the sequence's).
     """
 
     def __init__(self, model: GenerativeShapeModel, camera: Camera, config: TrackerConfig | None = None, *,
@@ -485,6 +486,9 @@ class Tracker:
         """Particles from the first blob (``initialise.blind_hypotheses``); ``distance`` is the
         whole frame's; ``frame`` (None: a mask without its frame) gives the blob's contrast, measured
         only for ``init.ground_row`` null."""
+        if not math.isfinite(self.camera_height_m):
+            log.warning("blind start without the camera's height above the ground (init.camera_height_m; run() takes "
+                        "the sequence's): the ranges come from the blob's size alone and can be far off")
         wanted = self.cfg.init.ground_row is None and frame is not None and self.segmenter.ready
         contrast = self.segmenter.contrast(frame, mask) if wanted else math.nan
         blob = torch.from_numpy(mask).to(self.device)
