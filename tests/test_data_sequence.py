@@ -24,6 +24,7 @@ from torch_atr.data import (
 )
 from torch_atr.data import sequence as sequence_module
 from torch_atr.data.sequence import parse_spec_options
+from torch_atr.data.synthetic import SceneConfig, SyntheticSequence
 from torch_atr.validate import InputError
 
 
@@ -92,6 +93,7 @@ def test_folder_round_trip(tmp_path, kind):
         assert back.truth(i) == truths[i]
     assert [f.tobytes() for f in back] == [f.tobytes() for f in frames]
     assert back.camera.to_dict() == seq.camera.to_dict()
+    assert math.isnan(back.camera_height_m)  # the source did not know it
     meta = json.loads((out / "meta.json").read_text())
     assert meta["frames"] == n and meta["dtype"] == str(frames[0].dtype) and meta["shape"] == list(frames[0].shape)
     assert meta["source"] == "ListSequence" and meta["source_meta"] == {"made_by": "test"}
@@ -259,8 +261,23 @@ def test_a_huge_frame_count_fails_fast_without_listing_expected_names(saved):
         FolderSequence(saved)
 
 
+def test_the_camera_height_travels_with_the_folder(tmp_path):
+    """The simulator knows its camera's height above the ground (the blind start's ground plane);
+    a saved copy keeps it, and a folder without the key (older ones) reads as unknown."""
+    scene = SceneConfig(frames=2, camera_height_m=7.25)
+    back = open_sequence(str(save_sequence(SyntheticSequence("btr_70", scene), tmp_path / "s", progress=False)))
+    assert back.camera_height_m == 7.25
+    meta = json.loads((tmp_path / "s" / "meta.json").read_text())
+    del meta["camera_height_m"]
+    (tmp_path / "s" / "meta.json").write_text(json.dumps(meta))
+    assert math.isnan(FolderSequence(tmp_path / "s").camera_height_m)
+
+
 @pytest.mark.parametrize("edit, message", [
     (lambda m: {**m, "fps": True}, r"key 'fps' \(or null\): expected a finite number > 0; got True"),
+    (lambda m: {**m, "camera_height_m": -2.0}, r"key 'camera_height_m' \(or null\): expected a finite number > 0"),
+    (lambda m: {**m, "camera_height_m": "5"}, r"key 'camera_height_m' \(or null\): expected a finite number > 0; "
+                                              r"got '5'"),
     (lambda m: {**m, "format_version": True}, "key 'format_version'"),
     (lambda m: {**m, "shape": [3, 100000]}, r"key 'shape': width: expected an integer in \[1, 16384\]"),
     (lambda m: {**m, "shape": [3.0, 4]}, r"shape \[3.0, 4\] with dtype 'uint8' is not a frame we store"),

@@ -2,7 +2,9 @@
 
     FOLDER/
       frames/000000.png ...  one PNG per frame: 16-bit for uint16 frames, 8-bit otherwise
-      meta.json              format, format_version, name, fps, frames, dtype, shape, source
+      meta.json              format, format_version, name, fps, frames, dtype, shape, source;
+                             optional camera_height_m (above flat ground, metres; null or absent
+                             = unknown), which gives the tracker's blind start its ground plane
       camera.json            ``Camera.to_dict()``; absent = uncalibrated
       truth.csv              one row per frame, header = FrameTruth fields, empty cell = unknown
                              (a row of empty cells = no truth for that frame, which is also how
@@ -78,6 +80,8 @@ class FolderSequence(Sequence):
         self.meta = _read_meta(self.folder / "meta.json")
         self.name = self.meta["name"]
         self.fps = math.nan if self.meta["fps"] is None else float(self.meta["fps"])
+        height = self.meta.get("camera_height_m")
+        self.camera_height_m = math.nan if height is None else float(height)
         self._n = self.meta["frames"]
         self._shape = tuple(self.meta["shape"])
         self._dtype = np.dtype(self.meta["dtype"])
@@ -117,7 +121,8 @@ class FolderSequence(Sequence):
 
 
 def _read_meta(path: Path) -> dict:
-    """meta.json, checked: our format and version, a name, fps null or > 0, frames >= 1 and a frame
+    """meta.json, checked: our format and version, a name, fps null or > 0, camera_height_m absent,
+    null or > 0, frames >= 1 and a frame
     shape and dtype we store within the image bounds of :mod:`torch_atr.validate`."""
     meta = read_json_object(path, f"Not a sequence folder: {path} is missing")
     missing = [k for k in ("format", "format_version", "name", "fps", "frames", "dtype", "shape") if k not in meta]
@@ -131,6 +136,8 @@ def _read_meta(path: Path) -> dict:
         raise InputError(f"{path}, key 'name': expected a string; got {show(meta['name'])}")
     if meta["fps"] is not None:
         real(f"{path}, key 'fps' (or null)", meta["fps"], lo=0, lo_open=True)
+    if meta.get("camera_height_m") is not None:
+        real(f"{path}, key 'camera_height_m' (or null)", meta["camera_height_m"], lo=0, lo_open=True)
     integer(f"{path}, key 'frames'", meta["frames"], lo=1)
     shape, dtype = meta["shape"], meta["dtype"]
     if not (isinstance(shape, list) and len(shape) in (2, 3) and isinstance(dtype, str)
@@ -212,7 +219,8 @@ def _read_truth_csv(path: Path, n: int) -> list[FrameTruth | None]:
 
 def save_sequence(seq: Sequence, folder: str | os.PathLike, progress: bool = True,
                   overwrite: bool = False) -> Path:
-    """Write ``seq`` (frames, camera, truth, meta) to ``folder`` in our format; return the folder.
+    """Write ``seq`` (frames, camera, camera height, truth, meta) to ``folder`` in our format;
+    return the folder.
 
     An existing empty ``folder`` is replaced. A non-empty one is refused (``FileExistsError``
     naming it) unless ``overwrite=True`` and it is a sequence folder (its ``meta.json`` says our
@@ -257,6 +265,7 @@ def save_sequence(seq: Sequence, folder: str | os.PathLike, progress: bool = Tru
         meta = {"format": FORMAT, "format_version": FORMAT_VERSION, "name": seq.name,
                 "fps": seq.fps if math.isfinite(seq.fps) else None, "frames": n,
                 "dtype": str(first.dtype), "shape": list(first.shape),
+                "camera_height_m": seq.camera_height_m if math.isfinite(seq.camera_height_m) else None,
                 "source": type(seq).__name__, "source_meta": seq.meta}
         (tmp / "meta.json").write_text(json.dumps(meta, indent=1, default=str), encoding="utf-8")
         _swap_in(tmp, folder)
