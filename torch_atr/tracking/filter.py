@@ -487,8 +487,9 @@ class Tracker:
         whole frame's; ``frame`` (None: a mask without its frame) gives the blob's contrast, measured
         only for ``init.ground_row`` null."""
         if not math.isfinite(self.camera_height_m):
-            log.warning("blind start without the camera's height above the ground (init.camera_height_m; run() takes "
-                        "the sequence's): the ranges come from the blob's size alone and can be far off")
+            log.warning("blind start without the camera's height above the ground (init.camera_height_m, on track.py's "
+                        "command line tracker.init.camera_height_m=METRES): the ranges come from the blob's size alone "
+                        "and can be far off")
         wanted = self.cfg.init.ground_row is None and frame is not None and self.segmenter.ready
         contrast = self.segmenter.contrast(frame, mask) if wanted else math.nan
         blob = torch.from_numpy(mask).to(self.device)
