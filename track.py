@@ -18,7 +18,7 @@ import logging
 from pathlib import Path
 
 from torch_atr import viz
-from torch_atr.cli import run_main
+from torch_atr.cli import console_logging, run_main
 from torch_atr.config import load_config
 from torch_atr.data import open_sequence
 from torch_atr.io import check_output_dir
@@ -54,7 +54,7 @@ def main(argv: list[str] | None = None) -> dict:
     parser.add_argument("--overwrite", action="store_true", help="replace an earlier run in --out (only ours)")
     parser.add_argument("overrides", nargs="*", help="key=value overrides (tracker.filter.sigma=0.03)")
     args = parser.parse_args(argv)
-    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s: %(message)s", datefmt="%H:%M:%S")
+    console_logging()
     flags = [f"{key}={getattr(args, flag)}" for flag, key in FLAGS.items() if getattr(args, flag) is not None]
     flags += [f"{name}=true" for name in ("tensorboard", "video") if getattr(args, name)]
     cfg = load_config(TrackConfig, args.config, flags + args.overrides)

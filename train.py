@@ -27,7 +27,7 @@ from pathlib import Path
 import torch
 
 from torch_atr import viz
-from torch_atr.cli import run_main
+from torch_atr.cli import console_logging, run_main
 from torch_atr.config import load_config
 from torch_atr.evaluation import (fit_alpha, identity_distances, per_class_mean, rbf_mapping_iou,
                                   reconstruction_iou)
@@ -49,7 +49,7 @@ def main(argv: list[str] | None = None) -> dict:
                         help="replace an existing checkpoint and run folder of ours (never anything else)")
     parser.add_argument("overrides", nargs="*", help="key=value overrides, dotted for sections (model.ridge=1e-3)")
     args = parser.parse_args(argv)
-    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s: %(message)s", datefmt="%H:%M:%S")
+    console_logging()
     cfg = load_config(TrainConfig, args.config, args.overrides)
     # The training vehicles (the shipped split, or a folder of your own models): a bad catalog is
     # named first. Then refuse to replace outputs before spending minutes on training.

@@ -1,3 +1,7 @@
+import re
+import subprocess
+import sys
+
 import pytest
 
 from torch_atr.cli import run_main
@@ -28,3 +32,19 @@ def test_success_returns_and_bugs_keep_their_traceback():
 
     with pytest.raises(KeyError):
         run_main(buggy, [])
+
+
+def test_console_log_lines_stay_clear_of_progress_bars():
+    """A record logged while a tqdm bar is drawn gets a line of its own (the bar is redrawn
+    below it), where a plain stream handler appends it to the bar's text."""
+    code = ("import logging\n"
+            "from tqdm import tqdm\n"
+            "from torch_atr.cli import console_logging\n"
+            "console_logging()\n"
+            "with tqdm(total=4, desc='frames', mininterval=0) as bar:\n"
+            "    bar.update(2)\n"
+            "    logging.getLogger('track').info('halfway')\n"
+            "    bar.update(2)\n")
+    err = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stderr
+    lines = [segment.split("\r")[-1] for segment in err.split("\n") if "halfway" in segment]
+    assert len(lines) == 1 and re.fullmatch(r"\d\d:\d\d:\d\d track: halfway", lines[0]), err

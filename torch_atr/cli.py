@@ -3,14 +3,18 @@
 :func:`run_main` runs an entry point's ``main(argv)`` and turns a user error (a bad config,
 file, spec or checkpoint; an output that may not be replaced) into one line on stderr,
 ``PROG: error: MESSAGE``, and exit status 2, the way ``argparse`` reports a bad argument. Other
-exceptions are bugs and keep their traceback.
+exceptions are bugs and keep their traceback. :func:`console_logging` sets up their log lines,
+which never land inside a progress bar.
 """
 
 from __future__ import annotations
 
+import logging
 import sys
 from pathlib import Path
 from typing import Callable
+
+from tqdm import tqdm
 
 # ValueError covers ConfigError and InputError; OSError covers missing files, outputs that may
 # not be replaced (OutputExistsError) and permissions.
@@ -31,3 +35,22 @@ def run_main(main: Callable[[list[str] | None], object], argv: list[str] | None 
         message = " ".join(str(exc).split()) or type(exc).__name__
         print(f"{prog}: error: {message}", file=sys.stderr)
         raise SystemExit(2) from None
+
+
+class _ConsoleHandler(logging.StreamHandler):
+    """Writes each record through ``tqdm.write``: a progress bar on the console is cleared and
+    redrawn below the line instead of the line being appended to the bar."""
+
+    def emit(self, record: logging.LogRecord) -> None:
+        try:
+            tqdm.write(self.format(record), file=self.stream)
+        except RecursionError:
+            raise
+        except Exception:
+            self.handleError(record)
+
+
+def console_logging(fmt: str = "%(asctime)s %(name)s: %(message)s") -> None:
+    """INFO and above on stderr, one line per record, clear of any tqdm progress bar; for entry
+    points, after argument parsing (``logging.basicConfig``: the first configuration stands)."""
+    logging.basicConfig(level=logging.INFO, format=fmt, datefmt="%H:%M:%S", handlers=[_ConsoleHandler(sys.stderr)])

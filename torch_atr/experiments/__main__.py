@@ -27,7 +27,7 @@ import logging
 import time
 from pathlib import Path
 
-from torch_atr.cli import run_main
+from torch_atr.cli import console_logging, run_main
 from torch_atr.config import ConfigError
 from torch_atr.experiments.combined import EXPERIMENTS, write_combined_report
 from torch_atr.experiments.report import is_report_folder, mean_recognition, write_report
@@ -62,7 +62,7 @@ def main(argv: list[str] | None = None) -> dict:
                         help="simulator scene overrides: night=false, occluder_width_m=3, turret_sweep_deg=60")
     parser.add_argument("overrides", nargs="*", help="tracker config overrides, key=value")
     args = parser.parse_intermixed_args(argv)  # overrides after options too: plain parse_args gives them to none
-    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s: %(message)s", datefmt="%H:%M:%S")
+    console_logging()
     if args.experiment == "unseen":
         fields = unseen_fields(args.quick) | (dict(FULL) if args.full else {})
     else:
