@@ -122,8 +122,8 @@ class FolderSequence(Sequence):
 
 def _read_meta(path: Path) -> dict:
     """meta.json, checked: our format and version, a name, fps null or > 0, camera_height_m absent,
-    null or > 0, frames >= 1 and a frame
-    shape and dtype we store within the image bounds of :mod:`torch_atr.validate`."""
+    null or > 0, frames >= 1 and a frame shape and dtype we store within the image bounds of
+    :mod:`torch_atr.validate`."""
     meta = read_json_object(path, f"Not a sequence folder: {path} is missing")
     missing = [k for k in ("format", "format_version", "name", "fps", "frames", "dtype", "shape") if k not in meta]
     if missing:
