@@ -39,7 +39,9 @@ def run_main(main: Callable[[list[str] | None], object], argv: list[str] | None 
 
 class _ConsoleHandler(logging.StreamHandler):
     """Writes each record through ``tqdm.write``: a progress bar on the console is cleared and
-    redrawn below the line instead of the line being appended to the bar."""
+    redrawn below the line instead of the line being appended to the bar. (tqdm's own
+    ``logging_redirect_tqdm`` does this for the handlers present when its ``with`` block starts;
+    an entry point's handler is made by ``logging.basicConfig`` and lasts the whole process.)"""
 
     def emit(self, record: logging.LogRecord) -> None:
         try:
