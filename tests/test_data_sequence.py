@@ -275,9 +275,12 @@ def test_the_camera_height_travels_with_the_folder(tmp_path):
 
 @pytest.mark.parametrize("edit, message", [
     (lambda m: {**m, "fps": True}, r"key 'fps' \(or null\): expected a finite number > 0; got True"),
-    (lambda m: {**m, "camera_height_m": -2.0}, r"key 'camera_height_m' \(or null\): expected a finite number > 0"),
-    (lambda m: {**m, "camera_height_m": "5"}, r"key 'camera_height_m' \(or null\): expected a finite number > 0; "
-                                              r"got '5'"),
+    (lambda m: {**m, "camera_height_m": -2.0}, r"key 'camera_height_m' \(or null\): expected a finite number in "
+                                               r"\(0, 10000\]; got -2.0"),
+    (lambda m: {**m, "camera_height_m": 1e300}, r"key 'camera_height_m' \(or null\): expected a finite number in "
+                                                r"\(0, 10000\]; got 1e\+300"),
+    (lambda m: {**m, "camera_height_m": "5"}, r"key 'camera_height_m' \(or null\): expected a finite number in "
+                                              r"\(0, 10000\]; got '5'"),
     (lambda m: {**m, "format_version": True}, "key 'format_version'"),
     (lambda m: {**m, "shape": [3, 100000]}, r"key 'shape': width: expected an integer in \[1, 16384\]"),
     (lambda m: {**m, "shape": [3.0, 4]}, r"shape \[3.0, 4\] with dtype 'uint8' is not a frame we store"),

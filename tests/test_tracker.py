@@ -355,6 +355,9 @@ def test_blind_ground_row_sets_where_the_vehicle_meets_the_ground(model):
         assert torch.allclose(depth, torch.full_like(depth, expected), rtol=1e-6), (offset, depth[:3], expected)
     with pytest.raises(ConfigError, match="init.ground_row"):
         InitConfig(ground_row=2.5)
+    for height in (0.0, -5.0, math.nan, 1e300):  # 1e300 put the start's particles at 1e300 m, then NaN
+        with pytest.raises(ConfigError, match=r"init.camera_height_m must be in \(0, 10000\]"):
+            InitConfig(camera_height_m=height)
 
 
 def test_no_observation_keeps_the_prediction_and_flags_the_frame(model, btr):

@@ -33,7 +33,8 @@ import cv2
 import numpy as np
 from tqdm import tqdm
 
-from torch_atr.data.sequence import TEXT_FIELDS, TRUTH_FIELDS, FrameTruth, Sequence, load_camera_json, register_scheme
+from torch_atr.data.sequence import (MAX_CAMERA_HEIGHT_M, TEXT_FIELDS, TRUTH_FIELDS, FrameTruth, Sequence,
+                                     load_camera_json, register_scheme)
 from torch_atr.validate import (InputError, image_file_size, image_size, integer, parse_real, read_json_object,
                                 read_text, real, show)
 
@@ -122,7 +123,7 @@ class FolderSequence(Sequence):
 
 def _read_meta(path: Path) -> dict:
     """meta.json, checked: our format and version, a name, fps null or > 0, camera_height_m absent,
-    null or > 0, frames >= 1 and a frame shape and dtype we store within the image bounds of
+    null or in (0, MAX_CAMERA_HEIGHT_M], frames >= 1 and a frame shape and dtype we store within the image bounds of
     :mod:`torch_atr.validate`."""
     meta = read_json_object(path, f"Not a sequence folder: {path} is missing")
     missing = [k for k in ("format", "format_version", "name", "fps", "frames", "dtype", "shape") if k not in meta]
@@ -137,7 +138,8 @@ def _read_meta(path: Path) -> dict:
     if meta["fps"] is not None:
         real(f"{path}, key 'fps' (or null)", meta["fps"], lo=0, lo_open=True)
     if meta.get("camera_height_m") is not None:
-        real(f"{path}, key 'camera_height_m' (or null)", meta["camera_height_m"], lo=0, lo_open=True)
+        real(f"{path}, key 'camera_height_m' (or null)", meta["camera_height_m"], lo=0, hi=MAX_CAMERA_HEIGHT_M,
+             lo_open=True)
     integer(f"{path}, key 'frames'", meta["frames"], lo=1)
     shape, dtype = meta["shape"], meta["dtype"]
     if not (isinstance(shape, list) and len(shape) in (2, 3) and isinstance(dtype, str)

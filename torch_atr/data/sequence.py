@@ -35,6 +35,7 @@ from torch_atr.camera import Camera
 from torch_atr.validate import InputError, read_json_object, show
 
 TEXT_FIELDS: frozenset[str] = frozenset({"vehicle", "vehicle_class"})
+MAX_CAMERA_HEIGHT_M = 1e4  # a camera height above the ground (Sequence.camera_height_m) is in (0, this] metres
 
 
 @dataclass(frozen=True, eq=False)
@@ -123,9 +124,10 @@ class Sequence(abc.ABC):
         name: a short name (file or folder stem).
         fps: frames per second; NaN when the source does not say.
         camera: the calibrated camera, or None for an uncalibrated sequence.
-        camera_height_m: the camera centre's height above flat ground, metres, where the source
-            knows it (the simulator does); NaN otherwise. With it the tracker's blind
-            initialisation takes the range from the ground plane rather than the blob's size.
+        camera_height_m: the camera centre's height above flat ground, metres, in
+            (0, ``MAX_CAMERA_HEIGHT_M``], where the source knows it (the simulator does); NaN
+            otherwise. With it the tracker's blind initialisation takes the range from the ground
+            plane rather than the blob's size.
         meta: source-specific facts (paths found, layouts detected, ...), JSON-ready.
     """
 

@@ -50,6 +50,7 @@ import torch
 from torch_atr._checks import check_shape
 from torch_atr.camera import Camera
 from torch_atr.config import ConfigError
+from torch_atr.data.sequence import MAX_CAMERA_HEIGHT_M
 from torch_atr.pose import camera_centre, wrap_angle
 from torch_atr.tracking.appearance import ShapeAppearance
 from torch_atr.tracking.motion import ALPHA, HEADING, SPEED, STATE_DIM, X, Z
@@ -87,8 +88,10 @@ class InitConfig:
                 raise ConfigError(f"init.{key} must be in [0, 1e3]; got {value!r}")
         if self.ground_row is not None and not (math.isfinite(self.ground_row) and -1 <= self.ground_row <= 2):
             raise ConfigError(f"init.ground_row must be in [-1, 2] rows or null; got {self.ground_row!r}")
-        if self.camera_height_m is not None and not (math.isfinite(self.camera_height_m) and self.camera_height_m > 0):
-            raise ConfigError(f"init.camera_height_m must be positive or null; got {self.camera_height_m!r}")
+        if self.camera_height_m is not None and not (math.isfinite(self.camera_height_m)
+                                                     and 0 < self.camera_height_m <= MAX_CAMERA_HEIGHT_M):
+            raise ConfigError(f"init.camera_height_m must be in (0, {MAX_CAMERA_HEIGHT_M:g}] metres or null; "
+                              f"got {self.camera_height_m!r}")
         if not math.isfinite(self.speed_mps):
             raise ConfigError(f"init.speed_mps must be finite; got {self.speed_mps!r}")
         if not 0 <= self.speed_frames <= 10_000 or self.speed_frames == 1:
