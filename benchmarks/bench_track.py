@@ -47,6 +47,7 @@ from torch_atr.tracking.motion import MotionConfig
 
 log = logging.getLogger("bench_track")
 SHIPPED = Path(__file__).resolve().parents[1] / "checkpoints" / "default.pt"
+PROFILE_WARMUP = 5  # frames stepped before the profiler starts
 
 # Functions whose cumulative time makes the profile (name in the cProfile table -> stage).
 STAGES = {"__call__": "segmentation (MOG2, gain, blob)", "frame_distance": "frame distance (EDT near the blob)",
@@ -161,15 +162,15 @@ def profile(model, seq, frames, n: int, device: str, overrides: list[str]) -> di
     tracker = Tracker(model, seq.camera, cfg, device=device, seed=0)
     tracker.warm_up(seq.warmup_frames(50))
     tracker.initialise(seq.truth(0))
-    for frame in frames[:5]:
+    for frame in frames[:PROFILE_WARMUP]:
         tracker.step(frame)
     prof = cProfile.Profile()
     prof.enable()
-    for frame in frames[5:]:
+    for frame in frames[PROFILE_WARMUP:]:
         tracker.step(frame)
     prof.disable()
     stats = pstats.Stats(prof).stats
-    count = len(frames) - 5
+    count = len(frames) - PROFILE_WARMUP
     out = {}
     for (path, _, name), (_, _, _, cumulative, _) in stats.items():
         if name in STAGES and "torch_atr" in path and not (name == "__call__" and "segmentation" not in path):
@@ -191,6 +192,11 @@ def main() -> None:
                         help="tracker config overrides, e.g. filter.likelihood_px=16")
     parser.add_argument("--json", help="also write the numbers here")
     args = parser.parse_args()
+    if min(args.particles + [args.reference_particles, args.reference_frames]) < 1:
+        parser.error("--particles, --reference-particles and --reference-frames must be at least 1")
+    if args.skip < 0 or args.frames < max(args.skip + 1, PROFILE_WARMUP + 1):
+        parser.error(f"--frames ({args.frames}) must exceed --skip ({args.skip}, at least 0) and {PROFILE_WARMUP}, "
+                     "the profile's unprofiled frames")
     logging.basicConfig(level=logging.INFO, format="%(message)s")
 
     model = GenerativeShapeModel.from_checkpoint(args.checkpoint)
