@@ -21,7 +21,7 @@ from torch_atr import viz
 from torch_atr.cli import console_logging, run_main
 from torch_atr.config import load_config
 from torch_atr.data import open_sequence
-from torch_atr.io import check_output_dir
+from torch_atr.io import check_output_dir, claimed_output_dir
 from torch_atr.model import GenerativeShapeModel
 from torch_atr.tracking.blob import BlobTracker
 from torch_atr.tracking.filter import Tracker
@@ -53,7 +53,7 @@ def main(argv: list[str] | None = None) -> dict:
     parser.add_argument("--video", action="store_true", help="also write overlay.mp4")
     parser.add_argument("--overwrite", action="store_true", help="replace an earlier run in --out (only ours)")
     parser.add_argument("overrides", nargs="*", help="key=value overrides (tracker.filter.sigma=0.03)")
-    args = parser.parse_args(argv)
+    args = parser.parse_intermixed_args(argv)  # flags may sit between the key=value overrides
     console_logging()
     flags = [f"{key}={getattr(args, flag)}" for flag, key in FLAGS.items() if getattr(args, flag) is not None]
     flags += [f"{name}=true" for name in ("tensorboard", "video") if getattr(args, name)]
@@ -64,6 +64,12 @@ def main(argv: list[str] | None = None) -> dict:
     model = GenerativeShapeModel.from_checkpoint(resolve(cfg.checkpoint), map_location=cfg.device)
     sequence = open_sequence(cfg.sequence)
     out = check_output_dir(cfg.out, args.overwrite, "metrics.json", is_track_run, "tracking run")
+    with claimed_output_dir(out, "tracking run"):
+        return _track(cfg, model, sequence, out)
+
+
+def _track(cfg: TrackConfig, model: GenerativeShapeModel, sequence, out: Path) -> dict:
+    """Track ``sequence`` and write the run folder ``out``; returns the metrics."""
     templates = training_templates(model) if cfg.tracker.filter.method == "IV" else None
 
     # 2. Track: warm-up, initialisation and the particle filter over every frame; without a camera,

@@ -31,7 +31,7 @@ from torch_atr.cli import console_logging, run_main
 from torch_atr.config import load_config
 from torch_atr.evaluation import (fit_alpha, identity_distances, per_class_mean, rbf_mapping_iou,
                                   reconstruction_iou)
-from torch_atr.io import atomic_write_text, check_output_dir, check_output_file
+from torch_atr.io import atomic_write_text, check_output_dir, check_output_file, check_writable, claimed_output_dir
 from torch_atr.model import GenerativeShapeModel
 from torch_atr.model.generative import is_checkpoint
 from torch_atr.model.rbf import RBFViewMapping
@@ -48,14 +48,22 @@ def main(argv: list[str] | None = None) -> dict:
     parser.add_argument("--overwrite", action="store_true",
                         help="replace an existing checkpoint and run folder of ours (never anything else)")
     parser.add_argument("overrides", nargs="*", help="key=value overrides, dotted for sections (model.ridge=1e-3)")
-    args = parser.parse_args(argv)
+    args = parser.parse_intermixed_args(argv)  # flags may sit between the key=value overrides
     console_logging()
     cfg = load_config(TrainConfig, args.config, args.overrides)
     # The training vehicles (the shipped split, or a folder of your own models): a bad catalog is
     # named first. Then refuse to replace outputs before spending minutes on training.
     vehicles = load_catalog("train") if cfg.catalog == "train" else load_catalog_folder(cfg.catalog)
-    out_dir = check_output_dir(Path(cfg.log_dir) / cfg.name, args.overwrite, "report.json", is_train_report, "run")
-    checkpoint = check_output_file(cfg.checkpoint, args.overwrite, is_checkpoint, "checkpoint")
+    out_dir = check_output_dir(cfg.run_dir, args.overwrite, "report.json", is_train_report, "run")
+    checkpoint = check_output_file(cfg.checkpoint_path, args.overwrite, is_checkpoint, "checkpoint")
+    cfg = dataclasses.replace(cfg, checkpoint=str(checkpoint))  # the checkpoint's config says where it went
+    check_writable(checkpoint)
+    with claimed_output_dir(out_dir, "run"):
+        return _train(cfg, vehicles, out_dir, checkpoint)
+
+
+def _train(cfg: TrainConfig, vehicles: list, out_dir: Path, checkpoint: Path) -> dict:
+    """Render, fit, measure and write the run (module docstring); returns the report."""
     torch.manual_seed(cfg.seed)
     timings: dict[str, float] = {}
     clock = time.perf_counter()

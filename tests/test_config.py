@@ -113,10 +113,10 @@ def test_config_text_must_be_utf8_and_small(tmp_path):
 
 
 def test_yaml_merge_keys_may_repeat_a_merged_key():
-    from torch_atr.config import _parse_yaml
+    from torch_atr.config import parse_yaml
 
     text = "base: &b\n  size_px: 32\n  tau_px: 3.0\ntemplate:\n  <<: *b\n  size_px: 16\n"
-    assert _parse_yaml(text)["template"] == {"size_px": 16, "tau_px": 3.0}
+    assert parse_yaml(text)["template"] == {"size_px": 16, "tau_px": 3.0}
 
 
 def test_view_grid_matches_chapter_6_1():

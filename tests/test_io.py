@@ -7,7 +7,8 @@ from pathlib import Path
 
 import pytest
 
-from torch_atr.io import (OutputExistsError, atomic_path, atomic_write_text, check_output_dir, check_output_file)
+from torch_atr.io import (RUN_CLAIM, OutputExistsError, atomic_path, atomic_write_text, check_output_dir,
+                          check_output_file, check_writable, claimed_output_dir)
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -135,3 +136,53 @@ def test_check_output_dir(tmp_path):
         check_output_dir(run, True, "report.json", is_ours, "run")
     with pytest.raises(OutputExistsError, match="is not a folder"):
         check_output_dir(run / "notes.txt", True, "report.json", is_ours, "run")
+
+
+def _is_ours(p):
+    return p.read_text() == "ours"
+
+
+def test_a_killed_run_leaves_a_folder_overwrite_may_replace(tmp_path):
+    run = tmp_path / "run"
+    with pytest.raises(KeyboardInterrupt):
+        with claimed_output_dir(run, "run"):
+            raise KeyboardInterrupt  # before anything was written: the claim and the new folder go
+    assert not run.exists()
+    with claimed_output_dir(run, "run"):
+        (run / "events.out.tfevents.1.host").write_text("tensorboard")
+        stale = run / ".report.json.abcd1234.tmp"  # a write killed midway: nobody holds its lock
+        stale.write_text("half")
+    # No report.json: the run died. Ours by its claim: --overwrite replaces it, and only it.
+    with pytest.raises(OutputExistsError, match=rf"^{run} already holds an interrupted run \(no report.json\); "
+                                                "pass --overwrite"):
+        check_output_dir(run, False, "report.json", _is_ours, "run")
+    assert check_output_dir(run, True, "report.json", _is_ours, "run") == run
+    with pytest.raises(OutputExistsError, match="holds no report.json of ours"):  # another tool's claim is not ours
+        check_output_dir(run, True, "report.json", _is_ours, "tracking run")
+    with claimed_output_dir(run, "run"):
+        assert not (run / "events.out.tfevents.1.host").exists()  # TensorBoard shows the new run alone
+        (run / "figure.png").write_text("png")
+    assert stale.exists()  # left for the next write of report.json to remove
+    (run / RUN_CLAIM).unlink()
+    with pytest.raises(OutputExistsError, match="holds no report.json of ours"):
+        check_output_dir(run, True, "report.json", _is_ours, "run")
+
+
+def test_a_folder_of_killed_writes_alone_counts_as_empty(tmp_path):
+    (tmp_path / ".metrics.json.abcd1234.tmp").write_text("half")
+    assert check_output_dir(tmp_path, False, "metrics.json", _is_ours, "run") == tmp_path
+    with atomic_path(tmp_path / "estimates.csv") as live:  # a live write holds its temp file: not empty
+        live.write_text("x")
+        with pytest.raises(OutputExistsError, match="holds no metrics.json of ours"):
+            check_output_dir(tmp_path, True, "metrics.json", _is_ours, "run")
+
+
+def test_unwritable_outputs_are_named_before_the_work(tmp_path):
+    blocker = tmp_path / "file"
+    blocker.write_text("x")
+    with pytest.raises(OSError, match=f"^.*cannot write {blocker}/model.pt: "):
+        check_writable(blocker / "model.pt")
+    with pytest.raises(OSError, match=f"cannot write {blocker}/report.json: "):
+        atomic_write_text("{}", blocker / "report.json")
+    check_writable(tmp_path / "new" / "model.pt")
+    assert (tmp_path / "new").is_dir() and not any((tmp_path / "new").iterdir())

@@ -64,6 +64,7 @@ def test_an_existing_run_is_kept_unless_overwrite(run, tmp_path):
     (["--sequence", "synthetic:vehicle=nope"], "nope"),
     (["--checkpoint", "missing.pt"], "missing.pt"),
     (["--device", "tpu"], "device 'tpu' is not available"),
+    (["tracker.filter.sigma=0.03", "--overwrite", "tracker.filter.method=V"], "method='V'"),  # a flag between
 ])
 def test_user_errors_are_one_line(tmp_path, args, message):
     proc = subprocess.run([sys.executable, str(REPO / "track.py"), "--out", str(tmp_path / "x"), *args],

@@ -61,7 +61,10 @@ def test_reduced_training_writes_a_loadable_checkpoint_and_logs(tmp_path):
     before = ckpt.read_bytes(), report_path.read_text()
     with pytest.raises(OutputExistsError, match=r"runs/test already holds a run \(report.json\); pass --overwrite"):
         _run(tmp_path, *TINY)
-    report_path.unlink()  # a run folder without its report: an unfinished run, never replaced
+    report_path.unlink()  # our run folder without its report: a run killed midway, replaced only with --overwrite
+    with pytest.raises(OutputExistsError, match=r"runs/test already holds an interrupted run \(no report.json\)"):
+        _run(tmp_path, *TINY, "name=test", f"checkpoint={tmp_path / 'other.pt'}")
+    (tmp_path / "runs/test/.torch_atr_run").unlink()  # without our claim: another tool's folder, never replaced
     with pytest.raises(OutputExistsError, match="runs/test is not empty and holds no report.json of ours"):
         _run(tmp_path, *TINY, flags=["--overwrite"])
     report_path.write_text(before[1])
@@ -74,7 +77,16 @@ def test_reduced_training_writes_a_loadable_checkpoint_and_logs(tmp_path):
     assert notes.read_text() == "precious" and (ckpt.read_bytes(), report_path.read_text()) == before
     _, second = _run(tmp_path, *TINY, flags=["--overwrite"])
     assert json.loads(report_path.read_text())["views"] == second["views"] == 6 * 2
+    assert not list((tmp_path / "runs/test").glob("events.out.tfevents.*"))  # the replaced run's logs went with it
     assert GenerativeShapeModel.from_checkpoint(ckpt).core.pixel_rank == 8
+
+
+def test_the_checkpoint_goes_into_the_named_run_folder(tmp_path):
+    runs = tmp_path / "runs"
+    train.main(["--config", str(REPO / "configs/default.yaml"), f"log_dir={runs}", "name=solo", *TINY])
+    ckpt = runs / "solo" / "model.pt"
+    assert ckpt.is_file() and not (runs / "default").exists()
+    assert torch.load(ckpt, weights_only=True)["extra"]["config"]["checkpoint"] == str(ckpt)
 
 
 def test_user_errors_print_one_line_and_exit_2(tmp_path):
@@ -137,10 +149,25 @@ def test_catalog_manifest_errors_name_the_entry(tmp_path):
         ("  - {file: camry_cm.obj, class: car, scale: 0.01, colour: red}", r"vehicles\[4\].*unknown keys \['colour'\]"),
         ("  - {file: camry_cm.obj, class: car, scale: 0.01, up: y, forward: y}", r"vehicles\[4\].*perpendicular"),
         ("  - {file: vw_golf/vw_golf.urdf, class: car, scale: 1.0}", r"names must be unique.*vw_golf"),
+        ("  - {file: camry_cm.obj, class: car, scale: 1, scale: 2}", r"YAML: key 'scale' repeated \(first on line 6"),
+        ("  - {file: camry_cm.obj, class: car, scale: 0.01, name: ''}", r"vehicles\[4\].*name must not be empty"),
+        ("  - {file: camry_cm.obj, class: car, scale: 0.01, up: null}", r"vehicles\[4\].*up: expected a string"),
+        ("  - {file: ., class: car, scale: 0.01}", r"vehicles\[4\] \(.\):.*is a folder"),
+        ("vehicles: []", r"key 'vehicles' repeated"),
     ]:
         manifest.write_text(good + line + "\n")
         with pytest.raises((ValueError, FileNotFoundError), match=message):
             load_catalog_folder(folder)
+    manifest.write_bytes(good.encode() + b"  - {file: camry\xff.obj, class: car, scale: 1}\n")
+    with pytest.raises(ValueError, match=r"catalog.yaml, line 6: not UTF-8"):
+        load_catalog_folder(folder)
+    manifest.write_text("vehicles:\n  - {file: camry_cm.obj, class: car, scale: 0.01}\n")
+    with pytest.raises(ValueError, match="catalog.yaml: lists one vehicle; an identity manifold needs at least 2"):
+        load_catalog_folder(folder)
+    # YAML 1.1 reads 1e-2 (no dot) as a string: still the number (a model in centimetres).
+    manifest.write_text(good.replace("length: 4.88, name: camry", "scale: 1e-2, name: camry"))
+    assert load_catalog_folder(folder)[2].mesh.bounds == pytest.approx(load_catalog_vehicle("toyota_camry").mesh.bounds,
+                                                                      abs=1e-6)
     manifest.unlink()
     with pytest.raises(FileNotFoundError, match="catalog.yaml"):
         _run(tmp_path, f"catalog={folder}", *REDUCED)
@@ -155,6 +182,8 @@ def test_bad_config_key_and_type_are_named(tmp_path):
         _run(tmp_path, "model.ridg=1")
     with pytest.raises(ConfigError, match="template.size_px"):
         _run(tmp_path, "template.size_px=big")
+    with pytest.raises(ConfigError, match="model.ridg"):  # a flag between the overrides
+        train.main([f"log_dir={tmp_path}", "--overwrite", "model.ridg=1"])
 
 
 @pytest.mark.slow

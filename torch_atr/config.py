@@ -56,13 +56,13 @@ class TemplateConfig:
         return self.window_m / self.size_px
 
 
-def _check_type(key: str, value: Any, tp: Any) -> Any:
+def check_type(key: str, value: Any, tp: Any) -> Any:
     """Return ``value`` converted to ``tp`` where that is lossless, else raise ConfigError."""
     origin = typing.get_origin(tp)
     if origin in (typing.Union, types.UnionType):
         for arm in typing.get_args(tp):
             try:
-                return _check_type(key, value, arm)
+                return check_type(key, value, arm)
             except ConfigError:
                 continue
         raise ConfigError(f"{key}: {show(value)} matches none of {tp}")
@@ -75,7 +75,7 @@ def _check_type(key: str, value: Any, tp: Any) -> Any:
             raise ConfigError(f"{key}: expected a list; got {show(value)}")
         args = typing.get_args(tp)
         arm = args[0] if args else Any
-        items = [_check_type(f"{key}[{i}]", v, arm) for i, v in enumerate(value)]
+        items = [check_type(f"{key}[{i}]", v, arm) for i, v in enumerate(value)]
         return tuple(items) if origin is tuple else items
     if tp is Any:
         return value
@@ -143,7 +143,7 @@ def _build(cls: type[T], data: dict, prefix: str = "", base: Any = None) -> T:
         if dataclasses.is_dataclass(tp) and isinstance(v, dict) and isinstance(default, tp):
             kwargs[k] = _build(tp, v, f"{prefix}{k}.", default)
         else:
-            kwargs[k] = _check_type(prefix + k, v, tp)
+            kwargs[k] = check_type(prefix + k, v, tp)
     return cls(**kwargs) if base is None else dataclasses.replace(base, **kwargs)
 
 
@@ -176,7 +176,7 @@ class _UniqueKeyLoader(yaml.SafeLoader):
         return super().construct_mapping(node, deep=deep)
 
 
-def _parse_yaml(text: str):
+def parse_yaml(text: str):
     """``text`` parsed by the safe loader, refusing repeated keys."""
     return yaml.load(text, Loader=_UniqueKeyLoader)  # noqa: S506 - a SafeLoader subclass
 
@@ -207,7 +207,7 @@ def load_config(cls: type[T], path: str | Path | None = None, overrides: list[st
         if not path.exists():
             raise ConfigError(f"config file not found: {path}")
         try:
-            loaded = _parse_yaml(read_text(path, MAX_CONFIG_BYTES))
+            loaded = parse_yaml(read_text(path, MAX_CONFIG_BYTES))
         except yaml.YAMLError as exc:
             raise ConfigError(f"{path}: not valid YAML: {' '.join(str(exc).split())}") from None
         except InputError as exc:
@@ -226,7 +226,7 @@ def load_config(cls: type[T], path: str | Path | None = None, overrides: list[st
         if not sep or not key.strip():
             raise ConfigError(f"{what} {item!r} is not of the form key=value")
         try:
-            _set_dotted(data, key.strip(), _parse_yaml(raw))
+            _set_dotted(data, key.strip(), parse_yaml(raw))
         except yaml.YAMLError as exc:
             raise ConfigError(f"{what} {item!r}: not a YAML value: {' '.join(str(exc).split())}") from None
         except ConfigError as exc:

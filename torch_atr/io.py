@@ -13,6 +13,7 @@ from __future__ import annotations
 import csv
 import fcntl
 import io
+import json
 import logging
 import math
 import os
@@ -27,32 +28,51 @@ import torch
 log = logging.getLogger(__name__)
 
 _TEMP_CHARS = "[a-z0-9_]{8}"  # tempfile's random part
+_ANY_TEMP = re.compile(rf"\..+\.{_TEMP_CHARS}\.tmp")
+RUN_CLAIM = ".torch_atr_run"  # written into a run folder as a run starts: an interrupted run's folder stays ours
 
 
 class OutputExistsError(FileExistsError):
     """An output that exists and may not be replaced (not ours, or ours without ``--overwrite``)."""
 
 
+@contextmanager
+def _unheld(candidate: Path) -> Iterator[bool]:
+    """True, holding its lock for the block, when no live write holds ``candidate``; False when
+    one does or it is gone."""
+    try:
+        fd = os.open(candidate, os.O_RDONLY)
+    except OSError:  # gone already, or not ours to read
+        yield False
+        return
+    try:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:  # a live write holds it
+            yield False
+            return
+        yield True
+    finally:
+        os.close(fd)
+
+
 def _remove_stale_temps(path: Path) -> None:
     """Delete ``.NAME.XXXXXXXX.tmp`` files beside ``path`` that no live write holds locked."""
     pattern = re.compile(rf"\.{re.escape(path.name)}\.{_TEMP_CHARS}\.tmp")
     for candidate in path.parent.iterdir():
-        if not pattern.fullmatch(candidate.name):
-            continue
-        try:
-            fd = os.open(candidate, os.O_RDONLY)
-        except OSError:  # gone already, or not ours to read
-            continue
-        try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except OSError:  # a live write holds it
-            os.close(fd)
-            continue
-        try:
-            candidate.unlink(missing_ok=True)
-            log.info("removed %s, left by an interrupted write of %s", candidate, path)
-        finally:
-            os.close(fd)
+        if pattern.fullmatch(candidate.name):
+            with _unheld(candidate) as stale:
+                if stale:
+                    candidate.unlink(missing_ok=True)
+                    log.info("removed %s, left by an interrupted write of %s", candidate, path)
+
+
+def _is_stale_temp(path: Path) -> bool:
+    """True for the temporary file of a killed write (any target): the next write of it removes it."""
+    if not _ANY_TEMP.fullmatch(path.name) or not path.is_file():
+        return False
+    with _unheld(path) as stale:
+        return stale
 
 
 @contextmanager
@@ -63,8 +83,11 @@ def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
     by a killed write of the same target is removed when this write starts.
     """
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    except OSError as exc:  # name the file the user asked for, not our temporary one
+        raise OSError(exc.errno, f"cannot write {path}: {exc.strerror}") from None
     tmp_path = Path(tmp)
     try:
         fcntl.flock(fd, fcntl.LOCK_EX)  # held until this write ends (or its process dies)
@@ -132,23 +155,68 @@ def check_output_dir(folder: str | os.PathLike, overwrite: bool, marker: str, is
                      what: str) -> Path:
     """Check that the output folder ``folder`` may take a new run; return it as a Path.
 
-    A run's folder holds the file ``marker`` (e.g. ``report.json``) that ``is_ours`` recognises.
-    Absent or empty: fine. Holding our marker: refused unless ``overwrite``. Anything else (a
-    file, a folder with other content, e.g. of an unfinished run or another tool): refused even
-    with ``overwrite``. Raises :class:`OutputExistsError` naming the folder.
+    A finished run's folder holds the file ``marker`` (e.g. ``report.json``) that ``is_ours``
+    recognises; an interrupted one holds the claim :func:`claim_output_dir` wrote for ``what``.
+    Absent, or empty but for the temporary files of killed writes: fine. Holding our run, finished
+    or not: refused unless ``overwrite``. Anything else (a file, a folder with other content, e.g.
+    another tool's): refused even with ``overwrite``. Raises :class:`OutputExistsError` naming the
+    folder.
     """
     folder = Path(folder)
     if not folder.exists():
         return folder
     if not folder.is_dir():
         raise OutputExistsError(f"{folder} exists and is not a folder; the {what} must be a folder")
-    if not any(folder.iterdir()):
+    if all(_is_stale_temp(entry) for entry in folder.iterdir()):
         return folder
-    if (folder / marker).is_file() and is_ours(folder / marker):
+    finished = (folder / marker).is_file() and is_ours(folder / marker)
+    if finished or _claimed(folder, what):
         if not overwrite:
-            raise OutputExistsError(f"{folder} already holds a {what} ({marker}); pass --overwrite to replace "
-                                    f"it, or choose another folder")
+            held = f"a {what} ({marker})" if finished else f"an interrupted {what} (no {marker})"
+            raise OutputExistsError(f"{folder} already holds {held}; pass --overwrite to replace it, or choose "
+                                    f"another folder")
         return folder
-    raise OutputExistsError(f"{folder} is not empty and holds no {marker} of ours (an unfinished run, or another "
-                            f"tool's folder); refusing to write a {what} into it (even with --overwrite): delete it "
-                            f"or choose another folder")
+    raise OutputExistsError(f"{folder} is not empty and holds no {marker} of ours (another tool's folder, or a run "
+                            f"of an older version); refusing to write a {what} into it (even with --overwrite): "
+                            f"delete it or choose another folder")
+
+
+def _claimed(folder: Path, what: str) -> bool:
+    try:
+        return json.loads((folder / RUN_CLAIM).read_text(encoding="utf-8")) == {"format": RUN_CLAIM, "what": what}
+    except (OSError, ValueError):
+        return False
+
+
+@contextmanager
+def claimed_output_dir(folder: Path, what: str) -> Iterator[Path]:
+    """Hold ``folder`` (checked by :func:`check_output_dir`) as this run's: a claim is written into
+    it, creating it, before anything else, so that an unwritable folder is found before the work
+    and a run killed midway leaves a folder that ``--overwrite`` may replace. The TensorBoard event
+    files of the run it replaces are removed, so that TensorBoard does not show two runs as one.
+    If the block raises before anything else was written, the claim (and a folder it created) goes.
+    """
+    created = not folder.exists()
+    atomic_write_text(json.dumps({"format": RUN_CLAIM, "what": what}) + "\n", folder / RUN_CLAIM)
+    for old in folder.glob("events.out.tfevents.*"):
+        old.unlink()
+    try:
+        yield folder
+    except BaseException:
+        if all(entry.name == RUN_CLAIM or _is_stale_temp(entry) for entry in folder.iterdir()):
+            (folder / RUN_CLAIM).unlink(missing_ok=True)
+            if created and not any(folder.iterdir()):
+                folder.rmdir()
+        raise
+
+
+def check_writable(path: str | os.PathLike) -> None:
+    """Raise OSError naming ``path`` when its folder cannot be created or written to (so that a bad
+    output path is reported before the work, not after)."""
+    path = Path(path)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        with tempfile.TemporaryFile(dir=path.parent):
+            pass
+    except OSError as exc:
+        raise OSError(exc.errno, f"cannot write {path}: {exc.strerror}") from None

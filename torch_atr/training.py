@@ -89,7 +89,7 @@ class TrainConfig:
     """``train.py``'s config: ``configs/default.yaml`` holds the shipped model's values."""
 
     name: str = "default"  # run name: TensorBoard logs go to <log_dir>/<name>
-    checkpoint: str = "runs/default/model.pt"
+    checkpoint: str | None = None  # null: <log_dir>/<name>/model.pt
     log_dir: str = "runs"
     tensorboard: bool = True
     seed: int = 0
@@ -105,8 +105,18 @@ class TrainConfig:
             raise ConfigError(f"name must be a plain folder name (letters, digits and '._-', not starting with "
                               f"'.', at most 100 characters; no '/'); got {show(self.name)}")
         for key, value in (("checkpoint", self.checkpoint), ("log_dir", self.log_dir)):
-            if not value.strip() or "\0" in value:
+            if value is not None and (not value.strip() or "\0" in value):
                 raise ConfigError(f"{key} must be a path; got {show(value)}")
+
+    @property
+    def run_dir(self) -> Path:
+        """<log_dir>/<name>: the run's TensorBoard logs, figures and report."""
+        return Path(self.log_dir) / self.name
+
+    @property
+    def checkpoint_path(self) -> Path:
+        """``checkpoint``, or <log_dir>/<name>/model.pt when it is null."""
+        return Path(self.checkpoint) if self.checkpoint is not None else self.run_dir / "model.pt"
 
 
 def is_train_report(path: Path) -> bool:

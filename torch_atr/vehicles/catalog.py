@@ -10,13 +10,15 @@ scale to metres, class) are in ``heldout.yaml`` beside this file.
 
 from __future__ import annotations
 
-import math
 import os
+import typing
 from dataclasses import dataclass, fields
 from pathlib import Path
 
 import yaml
 
+from torch_atr.config import MAX_CONFIG_BYTES, ConfigError, check_type, parse_yaml
+from torch_atr.validate import read_text
 from torch_atr.vehicles.loader import CLASS_NAMES, MIN_THICKNESS_M, Vehicle, body_rotation, load_vehicle
 from torch_atr.vehicles.specs import SPLITS
 
@@ -88,30 +90,39 @@ def read_catalog_manifest(folder: str | Path) -> list[CatalogEntry]:
     if not path.is_file():
         raise FileNotFoundError(f"catalog manifest not found: {path} (a catalog folder needs a {CATALOG_MANIFEST})")
     try:
-        data = yaml.safe_load(path.read_text(encoding="utf-8"))
+        data = parse_yaml(read_text(path, MAX_CONFIG_BYTES))
     except yaml.YAMLError as exc:
-        raise ValueError(f"{path}: not valid YAML: {exc}") from exc
+        raise ValueError(f"{path}: not valid YAML: {' '.join(str(exc).split())}") from None
     if not isinstance(data, dict) or set(data) != {"vehicles"} or not isinstance(data["vehicles"], list) \
             or not data["vehicles"]:
         raise ValueError(f"{path}: expected a mapping with the single key 'vehicles' holding a non-empty list")
+    if len(data["vehicles"]) < 2:
+        raise ValueError(f"{path}: lists one vehicle; an identity manifold needs at least 2")
+    types = typing.get_type_hints(CatalogEntry)
     entries: list[CatalogEntry] = []
     for i, item in enumerate(data["vehicles"]):
         where = f"{path}: vehicles[{i}]" + (f" ({item.get('file')})" if isinstance(item, dict) else "")
         if not isinstance(item, dict):
             raise ValueError(f"{where}: expected a mapping; got {item!r}")
-        unknown, missing = sorted(set(item) - set(_ENTRY_KEYS)), sorted({"file", "class"} - set(item))
+        unknown, missing = sorted(set(item) - set(_ENTRY_KEYS), key=str), sorted({"file", "class"} - set(item))
         if unknown or missing:
             raise ValueError(f"{where}: unknown keys {unknown} / missing keys {missing}; "
                              f"keys are {sorted(_ENTRY_KEYS)}")
         if ("length" in item) == ("scale" in item):
             raise ValueError(f"{where}: give exactly one of 'length' (metres) and 'scale' (file units -> metres)")
-        kw = {_ENTRY_KEYS[k]: v for k, v in item.items()}
+        kw = {}
+        for key, value in item.items():
+            field = _ENTRY_KEYS[key]
+            try:  # YAML 1.1 reads 1e-3 as a string: check_type takes it as the number
+                kw[field] = check_type(key, value, types[field])
+            except ConfigError as exc:
+                raise ValueError(f"{where}: {exc}") from None
+            if isinstance(kw[field], str) and not kw[field].strip():
+                raise ValueError(f"{where}: {key} must not be empty")
         for key in ("length", "scale"):
-            value = kw.get(key)
-            if value is not None and not (isinstance(value, (int, float)) and not isinstance(value, bool)
-                                          and math.isfinite(value) and value > 0):
-                raise ValueError(f"{where}: {key} must be a positive number; got {value!r}")
-        entry = CatalogEntry(**{k: (float(v) if k in ("length", "scale") else str(v)) for k, v in kw.items()})
+            if kw.get(key) is not None and not kw[key] > 0:
+                raise ValueError(f"{where}: {key} must be a positive number; got {kw[key]!r}")
+        entry = CatalogEntry(**kw)
         if entry.cls not in CLASS_NAMES:
             raise ValueError(f"{where}: class {entry.cls!r} is not one of {CLASS_NAMES}")
         try:

@@ -186,6 +186,8 @@ def load_vehicle(
     cls = UNKNOWN if cls is None else cls
     if cls not in CLASS_NAMES + (UNKNOWN,):
         raise ValueError(f"{path}: unknown vehicle class {cls!r}; expected one of {CLASS_NAMES + (UNKNOWN,)}")
+    if path.is_dir():
+        raise ValueError(f"{path}: is a folder; expected a URDF or mesh file")
     if not path.is_file():
         raise FileNotFoundError(f"vehicle file not found: {path}")
     if not (math.isfinite(scale) and scale > 0):
