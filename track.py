@@ -23,10 +23,11 @@ from torch_atr.config import load_config
 from torch_atr.data import open_sequence
 from torch_atr.io import check_output_dir, claimed_output_dir
 from torch_atr.model import GenerativeShapeModel
+from torch_atr.model.generative import load_checkpoint
 from torch_atr.tracking.blob import BlobTracker
 from torch_atr.tracking.filter import Tracker
 from torch_atr.tracking.job import TrackConfig, is_track_run, run_summary, write_run
-from torch_atr.training import training_templates
+from torch_atr.training import trained_catalog, training_templates
 
 log = logging.getLogger("track")
 REPO = Path(__file__).resolve().parent
@@ -61,16 +62,17 @@ def main(argv: list[str] | None = None) -> dict:
 
     # 1. The model, the sequence and (for Method IV) the training templates. A bad input is
     # reported before the run folder is checked: a typo in --sequence is not "runs/track exists".
-    model = GenerativeShapeModel.from_checkpoint(resolve(cfg.checkpoint), map_location=cfg.device)
+    model, extra = load_checkpoint(resolve(cfg.checkpoint), map_location=cfg.device)
     sequence = open_sequence(cfg.sequence)
     out = check_output_dir(cfg.out, args.overwrite, "metrics.json", is_track_run, "tracking run")
     with claimed_output_dir(out, "tracking run"):
-        return _track(cfg, model, sequence, out)
+        return _track(cfg, model, trained_catalog(extra), sequence, out)
 
 
-def _track(cfg: TrackConfig, model: GenerativeShapeModel, sequence, out: Path) -> dict:
-    """Track ``sequence`` and write the run folder ``out``; returns the metrics."""
-    templates = training_templates(model) if cfg.tracker.filter.method == "IV" else None
+def _track(cfg: TrackConfig, model: GenerativeShapeModel, catalog: str, sequence, out: Path) -> dict:
+    """Track ``sequence`` and write the run folder ``out``; returns the metrics. ``catalog``: the
+    model's training vehicles (Method IV renders them)."""
+    templates = training_templates(model, catalog) if cfg.tracker.filter.method == "IV" else None
 
     # 2. Track: warm-up, initialisation and the particle filter over every frame; without a camera,
     # view and identity on the normalised blob (thesis 6.3).

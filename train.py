@@ -35,7 +35,8 @@ from torch_atr.io import atomic_write_text, check_output_dir, check_output_file,
 from torch_atr.model import GenerativeShapeModel
 from torch_atr.model.generative import is_checkpoint
 from torch_atr.model.rbf import RBFViewMapping
-from torch_atr.training import REPORT_FORMAT, TrainConfig, is_train_report, non_finite_keys, render_set
+from torch_atr.training import (REPORT_FORMAT, TrainConfig, check_templates, is_train_report, non_finite_keys,
+                                render_set)
 from torch_atr.vehicles import CLASS_NAMES, load_catalog, load_catalog_folder
 
 log = logging.getLogger("train")
@@ -56,9 +57,11 @@ def main(argv: list[str] | None = None) -> dict:
     vehicles = load_catalog("train") if cfg.catalog == "train" else load_catalog_folder(cfg.catalog)
     out_dir = check_output_dir(cfg.run_dir, args.overwrite, "report.json", is_train_report, "run")
     checkpoint = check_output_file(cfg.checkpoint_path, args.overwrite, is_checkpoint, "checkpoint")
-    cfg = dataclasses.replace(cfg, checkpoint=str(checkpoint))  # the checkpoint's config says where it went
-    check_writable(checkpoint)
+    # The checkpoint's config says where it went and (absolute) which catalog Method IV re-renders.
+    cfg = dataclasses.replace(cfg, checkpoint=str(checkpoint),
+                              catalog=cfg.catalog if cfg.catalog == "train" else str(Path(cfg.catalog).resolve()))
     with claimed_output_dir(out_dir, "run"):
+        check_writable(checkpoint)
         return _train(cfg, vehicles, out_dir, checkpoint)
 
 
@@ -79,6 +82,7 @@ def _train(cfg: TrainConfig, vehicles: list, out_dir: Path, checkpoint: Path) ->
     names, classes = [v.name for v in vehicles], [CLASS_NAMES.index(v.cls) for v in vehicles]
     theta, phi = cfg.views.grid()
     masks, signed = render_set(vehicles, theta, phi, cfg.template, "training views")
+    check_templates(vehicles, masks, cfg.template)
     theta_ho, phi_ho = cfg.views.held_out()
     masks_ho, _ = render_set(vehicles, theta_ho, phi_ho, cfg.template, "held-out views")
     val = {}

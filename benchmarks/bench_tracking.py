@@ -24,10 +24,10 @@ import torch
 from torch_atr.config import load_config
 from torch_atr.data.synthetic import SceneConfig, SyntheticSequence
 from torch_atr.io import atomic_write_text
-from torch_atr.model import GenerativeShapeModel
+from torch_atr.model.generative import load_checkpoint
 from torch_atr.tracking import Tracker, TrackerConfig
 from torch_atr.tracking.job import run_summary
-from torch_atr.training import training_templates
+from torch_atr.training import trained_catalog, training_templates
 
 log = logging.getLogger("bench_tracking")
 
@@ -49,8 +49,8 @@ def main() -> None:
     args = parser.parse_args()
     logging.basicConfig(level=logging.INFO, format="%(message)s")
 
-    model = GenerativeShapeModel.from_checkpoint(args.checkpoint)
-    templates = training_templates(model) if "IV" in args.methods else None
+    model, extra = load_checkpoint(args.checkpoint)
+    templates = training_templates(model, trained_catalog(extra)) if "IV" in args.methods else None
     results = []
     log.info("%-12s %5s %-6s %-4s | %7s %7s %7s %6s | %7s %7s %6s | %5s %6s", "vehicle", "range", "start", "meth",
              "horiz m", "range m", "asp rad", "recog", "horiz60", "asp60", "rec60", "conv", "frm/s")

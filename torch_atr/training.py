@@ -17,6 +17,7 @@ from typing import Sequence
 import torch
 from tqdm import tqdm
 
+from torch_atr._checks import check_shape
 from torch_atr.config import ConfigError, ModelConfig, TemplateConfig
 from torch_atr.render import render_templates
 from torch_atr.shape import signed_distance
@@ -153,20 +154,53 @@ def render_set(vehicles: Sequence, theta: torch.Tensor, phi: torch.Tensor, cfg: 
     return masks, signed
 
 
-def training_templates(model) -> torch.Tensor:
-    """The training templates of a model re-rendered from the catalog (Method IV of the tracker).
+def check_templates(vehicles: Sequence, masks: torch.Tensor, cfg: TemplateConfig) -> None:
+    """Raise ValueError naming the first vehicle whose templates are unusable: empty in a view (a
+    model far too small, e.g. millimetres read as metres) or reaching the window's edge (too big
+    for ``template.window_m``, so its silhouettes are cut).
 
-    Renders the model's vehicles (by name, from the train split) at its RBF centres (the training
-    views of every model ``train.py`` fits) with its template geometry. Returns (K, V, S, S)
-    float32 signed distances in [−1, 1]. Raises ValueError naming the vehicles the catalog lacks.
+    vehicles: K vehicles; masks: (K, V, S, S) bool, their templates (:func:`render_set`).
     """
-    from torch_atr.vehicles import load_catalog
+    check_shape("masks", masks, (len(vehicles), "V", cfg.size_px, cfg.size_px))
+    edge = masks[..., 0, :].any(-1) | masks[..., -1, :].any(-1) | masks[..., 0].any(-1) | masks[..., -1].any(-1)
+    empty = ~masks.flatten(2).any(-1)
+    for vehicle, empty_k, edge_k in zip(vehicles, empty, edge):
+        size = " × ".join(f"{e:.3g}" for e in vehicle.mesh.extents)
+        if empty_k.any():
+            raise ValueError(f"vehicle {vehicle.name!r} ({size} m) covers no template pixel in {int(empty_k.sum())} "
+                             f"of {len(empty_k)} views ({cfg.window_m:g} m window, {cfg.size_px} px): too small; check "
+                             f"its length or scale")
+        if edge_k.any():
+            raise ValueError(f"vehicle {vehicle.name!r} ({size} m) reaches the edge of the {cfg.window_m:g} m template "
+                             f"window in {int(edge_k.sum())} of {len(edge_k)} views: too big; check its length or "
+                             f"scale, or widen template.window_m")
 
-    catalog = {v.name: v for v in load_catalog("train")}
-    missing = [name for name in model.vehicle_names if name not in catalog]
+
+def trained_catalog(extra) -> str:
+    """The catalog a checkpoint's model was trained on, from the checkpoint's ``extra``
+    (:func:`~torch_atr.model.generative.load_checkpoint`): "train" (the shipped split) or the
+    folder ``train.py catalog=PATH`` recorded; "train" when the checkpoint does not say."""
+    config = extra.get("config") if isinstance(extra, dict) else None
+    catalog = config.get("catalog") if isinstance(config, dict) else None
+    return catalog if isinstance(catalog, str) else "train"
+
+
+def training_templates(model, catalog: str = "train") -> torch.Tensor:
+    """The training templates of a model re-rendered from its catalog (Method IV of the tracker).
+
+    Renders the model's vehicles (by name, from ``catalog``: "train" or a catalog folder; see
+    :func:`trained_catalog`) at its RBF centres (the training views of every model ``train.py``
+    fits) with its template geometry. Returns (K, V, S, S) float32 signed distances in [−1, 1].
+    Raises ValueError naming the vehicles the catalog lacks.
+    """
+    from torch_atr.vehicles import load_catalog, load_catalog_folder
+
+    vehicles = load_catalog("train") if catalog == "train" else load_catalog_folder(catalog)
+    catalog_vehicles = {v.name: v for v in vehicles}
+    missing = [name for name in model.vehicle_names if name not in catalog_vehicles]
     if missing:
-        raise ValueError(f"Method IV re-renders the training vehicles, but the catalog lacks {missing}")
+        raise ValueError(f"Method IV re-renders the training vehicles, but catalog {catalog!r} lacks {missing}")
     theta, phi = model.rbf.centres_theta.detach().cpu(), model.rbf.centres_phi.detach().cpu()
-    _, signed = render_set([catalog[name] for name in model.vehicle_names], theta, phi, model.template,
+    _, signed = render_set([catalog_vehicles[name] for name in model.vehicle_names], theta, phi, model.template,
                            "Method IV templates")
     return signed

@@ -126,20 +126,22 @@ _WORKER: dict = {}  # per worker process: the model and Method IV's templates, l
 
 def worker_model(checkpoint: str):
     """The checkpoint's model, loaded once per process (workers run many sequences)."""
-    from torch_atr.model import GenerativeShapeModel
+    from torch_atr.model.generative import load_checkpoint
 
     if _WORKER.get("checkpoint") != checkpoint:
         _WORKER.clear()
-        _WORKER.update(checkpoint=checkpoint, model=GenerativeShapeModel.from_checkpoint(checkpoint))
+        model, extra = load_checkpoint(checkpoint)
+        _WORKER.update(checkpoint=checkpoint, model=model, extra=extra)
     return _WORKER["model"]
 
 
 def worker_templates(checkpoint: str):
     """Method IV's training templates of the checkpoint's catalog, rendered once per process."""
-    from torch_atr.training import training_templates
+    from torch_atr.training import trained_catalog, training_templates
 
     if "templates" not in _WORKER:
-        _WORKER["templates"] = training_templates(worker_model(checkpoint))
+        model = worker_model(checkpoint)
+        _WORKER["templates"] = training_templates(model, trained_catalog(_WORKER["extra"]))
     return _WORKER["templates"]
 
 
