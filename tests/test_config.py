@@ -96,6 +96,13 @@ def test_a_bad_override_is_reported_as_an_override_not_against_the_file(tmp_path
     # Of several overrides, the one whose key the message names is blamed.
     with pytest.raises(ConfigError, match=r"^override model.ridge=1e9: model.ridge must be in"):
         load_config(TrainConfig, path, ["seed=3", "model.ridge=1e9", "name=b"])
+    # A key that ends another's name is not blamed for it (frames / init.speed_frames).
+    from torch_atr.tracking.job import TrackConfig
+
+    with pytest.raises(ConfigError, match=r"^override tracker.init.speed_frames=-1: init.speed_frames must be"):
+        load_config(TrackConfig, None, ["frames=3", "tracker.init.speed_frames=-1"])
+    with pytest.raises(ConfigError, match=r"^override seed=99999999999999999999: seed must be in \[0, 2\*\*64 - 1\]"):
+        load_config(TrackConfig, None, ["seed=99999999999999999999"])
     # A file that is bad on its own is blamed even when overrides follow.
     path.write_text("seed: x\n")
     with pytest.raises(ConfigError, match=rf"^{path}: seed: expected an integer"):
@@ -131,3 +138,16 @@ def test_view_grid_matches_chapter_6_1():
     assert len(vt) == 300
     seen = {(round(float(a), 6), round(float(b), 6)) for a, b in zip(vt, vp)}
     assert not seen & {(round(float(a), 6), round(float(b), 6)) for a, b in zip(th, ph)}
+
+
+def test_a_text_key_takes_its_value_as_written():
+    """Paths and names are not YAML: '#' starts no comment, ': ' makes no mapping, 2024 stays text."""
+    from torch_atr.tracking.job import TrackConfig
+
+    cfg = load_config(TrackConfig, None, ["out=runs/a #b", "sequence=video:t/run: day1.mp4", "device=cpu"])
+    assert (cfg.out, cfg.sequence) == ("runs/a #b", "video:t/run: day1.mp4")
+    assert load_config(TrackConfig, None, ["out=2024"]).out == "2024"
+    train = load_config(TrainConfig, None, ["name=2024", "checkpoint=null", "log_dir='my runs '"])
+    assert (train.name, train.checkpoint, train.log_dir) == ("2024", None, "my runs ")  # quoted: YAML
+    assert load_config(TrainConfig, None, ["checkpoint=~/m.pt"]).checkpoint == "~/m.pt"
+    assert load_config(TrackConfig, None, ["seed=2024"]).seed == 2024  # other keys stay YAML

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import re
 import types
 import typing
 from dataclasses import dataclass
@@ -226,7 +227,7 @@ def load_config(cls: type[T], path: str | Path | None = None, overrides: list[st
         if not sep or not key.strip():
             raise ConfigError(f"{what} {item!r} is not of the form key=value")
         try:
-            _set_dotted(data, key.strip(), parse_yaml(raw))
+            _set_dotted(data, key.strip(), _override_value(cls, key.strip(), raw))
         except yaml.YAMLError as exc:
             raise ConfigError(f"{what} {item!r}: not a YAML value: {' '.join(str(exc).split())}") from None
         except ConfigError as exc:
@@ -235,10 +236,36 @@ def load_config(cls: type[T], path: str | Path | None = None, overrides: list[st
         return _build(cls, data)
     except ConfigError as exc:
         # Name the overrides whose key the message mentions (all of them if it names none).
-        named = [item for item in overrides or [] if item.partition("=")[0].strip() in str(exc)]
+        named = [item for item in overrides or [] if _mentions(str(exc), item.partition("=")[0].strip())]
         at_fault = named or list(overrides or [])
         label = f"{what}{'s' if len(at_fault) > 1 else ''} {', '.join(at_fault)}" if at_fault else "config"
         raise ConfigError(f"{label}: {exc}") from None
+
+
+def check_seed(key: str, seed: int) -> None:
+    """Raise ConfigError unless ``seed`` is one torch's generators take: [0, 2**64 - 1]."""
+    if not 0 <= seed < 2 ** 64:
+        raise ConfigError(f"{key} must be in [0, 2**64 - 1]; got {seed}")
+
+
+def _override_value(cls: type, dotted: str, raw: str) -> Any:
+    """An override's value: YAML, except for a text key (``out``, ``sequence``, ``name``), which
+    takes ``raw`` as written (a path holding ``#`` or ``: ``, a name like ``2024``) unless it is
+    quoted YAML, or ``null`` / ``~`` where the key may be null."""
+    tp: Any = cls
+    for part in dotted.split("."):
+        tp = typing.get_type_hints(tp).get(part) if dataclasses.is_dataclass(tp) else None
+    arms = set(typing.get_args(tp)) if typing.get_origin(tp) in (typing.Union, types.UnionType) else {tp}
+    if str not in arms or not arms <= {str, type(None)} or raw.strip()[:1] in ("'", '"'):
+        return parse_yaml(raw)
+    return None if type(None) in arms and raw.strip() in ("null", "~") else raw
+
+
+def _mentions(message: str, dotted: str) -> bool:
+    """True if ``message`` names the key ``dotted`` or a dotted tail of it (``init.speed_frames``,
+    ``speed_frames``) as a whole word: ``frames`` is not named by ``speed_frames``."""
+    parts = dotted.split(".")
+    return any(re.search(rf"(?<![\w.]){re.escape('.'.join(parts[i:]))}(?!\w)", message) for i in range(len(parts)))
 
 
 @dataclass(frozen=True)

@@ -18,7 +18,7 @@ import torch
 from tqdm import tqdm
 
 from torch_atr._checks import check_shape
-from torch_atr.config import ConfigError, ModelConfig, TemplateConfig
+from torch_atr.config import ConfigError, ModelConfig, TemplateConfig, check_seed
 from torch_atr.render import render_templates
 from torch_atr.shape import signed_distance
 from torch_atr.validate import read_json_object, show
@@ -101,6 +101,7 @@ class TrainConfig:
     model: ModelConfig = field(default_factory=ModelConfig)
 
     def __post_init__(self) -> None:
+        check_seed("seed", self.seed)
         # The run folder is <log_dir>/<name>: a plain folder name keeps it inside log_dir.
         if not _RUN_NAME.fullmatch(self.name):
             raise ConfigError(f"name must be a plain folder name (letters, digits and '._-', not starting with "

@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from torch_atr.config import ConfigError
+from torch_atr.config import ConfigError, check_seed
 from torch_atr.data.sequence import read_json_object
 from torch_atr.evaluation import (best_matches, frames_to_convergence, recognition_accuracy, tracking_errors,
                                   wrapped_abs)
@@ -44,6 +44,7 @@ class TrackConfig:
     tracker: TrackerConfig = field(default_factory=TrackerConfig)
 
     def __post_init__(self) -> None:
+        check_seed("seed", self.seed)
         if self.frames is not None and not 1 <= self.frames <= 10_000_000:
             raise ConfigError(f"frames must be null or in [1, 1e7]; got {self.frames!r}")
         if not self.sequence.strip():
