@@ -65,7 +65,7 @@ def main(argv: list[str] | None = None) -> dict:
     model, extra = load_checkpoint(resolve(cfg.checkpoint), map_location=cfg.device)
     sequence = open_sequence(cfg.sequence)
     out = check_output_dir(cfg.out, args.overwrite, "metrics.json", is_track_run, "tracking run")
-    with claimed_output_dir(out, "tracking run"):
+    with claimed_output_dir(out, "tracking run", replaces=("metrics.json", "overlay.mp4")):
         return _track(cfg, model, trained_catalog(extra), sequence, out)
 
 
@@ -88,9 +88,9 @@ def _track(cfg: TrackConfig, model: GenerativeShapeModel, catalog: str, sequence
     # 3. The run folder: estimates, metrics, config and figures (TensorBoard and video on request).
     write_run(out, cfg, result, metrics)
     figures = viz.track_figures(result, model, sequence.name)
+    viz.save_figures(figures, out)
     if cfg.tensorboard:
         viz.log_track_tensorboard(out, result, figures)
-    viz.save_figures(figures, out)
     if cfg.video:
         viz.write_overlay_video(out / "overlay.mp4", tracker, sequence, result, cfg.frames)
 

@@ -37,7 +37,8 @@ def test_failed_write_keeps_the_old_content(tmp_path):
 
 def test_stale_temps_of_the_target_only_are_removed_and_live_ones_kept(tmp_path):
     target = tmp_path / "model.pt"
-    stale = [tmp_path / ".model.pt.abcd1234.tmp", tmp_path / ".model.pt.zz_99xyz.tmp"]
+    stale = [tmp_path / ".model.pt.abcd1234.tmp", tmp_path / ".model.pt.zz_99xyz.tmp",
+             tmp_path / ".model.pt.q1w2e3r4.tmp.mp4"]  # atomic_path(suffix=".mp4"), for a video writer
     others = [tmp_path / ".model.pt.bak.abcd1234.tmp",  # another target's temp (model.pt.bak)
               tmp_path / ".other.pt.abcd1234.tmp", tmp_path / "notes.tmp"]
     for p in stale + others:
@@ -159,8 +160,12 @@ def test_a_killed_run_leaves_a_folder_overwrite_may_replace(tmp_path):
     assert check_output_dir(run, True, "report.json", _is_ours, "run") == run
     with pytest.raises(OutputExistsError, match="holds no report.json of ours"):  # another tool's claim is not ours
         check_output_dir(run, True, "report.json", _is_ours, "tracking run")
-    with claimed_output_dir(run, "run"):
+    (run / "report.json").write_text("ours")  # finished after all
+    assert check_output_dir(run, True, "report.json", _is_ours, "run") == run
+    with claimed_output_dir(run, "run", replaces=("report.json",)):
         assert not (run / "events.out.tfevents.1.host").exists()  # TensorBoard shows the new run alone
+        with pytest.raises(OutputExistsError, match="interrupted run"):  # until the new report is written
+            check_output_dir(run, False, "report.json", _is_ours, "run")
         (run / "figure.png").write_text("png")
     assert stale.exists()  # left for the next write of report.json to remove
     (run / RUN_CLAIM).unlink()
@@ -184,5 +189,8 @@ def test_unwritable_outputs_are_named_before_the_work(tmp_path):
         check_writable(blocker / "model.pt")
     with pytest.raises(OSError, match=f"cannot write {blocker}/report.json: "):
         atomic_write_text("{}", blocker / "report.json")
+    with pytest.raises(OSError, match=f"^.*cannot write the run into {blocker}/run: "):
+        with claimed_output_dir(blocker / "run", "run"):
+            pass
     check_writable(tmp_path / "new" / "model.pt")
     assert (tmp_path / "new").is_dir() and not any((tmp_path / "new").iterdir())

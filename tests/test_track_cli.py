@@ -2,6 +2,7 @@
 
 import csv
 import json
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -55,6 +56,16 @@ def test_an_existing_run_is_kept_unless_overwrite(run, tmp_path):
     # A bad input is named first, not the run folder it would have gone to.
     with pytest.raises(OSError, match="nope.mp4"):
         track.main(["--sequence", f"video:{tmp_path / 'nope.mp4'}", "--out", str(out)])
+    # --overwrite replaces the whole run: no video or TensorBoard events of the old one stay behind.
+    copy = tmp_path / "copy"
+    shutil.copytree(out, copy)
+    track.main(["--sequence", SHORT, "--particles", "50", "--out", str(copy), "--overwrite", "--frames", "2"])
+    names = {p.name for p in copy.iterdir()}
+    assert "overlay.mp4" not in names and not any(n.startswith("events.out") for n in names)
+    assert json.loads((copy / "metrics.json").read_text())["frames"] == 2 and "frames.png" in names
+    # An unusable folder is found before the frames are tracked.
+    with pytest.raises(OSError, match=f"cannot write the tracking run into {foreign / 'notes.txt' / 'sub'}"):
+        track.main(["--sequence", SHORT, "--out", str(foreign / "notes.txt" / "sub")])
 
 
 @pytest.mark.parametrize("args, message", [
@@ -91,3 +102,12 @@ def test_an_uncalibrated_video_tracks_view_and_identity(tmp_path):
     rows = list(csv.DictReader((out / "estimates.csv").open()))
     assert len(rows) == 12 and "x" not in rows[0] and {"theta", "phi", "alpha", "class"} <= set(rows[0])
     assert metrics["horizontal_error_m"] is None and metrics["frames"] == 12
+    # With truth but no camera (a saved sequence without its camera.json), TensorBoard gets the
+    # aspect error and no position errors.
+    from torch_atr.data.folder import save_sequence
+
+    folder = save_sequence(seq, tmp_path / "saved", progress=False)
+    (folder / "camera.json").unlink()
+    metrics = track.main(["--sequence", str(folder), "--particles", "100", "--out", str(tmp_path / "tb"),
+                          "--tensorboard", "--frames", "4"])
+    assert metrics["aspect_error_rad"] is not None and any((tmp_path / "tb").glob("events.out.tfevents.*"))

@@ -28,7 +28,8 @@ import torch
 log = logging.getLogger(__name__)
 
 _TEMP_CHARS = "[a-z0-9_]{8}"  # tempfile's random part
-_ANY_TEMP = re.compile(rf"\..+\.{_TEMP_CHARS}\.tmp")
+_TEMP_SUFFIX = r"(\.[A-Za-z0-9]{1,8})?"  # an extension after .tmp, for writers that go by it (.mp4)
+_ANY_TEMP = re.compile(rf"\..+\.{_TEMP_CHARS}\.tmp{_TEMP_SUFFIX}")
 RUN_CLAIM = ".torch_atr_run"  # written into a run folder as a run starts: an interrupted run's folder stays ours
 
 
@@ -58,7 +59,7 @@ def _unheld(candidate: Path) -> Iterator[bool]:
 
 def _remove_stale_temps(path: Path) -> None:
     """Delete ``.NAME.XXXXXXXX.tmp`` files beside ``path`` that no live write holds locked."""
-    pattern = re.compile(rf"\.{re.escape(path.name)}\.{_TEMP_CHARS}\.tmp")
+    pattern = re.compile(rf"\.{re.escape(path.name)}\.{_TEMP_CHARS}\.tmp{_TEMP_SUFFIX}")
     for candidate in path.parent.iterdir():
         if pattern.fullmatch(candidate.name):
             with _unheld(candidate) as stale:
@@ -76,16 +77,19 @@ def _is_stale_temp(path: Path) -> bool:
 
 
 @contextmanager
-def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
-    """Yield a temporary path beside ``path``; on success rename it over ``path``.
+def atomic_path(path: str | os.PathLike, suffix: str = "") -> Iterator[Path]:
+    """Yield a temporary path beside ``path`` (ending ``.tmp`` + ``suffix``, e.g. ".mp4" for a
+    writer that picks its format by the extension); on success rename it over ``path``.
 
     The temporary file is removed if the block raises, so nothing half written is left; one left
     by a killed write of the same target is removed when this write starts.
     """
     path = Path(path)
+    if not re.fullmatch(_TEMP_SUFFIX, suffix):
+        raise ValueError(f"suffix must be empty or a short extension like '.mp4'; got {suffix!r}")
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp" + suffix, dir=path.parent)
     except OSError as exc:  # name the file the user asked for, not our temporary one
         raise OSError(exc.errno, f"cannot write {path}: {exc.strerror}") from None
     tmp_path = Path(tmp)
@@ -189,17 +193,23 @@ def _claimed(folder: Path, what: str) -> bool:
 
 
 @contextmanager
-def claimed_output_dir(folder: Path, what: str) -> Iterator[Path]:
+def claimed_output_dir(folder: Path, what: str, replaces: tuple[str, ...] = ()) -> Iterator[Path]:
     """Hold ``folder`` (checked by :func:`check_output_dir`) as this run's: a claim is written into
     it, creating it, before anything else, so that an unwritable folder is found before the work
-    and a run killed midway leaves a folder that ``--overwrite`` may replace. The TensorBoard event
-    files of the run it replaces are removed, so that TensorBoard does not show two runs as one.
-    If the block raises before anything else was written, the claim (and a folder it created) goes.
+    and a run killed midway leaves a folder that ``--overwrite`` may replace.
+
+    Of the run it replaces, the files named in ``replaces`` (its marker, so that the folder reads
+    as interrupted until this run finishes; outputs this run may not write again) and the
+    TensorBoard event files (or TensorBoard shows two runs as one) are removed. If the block
+    raises before anything else was written, the claim (and a folder it created) goes.
     """
     created = not folder.exists()
-    atomic_write_text(json.dumps({"format": RUN_CLAIM, "what": what}) + "\n", folder / RUN_CLAIM)
-    for old in folder.glob("events.out.tfevents.*"):
-        old.unlink()
+    try:
+        atomic_write_text(json.dumps({"format": RUN_CLAIM, "what": what}) + "\n", folder / RUN_CLAIM)
+    except OSError as exc:
+        raise OSError(exc.errno, f"cannot write the {what} into {folder}: {exc.strerror}") from None
+    for old in [folder / name for name in replaces] + list(folder.glob("events.out.tfevents.*")):
+        old.unlink(missing_ok=True)
     try:
         yield folder
     except BaseException:

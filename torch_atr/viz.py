@@ -380,27 +380,28 @@ def log_track_tensorboard(folder: str | Path, result, figures: dict) -> None:
             for name in ("x", "z", "heading", "speed", "alpha", "ess", "overlap"):
                 if name in row:
                     writer.add_scalar(f"estimate/{name}", row[name], step)
-            if "alpha" in row and "true_x" in row:
+            if "x" in row and "true_x" in row:  # a blob tracker (no camera) has no position
                 writer.add_scalar("error/horizontal_m", abs(row["x"] - row["true_x"]), step)
                 writer.add_scalar("error/range_m", abs(row["z"] - row["true_z"]), step)
+            if "theta" in row and "true_theta" in row:
                 writer.add_scalar("error/aspect_rad", float(wrapped_abs(row["theta"] - row["true_theta"])), step)
         for name, fig in figures.items():
             writer.add_figure(name, fig, close=False)
 
 
 def write_overlay_video(path: str | Path, tracker, sequence, result, frames: int | None = None) -> None:
-    """Every tracked frame with the segmented target (cyan) and the estimate's silhouette (red)
-    contours, as an MP4 (OpenCV's mp4v codec), written atomically."""
+    """Every tracked frame as the segmenter sees it, with the estimate's silhouette contour (red)
+    and its class and α, as an MP4 (OpenCV's mp4v codec), written atomically."""
     import cv2
 
     fps = sequence.fps if math.isfinite(sequence.fps) else 1.0 / tracker.dt
-    with atomic_path(path) as tmp:
+    with atomic_path(path, suffix=".mp4") as tmp:  # OpenCV picks the container by the extension
         writer = None
         for row in result.rows:
             frame = sequence.frame(row["frame"])
             image = cv2.cvtColor(tracker.segmenter.display(frame), cv2.COLOR_GRAY2BGR)
             if writer is None:
-                writer = cv2.VideoWriter(str(tmp.with_suffix(".mp4")), cv2.VideoWriter_fourcc(*"mp4v"), fps,
+                writer = cv2.VideoWriter(str(tmp), cv2.VideoWriter_fourcc(*"mp4v"), fps,
                                          (image.shape[1], image.shape[0]))
             if "alpha" in row:
                 placed = tracker.silhouette_at(row, image.shape[:2]).cpu().numpy().astype(np.uint8)
@@ -411,4 +412,3 @@ def write_overlay_video(path: str | Path, tracker, sequence, result, frames: int
             writer.write(image)
         if writer is not None:
             writer.release()
-            tmp.with_suffix(".mp4").replace(tmp)
