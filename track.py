@@ -100,7 +100,12 @@ def _track(cfg: TrackConfig, model: GenerativeShapeModel, catalog: str, sequence
         log.info("errors: horizontal %.2f m, range %.1f m, aspect %.2f rad; recognition %s; converged at frame %s",
                  metrics["horizontal_error_m"], metrics["range_error_m"], metrics["aspect_error_rad"],
                  metrics["recognition_accuracy"], metrics["frames_to_convergence"])
-    log.info("best matches: %s; overlap ratio %.3f", ", ".join(metrics["best_matches"]), metrics["overlap_ratio"] or 0)
+    if metrics["best_matches"]:
+        overlap = metrics["overlap_ratio"]
+        log.info("best matches: %s; overlap ratio %s", ", ".join(metrics["best_matches"]),
+                 "n/a" if overlap is None else f"{overlap:.3f}")
+    else:
+        log.info("no estimate: no frame had a target to start on")
     log.info("wrote %s: estimates.csv, metrics.json, config.yaml, %s", out, ", ".join(f"{n}.png" for n in figures))
     return metrics
 

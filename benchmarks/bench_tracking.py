@@ -47,6 +47,8 @@ def main() -> None:
     parser.add_argument("--set", nargs="*", default=[], metavar="KEY=VALUE", help="tracker config overrides")
     parser.add_argument("--json", help="also write every number here")
     args = parser.parse_args()
+    if not 0 <= args.settle < args.frames:
+        parser.error(f"--settle ({args.settle}) must be at least 0 and below --frames ({args.frames})")
     logging.basicConfig(level=logging.INFO, format="%(message)s")
 
     model, extra = load_checkpoint(args.checkpoint)

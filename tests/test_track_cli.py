@@ -33,6 +33,7 @@ def test_outputs_are_written_and_consistent(run):
     assert len(rows) == 12 and {"x", "z", "theta", "alpha", "class", "nearest_1", "true_x", "ess"} <= set(rows[0])
     saved = json.loads((out / "metrics.json").read_text())
     assert saved["frames"] == 12 and saved["format"] == "torch_atr.track_metrics"
+    assert saved["settled"] is None  # 12 frames: none after the first 60
     # The summary agrees with the table it summarises.
     err = sum(abs(float(r["x"]) - float(r["true_x"])) for r in rows) / 12
     assert saved["horizontal_error_m"] == pytest.approx(err, rel=1e-4)

@@ -68,14 +68,14 @@ def track_metrics(rows: list[dict], model, first: int = 0) -> dict:
 
 def run_summary(result: TrackResult, model, settle_frames: int) -> dict:
     """``metrics.json``: the metrics over all frames, over the frames after ``settle_frames``
-    (``settled``), the frames to convergence and the speed."""
+    (``settled``; None for a run no longer than that), the frames to convergence and the speed."""
     rows = result.rows
     known = [r.get("true_class", "") in model.class_names for r in rows]
     ok = ((np.abs(column(rows, "x") - column(rows, "true_x")) < CONVERGED_HORIZONTAL_M)
           & (wrapped_abs(column(rows, "theta") - column(rows, "true_theta")) < CONVERGED_ASPECT_RAD)
           & np.array([r.get("class") == r.get("true_class") for r in rows]) & np.array(known))
     summary = {"format": METRICS_FORMAT, **track_metrics(rows, model)}
-    summary["settled"] = track_metrics(rows, model, min(settle_frames, max(len(rows) - 1, 0)))
+    summary["settled"] = track_metrics(rows, model, settle_frames) if len(rows) > settle_frames else None
     summary["frames_to_convergence"] = frames_to_convergence(ok) if any(known) else None
     summary["frames_per_second"] = result.frames_per_second
     return summary
