@@ -353,7 +353,7 @@ def frame_strip_figure(snapshots: list[dict], rows: list[dict], title: str, crop
     axes[0, 0].plot([], [], color=(1.0, 0.16, 0.16), label="reconstruction at the estimate")
     fig.legend(loc="lower center", ncol=2, fontsize=8)
     fig.suptitle(f"{title}: frames with the estimated shape")
-    fig.tight_layout(rect=(0, 0.08, 1, 1))
+    fig.tight_layout(rect=(0, 0.13, 1, 1))  # the legend below the x labels
     return fig
 
 
