@@ -61,6 +61,28 @@ def test_alpha_grid_iou_equals_a_loop_over_alpha_of_the_model_silhouette(model):
         alpha_grid_iou(model, masks[0], theta, phi)
 
 
+def test_masks_and_signed_distances_are_not_confused(model):
+    """A float "mask" scored 1.0 everywhere, and fit_alpha on bool silhouettes found a wrong α
+    with no complaint: each measure now names what it was given against what it takes."""
+    from torch_atr.evaluation import fit_alpha, identity_distances, reconstruction_iou
+
+    theta = torch.tensor([0.3, 2.0, 4.0])
+    phi = torch.tensor([0.1, 0.3, 0.0])
+    signed = model(model.alphas[5].expand(3), theta, phi)  # (3, S, S)
+    K = len(model.alphas)
+    cases = [(alpha_grid_iou, signed[None], "masks to be bool silhouettes; got dtype torch.float32"),
+             (fit_alpha, signed > 0, "signed to be floating signed distances"),
+             (identity_distances, (signed > 0)[None].expand(K, -1, -1, -1), "signed to be floating"),
+             (identity_distances, signed[None].expand(K + 4, -1, -1, -1), rf"signed to have shape \({K}, "),
+             (reconstruction_iou, signed[None].expand(K, -1, -1, -1), "templates to be bool silhouettes"),
+             (fit_alpha, signed[:, :32, :32], "signed to have shape"),
+             (fit_alpha, signed[:0], "at least one view")]
+    for function, templates, message in cases:
+        views = templates.shape[-3]
+        with pytest.raises(ValueError, match=message):
+            function(model, templates, theta[:views], phi[:views])
+
+
 def test_tracking_errors_by_hand():
     from torch_atr.evaluation import tracking_errors
 

@@ -91,6 +91,19 @@ def test_effective_sample_size():
     assert effective_sample_size(torch.tensor([0.5, 0.5, 0.0, 0.0])).item() == pytest.approx(2)
 
 
+@pytest.mark.parametrize("weights", [[2.0, 1.0, 1.0], [math.nan, 0.5, 0.5], [0.0, 0.0, 0.0], [-0.5, 1.0, 0.5],
+                                     [math.inf, 0.0, 0.0]])
+def test_weights_that_are_not_a_distribution_are_refused(weights):
+    """Unnormalised weights gave systematic resampling all ancestors 0 (its cumulative sum no
+    longer sorted); NaN, zero and negative ones picked the last particle or crashed residual's."""
+    w = torch.tensor(weights)
+    for scheme in SCHEMES:
+        with pytest.raises(ValueError, match="Expected finite weights >= 0 summing to 1"):
+            resample(w, scheme)
+    with pytest.raises(ValueError, match="summing to 1"):
+        effective_sample_size(w)
+
+
 def test_circular_mean_against_brute_force():
     """The circular mean minimises Σ w (1 − cos(a − m)); check on a fine grid, across the seam."""
     g = torch.Generator().manual_seed(2)

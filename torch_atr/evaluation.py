@@ -28,13 +28,26 @@ def _views(model, templates: torch.Tensor, theta, phi, view_dim: int) -> tuple[t
     return theta, phi
 
 
+def _check_templates(name: str, x: torch.Tensor, model, dims: tuple, masks: bool) -> None:
+    """Raise ValueError unless ``x`` is ``dims`` + the model's (S, S) template size, with at least
+    one view (the last of ``dims``), and bool silhouettes (``masks``) or floating signed distances."""
+    size = model.template.size_px
+    check_shape(name, x, (*dims, size, size))
+    if masks != (x.dtype == torch.bool) or not (masks or x.is_floating_point()):
+        want = "bool silhouettes" if masks else "floating signed distances (torch_atr.shape.signed_distance)"
+        raise ValueError(f"Expected {name} to be {want}; got dtype {x.dtype}")
+    if x.shape[len(dims) - 1] == 0:
+        raise ValueError(f"Expected {name} to hold at least one view; got shape {tuple(x.shape)}")
+
+
 def per_class_mean(values: torch.Tensor, classes, class_names) -> dict[str, float]:
     """Mean of per-vehicle values by class name, plus "all".
 
     values: (K,); classes: K class indices into ``class_names``. Classes with no vehicle are left out.
     """
-    values = torch.as_tensor(values)
+    values = torch.as_tensor(values, dtype=torch.float64)
     classes = torch.as_tensor(classes)
+    check_shape("classes", classes, ("K",))
     check_shape("values", values, (classes.shape[0],))
     out = {name: values[classes == c].mean().item() for c, name in enumerate(class_names) if (classes == c).any()}
     out["all"] = values.mean().item()
@@ -67,7 +80,7 @@ def reconstruction_iou(model, templates: torch.Tensor, theta, phi) -> torch.Tens
     templates: (K, V, H, W) bool silhouettes of the K training vehicles; theta, phi: (V,) radians.
     Returns (K, V) IoU.
     """
-    check_shape("templates", templates, ("K", "V", None, None))
+    _check_templates("templates", templates, model, (len(model.alphas), "V"), masks=True)
     theta, phi = _views(model, templates, theta, phi, 1)
     return torch.stack([iou(model.reconstruct_grid(model.alphas[k:k + 1], theta, phi)[0].cpu() > 0, templates[k])
                         for k in range(templates.shape[0])])
@@ -81,7 +94,7 @@ def identity_distances(model, signed: torch.Tensor, theta, phi) -> torch.Tensor:
     Returns (K, K): row k = reconstruction at αₖ, column j = vehicle j. A good model has its
     row minima on the diagonal.
     """
-    check_shape("signed", signed, ("K", "V", None, None))
+    _check_templates("signed", signed, model, (len(model.alphas), "V"), masks=False)
     theta, phi = _views(model, signed, theta, phi, 1)
     K = signed.shape[0]
     out = torch.empty(K, K)
@@ -102,7 +115,7 @@ def fit_alpha(model, signed: torch.Tensor, theta, phi, grid: int = 360) -> tuple
     """
     from scipy.optimize import minimize_scalar
 
-    check_shape("signed", signed, ("V", None, None))
+    _check_templates("signed", signed, model, ("V",), masks=False)
     if grid < 3:
         raise ValueError(f"Expected grid >= 3; got {grid}")
     theta, phi = _views(model, signed, theta, phi, 0)
@@ -137,7 +150,7 @@ def alpha_grid_iou(model, masks: torch.Tensor, theta, phi, grid: int = 720) -> t
     a single view v is the argmax over a of [b, :, v]; that of the whole vehicle, the argmax of
     the mean over v.
     """
-    check_shape("masks", masks, ("B", "V", model.template.size_px, model.template.size_px))
+    _check_templates("masks", masks, model, ("B", "V"), masks=True)
     if grid < 1:
         raise ValueError(f"Expected grid >= 1; got {grid}")
     theta, phi = _views(model, masks, theta, phi, 1)
@@ -217,6 +230,8 @@ def frames_to_convergence(ok: np.ndarray, window: int = 10) -> int | None:
 
     ok: (T,) bool, e.g. horizontal error < 1 m, aspect error < 0.3 rad and the right class.
     """
+    if window < 1:
+        raise ValueError(f"Expected window >= 1; got {window}")
     ok = np.asarray(ok, dtype=bool)
     run = 0
     for i, good in enumerate(ok):

@@ -19,12 +19,19 @@ import torch
 from torch_atr._checks import check_shape
 
 SCHEMES = ("systematic", "stratified", "residual", "multinomial")
+WEIGHT_SUM_TOLERANCE = 1e-3  # |Σ w − 1| allowed: float32 rounding over 10⁷ particles stays far below
 
 
 def _check_weights(weights: torch.Tensor) -> None:
+    """Normalised weights or ValueError: unnormalised ones would bias the cumulative weights of
+    every scheme, and NaN or negative ones pick arbitrary ancestors."""
     check_shape("weights", weights, ("N",))
     if weights.shape[0] == 0 or not weights.is_floating_point():
         raise ValueError(f"Expected a non-empty floating weight vector; got {weights.dtype} {tuple(weights.shape)}")
+    total = weights.sum()
+    if not bool(torch.isfinite(weights).all() & (weights >= 0).all() & ((total - 1).abs() <= WEIGHT_SUM_TOLERANCE)):
+        raise ValueError(f"Expected finite weights >= 0 summing to 1 (normalise them first); got sum "
+                         f"{total.item():.6g}, min {weights.min().item():.6g}")
 
 
 def _inverse_cdf(weights: torch.Tensor, points: torch.Tensor) -> torch.Tensor:
