@@ -144,6 +144,20 @@ def test_forward_rejects_mismatched_queries(model):
         model(torch.zeros(3), torch.zeros(3), torch.zeros(2))
 
 
+def test_queries_must_be_finite_and_submodules_take_any_float(model):
+    theta, phi = torch.tensor([0.3, 2.0]), torch.tensor([0.1, 0.4])
+    for bad in (math.nan, math.inf):  # a NaN α reconstructed NaN and classified as the first class
+        alpha = torch.tensor([bad, 1.0])
+        for query in (lambda: model(alpha, theta, phi), lambda: model.classify(alpha),
+                      lambda: model.nearest_vehicles(alpha)):
+            with pytest.raises(ValueError, match="Expected alpha to be finite"):
+                query()
+    # The RBF mapping and the identity manifold alone take float64 queries (they raised a dtype error).
+    torch.testing.assert_close(model.rbf(theta.double(), phi.double()), model.rbf(theta, phi))
+    torch.testing.assert_close(model.identity(model.alphas[:2].double()), model.identity(model.alphas[:2]))
+    assert torch.equal(model.identity.classify(model.alphas.double()), model.identity.labels)
+
+
 def test_gradients_reach_alpha_view_and_widths(model):
     model64 = GenerativeShapeModel.from_model_args(model.model_args).double()
     model64.load_state_dict(model.state_dict())

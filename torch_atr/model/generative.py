@@ -177,11 +177,14 @@ class GenerativeShapeModel(nn.Module):
         return model.to(templates.dtype)
 
     def _queries(self, **queries) -> list[torch.Tensor]:
-        """Check that each query is (N,) of one N and convert it to the model's dtype and device."""
+        """Check that each query is (N,) of one N and finite, and convert it to the model's dtype
+        and device (a NaN α would reconstruct NaN and classify as the first class)."""
         like = self.core.core
         out = [as_float_tensor(name, value, like=like).to(like) for name, value in queries.items()]
         for name, value in zip(queries, out):
             check_shape(name, value, ("N",))
+            if not bool(torch.isfinite(value).all()):
+                raise ValueError(f"Expected {name} to be finite radians; it holds NaN or inf")
         if len({value.shape[0] for value in out}) > 1:
             raise ValueError("Expected " + ", ".join(queries) + " of one length N; got "
                              + ", ".join(str(tuple(v.shape)) for v in out))

@@ -263,16 +263,16 @@ class IdentityManifold(nn.Module):
         Only 4 control points carry each α, so anything linear in i(α) (eq. 4.18) can be
         contracted with 4 control points instead of K identity dimensions.
 
-        alpha: (N,) radians (wrapped mod 2π). Returns first: (N,) int64 in [0, K) and
-        weights: (N, 4), the B-spline basis values (non-negative, summing to 1).
+        alpha: (N,) radians (wrapped mod 2π; taken in the knots' dtype and device). Returns first:
+        (N,) int64 in [0, K) and weights: (N, 4), the B-spline basis values (non-negative, summing to 1).
         """
         check_shape("alpha", alpha, ("N",))
-        return _local_basis(torch.remainder(alpha, TWO_PI), self.knots, self.coefficients.shape[0])
+        return _local_basis(torch.remainder(alpha.to(self.knots), TWO_PI), self.knots, self.coefficients.shape[0])
 
     def circular_distances(self, alpha: torch.Tensor) -> torch.Tensor:
-        """|α − αₖ| on the circle for alpha: (N,). Returns (N, K) in [0, π]."""
+        """|α − αₖ| on the circle for alpha: (N,) (in the model's dtype and device). Returns (N, K) in [0, π]."""
         check_shape("alpha", alpha, ("N",))
-        diff = torch.remainder(alpha.unsqueeze(-1) - self.alphas + math.pi, TWO_PI) - math.pi
+        diff = torch.remainder(alpha.to(self.alphas).unsqueeze(-1) - self.alphas + math.pi, TWO_PI) - math.pi
         return diff.abs()
 
     def nearest_vehicles(self, alpha: torch.Tensor, k: int = 2) -> torch.Tensor:
