@@ -262,3 +262,13 @@ def test_draw_cubes_paints_the_projected_corners():
     np.testing.assert_array_equal(draw_cubes(out, camera, size, behind[None]), out)
     with pytest.raises(ValueError, match=r"positions.*\(C, 3\)"):
         draw_cubes(image, camera, size, np.zeros((2, 2)))
+
+
+def test_a_sign_mix_up_or_no_frame_is_named_not_returned():
+    """A target right of the principal point with x < 0 fitted f = -10000 (returned as is)."""
+    right = np.array([[PP[0] + 20.0, PP[1]]])
+    with pytest.raises(ValueError, match="not positive: .*u grows right with x, v grows down while y grows up"):
+        focal_from_target(right, 1000.0, principal_point=PP, position_xy=[[-2.0, 0.0]])
+    assert focal_from_target(right, 1000.0, principal_point=PP, position_xy=[[2.0, 0.0]]) == pytest.approx(1e4, 1e-3)
+    with pytest.raises(ValueError, match="pixel_uv to hold at least one frame"):
+        focal_from_target(np.zeros((0, 2)), np.zeros(0), principal_point=PP, position_xy=np.zeros((0, 2)))

@@ -57,6 +57,8 @@ def _per_frame(name: str, x, n: int | None = None, cols: int | None = None) -> t
         if n is not None:
             t = t.expand(n, *t.shape[1:])
     check_shape(name, t, ("N",) if cols is None else ("N", cols))
+    if t.shape[0] == 0:
+        raise ValueError(f"Expected {name} to hold at least one frame; got shape {tuple(t.shape)}")
     if n is not None and t.shape[0] != n:
         raise ValueError(f"Expected {name} to have {n} rows like pixel_uv; got shape {tuple(t.shape)}")
     if not torch.isfinite(t).all():
@@ -121,7 +123,12 @@ def focal_from_target(pixel_uv, range_m, *, principal_point: tuple[float, float]
         aa = (a * a).sum()
         if aa <= 0:
             raise ValueError("focal length not observable: every target lies on the optical axis (x = y = 0)")
-        return float((a * b).sum() / aa)
+        f = float((a * b).sum() / aa)
+        if not f > 0:
+            raise ValueError(f"the least-squares focal length is {f:.6g}, not positive: the pixels lie on the other "
+                             f"side of the principal point from position_xy (u grows right with x, v grows down "
+                             f"while y grows up)")
+        return f
     if size_m is None or extent_px is None:
         raise ValueError("The size method needs both size_m and extent_px")
     s = _per_frame("size_m", size_m, n)
