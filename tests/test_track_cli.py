@@ -31,6 +31,7 @@ def test_outputs_are_written_and_consistent(run):
     assert any(n.startswith("events.out.tfevents") for n in names)
     rows = list(csv.DictReader((out / "estimates.csv").open()))
     assert len(rows) == 12 and {"x", "z", "theta", "alpha", "class", "nearest_1", "true_x", "ess"} <= set(rows[0])
+    assert list(rows[0])[:3] == ["frame", "time_s", "lost"]  # the README's order
     saved = json.loads((out / "metrics.json").read_text())
     assert saved["frames"] == 12 and saved["format"] == "torch_atr.track_metrics"
     assert saved["settled"] is None  # 12 frames: none after the first 60

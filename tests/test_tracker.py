@@ -4,6 +4,7 @@ rendered templates, robustness, determinism and seeded end-to-end runs on the si
 import copy
 import dataclasses
 import math
+import re
 from pathlib import Path
 
 import numpy as np
@@ -123,6 +124,7 @@ def test_score_equals_the_per_particle_likelihood_and_leaves_the_filter_alone(mo
         tracker.score(np.zeros_like(mask), p)
     with pytest.raises(ValueError, match="particles"):
         tracker.score(mask, p[:, :5])
+    assert tracker.score(mask, p[:0]).shape == (0,)
 
 
 @pytest.mark.parametrize("device", DEVICES)
@@ -401,10 +403,17 @@ def test_bad_inputs_raise(model, btr):
         tracker.step()
     with pytest.raises(ValueError, match=r"particles to have shape \(N, 6\)"):
         tracker.reset(torch.zeros(4, 5))
-    with pytest.raises(ValueError, match="finite particles"):
+    with pytest.raises(ValueError, match="all finite"):
         tracker.reset(torch.full((4, 6), math.nan))
-    with pytest.raises(ValueError, match="mask to be a"):
-        tracker.step(mask=np.zeros((4, 4)))
+    with pytest.raises(ValueError, match="at least one particle"):  # it set no particles and broke the tracker
+        tracker.reset(torch.zeros(0, 6))
+    assert not tracker.initialised
+    size = (btr.camera.height, btr.camera.width)
+    with pytest.raises(ValueError, match=re.escape(f"mask to be a bool array of the image's size {size}")):
+        tracker.step(mask=np.zeros((4, 4), dtype=bool))  # a downsampled mask was read as every frame lost
+    with pytest.raises(ValueError, match="bool array"):
+        tracker.step(mask=np.zeros(size))
+    assert tracker.step(mask=torch.zeros(size, dtype=torch.bool))["lost"] == 1  # a tensor mask is taken
     with pytest.raises(ValueError, match="device 'tpu' is not available"):
         Tracker(model, btr.camera, _config("filter.particles=10"), device="tpu")
 

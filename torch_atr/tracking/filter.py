@@ -344,8 +344,8 @@ class Tracker:
         """Start from given particles: (N, 6) [x, y, z, h, v, α] describing the coming frame
         (equal weights; the next :meth:`step` weighs them without a prediction first)."""
         check_shape("particles", particles, ("N", STATE_DIM))
-        if not bool(particles.isfinite().all()):
-            raise ValueError("Expected finite particles")
+        if particles.shape[0] == 0 or not bool(particles.isfinite().all()):
+            raise ValueError(f"Expected at least one particle, all finite; got {particles.shape[0]}")
         self.particles = particles.to(self.device, self.dtype)
         self.log_weights = torch.full((self.particles.shape[0],), -math.log(self.particles.shape[0]),
                                       dtype=self.dtype, device=self.device)
@@ -382,9 +382,8 @@ class Tracker:
             if frame is None:
                 raise ValueError("step needs a frame or a mask")
             mask = self.segmenter(frame, near=near, exclude=box)
-        elif not (isinstance(mask, np.ndarray) and mask.ndim == 2 and mask.dtype == bool):
-            raise ValueError(f"Expected mask to be a (H, W) bool array; got {getattr(mask, 'shape', type(mask))} "
-                             f"{getattr(mask, 'dtype', '')}")
+        else:
+            mask = self._check_mask(mask)
         self.last_mask = mask
         area = int(mask.sum())
         observed = 0 < area <= self.cfg.filter.max_foreground * mask.size
@@ -435,15 +434,32 @@ class Tracker:
         Returns:
             (N,) log-likelihoods −mean((z − y)²)/2σ², −inf where not finite; higher is better.
         """
-        if not (isinstance(mask, np.ndarray) and mask.ndim == 2 and mask.dtype == bool and mask.any()):
-            raise ValueError(f"Expected mask to be a non-empty (H, W) bool array; got "
-                             f"{getattr(mask, 'shape', type(mask))} {getattr(mask, 'dtype', '')}")
+        mask = self._check_mask(mask)
+        if not mask.any():
+            raise ValueError("Expected a non-empty mask to score particles against")
         check_shape("particles", particles, ("N", STATE_DIM))
+        if particles.shape[0] == 0:
+            return torch.empty(0, dtype=self.dtype, device=self.device)
         particles = particles.to(self.device, self.dtype)
         _, side = project_windows(self.camera, particles[:, X:Z + 1], self.model.template.window_m)
         side = side[side.isfinite()]
         return self._log_likelihood(self._frame_distance(mask, float(side.max()) if side.numel() else math.inf),
                                     particles)
+
+    def _check_mask(self, mask) -> np.ndarray:
+        """A user's mask as an (H, W) bool array (a tensor is taken too) of the camera's image size
+        (without a camera, of the earlier masks' size); ValueError otherwise: a mask of another size
+        (say of downsampled frames) would be read in the wrong pixels."""
+        if isinstance(mask, torch.Tensor):
+            mask = mask.detach().cpu().numpy()
+        if self.camera is not None:
+            size = (self.camera.height, self.camera.width)
+        else:
+            size = self.last_mask.shape if self.last_mask is not None else getattr(mask, "shape", None)
+        if not (isinstance(mask, np.ndarray) and mask.dtype == bool and mask.ndim == 2 and mask.shape == size):
+            raise ValueError(f"Expected mask to be a bool array of the image's size {size} (H, W); got "
+                             f"{getattr(mask, 'shape', type(mask).__name__)} {getattr(mask, 'dtype', '')}")
+        return mask
 
     def _starts_blind(self, mask: np.ndarray, box: tuple[float, float, float, float] | None) -> bool:
         """Whether this frame's blob, ``mask`` (H, W) bool and not empty, starts the track blind (module
@@ -759,7 +775,7 @@ class Tracker:
             start = time.perf_counter()
             row = self.step(frame)
             seconds += time.perf_counter() - start
-            row["time_s"] = i * self.dt
+            row = {"frame": row["frame"], "time_s": i * self.dt, **row}  # time beside the frame number
             truth = sequence.truth(i)
             if truth is not None:
                 row.update(truth_columns(truth))
