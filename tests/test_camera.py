@@ -152,3 +152,18 @@ def test_rotated_camera_sees_rotated_world():
     uv, depth = cam.project(torch.tensor([20 * math.sin(a), 0.0, 20 * math.cos(a)], dtype=torch.float64))
     torch.testing.assert_close(uv, torch.tensor([320.0, 240.0], dtype=torch.float64))
     assert depth.item() == pytest.approx(20.0)
+
+
+@pytest.mark.parametrize("args, kwargs, message", [
+    ((500.0, 500.0, 320.0, 240.0, 640.7, 480), {}, "whole image size"),  # was silently 640
+    ((500.0, 500.0, 320.0, 240.0, 640, 480), {"R": torch.zeros(3, 3)}, "R: expected a rotation"),
+    ((500.0, 500.0, 320.0, 240.0, 640, 480), {"dist": [math.nan] * 5}, "dist to be finite"),
+    ((500.0, 500.0, 320.0, 240.0, 640, 480), {"t": [0.0, math.inf, 0.0]}, "t to be finite"),
+    (("500", 500.0, 320.0, 240.0, 640, 480), {}, "fx to be a number; got '500'"),
+])
+def test_the_constructor_checks_what_from_dict_checks(args, kwargs, message):
+    """A zero R or NaN distortion was accepted and projected every point to NaN."""
+    with pytest.raises(ValueError, match=message):
+        Camera(*args, **kwargs)
+    cam = Camera(np.float64(500.0), torch.tensor(500.0), 320, 240.0, np.int64(640), 480.0)  # any real scalars
+    assert (cam.fx, cam.width, cam.height) == (500.0, 640, 480)

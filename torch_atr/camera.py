@@ -8,6 +8,7 @@ with y flipped; :meth:`Camera.from_opencv` and :meth:`Camera.opencv_pose` conver
 from __future__ import annotations
 
 import math
+import numbers
 
 import numpy as np
 import torch
@@ -18,6 +19,15 @@ from torch_atr.validate import InputError, image_size, integer, real, rotation, 
 
 # Sensor frame (y up) <-> OpenCV camera frame (y down).
 _FLIP_Y = np.diag([1.0, -1.0, 1.0])
+
+
+def _number(name: str, value) -> float:
+    """A Python, NumPy or one-element torch real number as a float; ValueError naming it otherwise."""
+    if isinstance(value, torch.Tensor) and value.numel() == 1 or isinstance(value, np.ndarray) and value.size == 1:
+        value = value.item()
+    if isinstance(value, bool) or not isinstance(value, numbers.Real):
+        raise ValueError(f"Expected {name} to be a number; got {value!r}")
+    return float(value)
 
 
 class Camera(nn.Module):
@@ -35,12 +45,14 @@ class Camera(nn.Module):
     def __init__(self, fx: float, fy: float, cx: float, cy: float, width: int, height: int,
                  dist=None, R=None, t=None, dtype: torch.dtype = torch.float64):
         super().__init__()
+        fx, fy, cx, cy = (_number(name, v) for name, v in (("fx", fx), ("fy", fy), ("cx", cx), ("cy", cy)))
         if not (0 < fx < math.inf and 0 < fy < math.inf):
             raise ValueError(f"Expected positive finite focal lengths; got fx={fx}, fy={fy}")
         if not (math.isfinite(cx) and math.isfinite(cy)):
             raise ValueError(f"Expected a finite principal point; got cx={cx}, cy={cy}")
-        if width <= 0 or height <= 0:
-            raise ValueError(f"Expected a positive image size; got {width} x {height}")
+        width, height = _number("width", width), _number("height", height)
+        if not (width > 0 and height > 0 and float(width).is_integer() and float(height).is_integer()):
+            raise ValueError(f"Expected a positive whole image size in pixels; got {width} x {height}")
         self.width, self.height = int(width), int(height)
         K = torch.tensor([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]], dtype=dtype)
         dist = torch.zeros(5, dtype=dtype) if dist is None else torch.as_tensor(dist, dtype=dtype).flatten()
@@ -49,6 +61,10 @@ class Camera(nn.Module):
         check_shape("dist", dist, (5,))
         check_shape("R", R, (3, 3))
         check_shape("t", t, (3,))
+        for name, value in (("dist", dist), ("t", t)):
+            if not bool(torch.isfinite(value).all()):
+                raise ValueError(f"Expected {name} to be finite; got {value.tolist()}")
+        rotation("R", R.tolist())  # orthonormal rows: a rotation, or a left-handed frame's (det ±1)
         self.register_buffer("K", K)
         self.register_buffer("dist", dist)
         self.register_buffer("R", R)
