@@ -189,6 +189,15 @@ def test_bad_frames_raise():
         ForegroundSegmenter()(np.zeros((4, 4), np.uint8))
     with pytest.raises(ValueError, match="near"):
         seg(_frame("uint8", texture, [], rng), near=(1.0, float("nan")))
+    with pytest.raises(ValueError, match="no finite pixel"):  # was an IndexError from np.percentile
+        ForegroundSegmenter().warm_up([np.full((4, 4), np.nan, np.float32)])
+    blob = np.zeros((8, 8), bool)
+    blob[2:5, 2:5] = True
+    for call, message in [(lambda: clean_mask(blob, 3.5, 3), "open_px to be a whole number >= 0; got 3.5"),
+                          (lambda: clean_mask(blob, -3, 3), "open_px"),  # was silently no opening
+                          (lambda: select_blob(blob, min_area=float("nan")), "min_area")]:  # was an empty mask
+        with pytest.raises(ValueError, match=message):
+            call()
 
 
 @pytest.mark.parametrize("dtype", [np.uint8, np.uint16, np.float32, np.float64])

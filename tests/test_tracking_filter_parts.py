@@ -133,3 +133,13 @@ def test_weighted_mean_cov_and_class_posterior_against_numpy():
     classes = torch.tensor([0, 2, 2, 1, 0, 2])
     ww = torch.tensor([0.1, 0.2, 0.3, 0.05, 0.15, 0.2], dtype=torch.float64)
     np.testing.assert_allclose(class_posterior(classes, ww, 4).numpy(), [0.25, 0.05, 0.7, 0.0])
+
+
+def test_a_result_column_no_row_has_is_named_not_nan():
+    """A typo ("xx") read as a run without estimates: all NaN."""
+    from torch_atr.tracking import TrackResult
+
+    result = TrackResult([{"frame": 0, "lost": 1}, {"frame": 1, "lost": 0, "x": 2.5}], [], 1.0)
+    np.testing.assert_array_equal(result.column("x"), [math.nan, 2.5])  # missing before the start: NaN
+    with pytest.raises(ValueError, match="No row has a column 'xx'; columns: frame, lost, x"):
+        result.column("xx")

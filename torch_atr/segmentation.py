@@ -39,6 +39,7 @@ to [0, 255]; values outside are clipped. uint8 grey frames are used as they are;
 from __future__ import annotations
 
 import logging
+import numbers
 from dataclasses import dataclass
 from typing import Iterable
 
@@ -135,6 +136,12 @@ def _check_mask(mask) -> np.ndarray:
     return mask.astype(bool)
 
 
+def _check_count(name: str, value) -> None:
+    """ValueError unless ``value`` is a whole number >= 0 (a pixel count or kernel size)."""
+    if isinstance(value, bool) or not isinstance(value, numbers.Integral) or value < 0:
+        raise ValueError(f"Expected {name} to be a whole number >= 0; got {value!r}")
+
+
 def clean_mask(mask: np.ndarray, open_px: int, close_px: int) -> np.ndarray:
     """Morphological opening then closing with elliptic kernels.
 
@@ -145,6 +152,8 @@ def clean_mask(mask: np.ndarray, open_px: int, close_px: int) -> np.ndarray:
         (H, W) bool. Pixels outside the image count as neither foreground nor background
         (OpenCV's default border), so the frame edge neither erodes nor grows the mask.
     """
+    _check_count("open_px", open_px)
+    _check_count("close_px", close_px)
     m = _check_mask(mask).astype(np.uint8)
     for op, size in ((cv2.MORPH_OPEN, open_px), (cv2.MORPH_CLOSE, close_px)):
         if size > 1:
@@ -164,6 +173,7 @@ def select_blob(mask: np.ndarray, near: tuple[float, float] | None = None, min_a
     Returns:
         (H, W) bool, all False when no component qualifies.
     """
+    _check_count("min_area", min_area)
     m = _check_mask(mask)
     if near is not None:
         try:
@@ -459,8 +469,11 @@ class ForegroundSegmenter:
         if greys[0].dtype == np.uint8:
             self.levels = None
         else:
-            finite = np.stack(greys).astype(np.float64)
-            lo, hi = np.percentile(finite[np.isfinite(finite)], [cfg.low_percentile, cfg.high_percentile])
+            pixels = np.stack(greys).astype(np.float64)
+            finite = pixels[np.isfinite(pixels)]
+            if finite.size == 0:
+                raise ValueError("warm_up: the frames hold no finite pixel (all NaN or infinite)")
+            lo, hi = np.percentile(finite, [cfg.low_percentile, cfg.high_percentile])
             span = float(hi - lo) or 1.0  # a flat background still gets a valid map
             self.levels = (float(lo) - cfg.headroom * span, float(lo) + (1 + cfg.headroom) * span)
             logger.debug("IR normalisation: [%.1f, %.1f] -> [0, 255]", *self.levels)

@@ -262,7 +262,11 @@ class TrackResult:
     seconds: float
 
     def column(self, name: str) -> np.ndarray:
-        """One numeric column over the frames, (T,) float64 (NaN where a row lacks it)."""
+        """One numeric column over the frames, (T,) float64 (NaN where a row lacks it); ValueError
+        naming the columns when no row has it (a typo would read as a run without estimates)."""
+        if self.rows and not any(name in row for row in self.rows):
+            columns = ", ".join(dict.fromkeys(key for row in self.rows for key in row))
+            raise ValueError(f"No row has a column {name!r}; columns: {columns}")
         return column(self.rows, name)
 
     @property
@@ -472,8 +476,8 @@ class Tracker:
             if clear or self._cut_frames >= self.cfg.init.border_wait:
                 return True
             if self._cut_frames == 0:
-                log.info("frame %d: the blob touches the image's edge (init.border_px=%d); the blind start waits for it "
-                         "to come clear, at most %d frames (init.border_wait)", self._frames,
+                log.info("frame %d: the blob touches the image's edge (init.border_px=%d); the blind start waits "
+                         "for it to come clear, at most %d frames (init.border_wait)", self._frames,
                          self.cfg.init.border_px, self.cfg.init.border_wait)
             self._cut_frames += 1
             return False
