@@ -7,9 +7,23 @@ tests themselves (a SIGALRM timer and RLIMIT_DATA), so Hypothesis's deadline is 
 flaky on a shared machine and cannot stop a hang anyway.
 """
 
+from pathlib import Path
+
+import pytest
 from hypothesis import HealthCheck, settings
+
+SHIPPED_CHECKPOINT = Path(__file__).resolve().parents[1] / "checkpoints" / "default.pt"
 
 settings.register_profile("ci", max_examples=30, derandomize=True, deadline=None, database=None, print_blob=True,
                           suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
 settings.register_profile("large", max_examples=2000, deadline=None, print_blob=True,
                           suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
+
+
+@pytest.fixture(scope="module")
+def model():
+    """The shipped checkpoint's model, one per test module (a Tracker moves it to its device). A
+    module that needs another model defines its own ``model`` fixture."""
+    from torch_atr.model import GenerativeShapeModel
+
+    return GenerativeShapeModel.from_checkpoint(SHIPPED_CHECKPOINT)

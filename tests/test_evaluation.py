@@ -1,20 +1,13 @@
 """Model and tracking measures against loops and hand-computed cases."""
 
 import math
-from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
 
 from torch_atr.evaluation import alpha_grid_iou, per_class_mean, rbf_mapping_iou
-from torch_atr.model import GenerativeShapeModel
 from torch_atr.model.rbf import RBFViewMapping
-
-
-@pytest.fixture(scope="module")
-def model():
-    return GenerativeShapeModel.from_checkpoint(Path(__file__).resolve().parents[1] / "checkpoints" / "default.pt")
 
 
 def test_per_class_mean_against_a_loop():

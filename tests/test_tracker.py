@@ -34,11 +34,6 @@ DEVICES = ["cpu"] + (["cuda"] if torch.cuda.is_available() else [])  # the devic
 
 
 @pytest.fixture(scope="module")
-def model():
-    return GenerativeShapeModel.from_checkpoint(CKPT)
-
-
-@pytest.fixture(scope="module")
 def btr():
     """The held-out BTR-70 at 1000 m, 40 frames."""
     return SyntheticSequence("btr_70", SceneConfig(frames=40))

@@ -4,25 +4,16 @@ blob clear of the edge starts blind again on it. Checked against the simulator's
 silhouettes and truth, and against the same run without the restart."""
 
 import math
-from pathlib import Path
 
 import numpy as np
 import pytest
 
 from torch_atr.config import ConfigError, load_config
 from torch_atr.data.synthetic import SceneConfig, SyntheticSequence
-from torch_atr.model import GenerativeShapeModel
 from torch_atr.tracking import Tracker, TrackerConfig
 from torch_atr.tracking.filter import RedetectConfig
 from torch_atr.tracking.initialise import InitConfig, clear_of_border
 from torch_atr.tracking.motion import X
-
-CKPT = Path(__file__).resolve().parents[1] / "checkpoints" / "default.pt"
-
-
-@pytest.fixture(scope="module")
-def model():
-    return GenerativeShapeModel.from_checkpoint(CKPT)
 
 
 def _config(*overrides: str) -> TrackerConfig:

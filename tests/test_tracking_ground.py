@@ -3,7 +3,6 @@ against numpy, H(α)/2 against the training meshes' heights, and the tracker hol
 particle on the ground."""
 
 import math
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -11,19 +10,11 @@ import torch
 
 from torch_atr.config import load_config
 from torch_atr.data.synthetic import SceneConfig, SyntheticSequence
-from torch_atr.model import GenerativeShapeModel
 from torch_atr.pose import camera_centre
 from torch_atr.tracking import Tracker, TrackerConfig
 from torch_atr.tracking.ground import bottom_edge_px, half_heights, interpolate_periodic
 from torch_atr.tracking.motion import ALPHA, Y
 from torch_atr.vehicles import load_catalog_vehicle
-
-CKPT = Path(__file__).resolve().parents[1] / "checkpoints" / "default.pt"
-
-
-@pytest.fixture(scope="module")
-def model():
-    return GenerativeShapeModel.from_checkpoint(CKPT)
 
 
 @pytest.mark.parametrize("bottom", [21.0, 20.7, 13.25])

@@ -24,11 +24,6 @@ CKPT = Path(__file__).resolve().parents[1] / "checkpoints" / "default.pt"
 
 
 @pytest.fixture(scope="module")
-def model():
-    return GenerativeShapeModel.from_checkpoint(CKPT)
-
-
-@pytest.fixture(scope="module")
 def btr():
     """The held-out BTR-70 (an APC) at 1000 m, 21 frames."""
     return SyntheticSequence("btr_70", SceneConfig(frames=21))

@@ -3,7 +3,6 @@
 speeds' random walk alone loses."""
 
 import math
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -12,17 +11,9 @@ from scipy.stats import linregress
 
 from torch_atr.config import ConfigError, load_config
 from torch_atr.data.synthetic import SceneConfig, SyntheticSequence
-from torch_atr.model import GenerativeShapeModel
 from torch_atr.tracking import Tracker, TrackerConfig
 from torch_atr.tracking.initialise import SPEED_MEASUREMENT_FLOOR_MPS, speeds_from_track
 from torch_atr.tracking.job import run_summary
-
-CKPT = Path(__file__).resolve().parents[1] / "checkpoints" / "default.pt"
-
-
-@pytest.fixture(scope="module")
-def model():
-    return GenerativeShapeModel.from_checkpoint(CKPT)
 
 
 def _config(*overrides: str) -> TrackerConfig:
