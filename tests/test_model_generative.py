@@ -156,6 +156,10 @@ def test_queries_must_be_finite_and_submodules_take_any_float(model):
     torch.testing.assert_close(model.rbf(theta.double(), phi.double()), model.rbf(theta, phi))
     torch.testing.assert_close(model.identity(model.alphas[:2].double()), model.identity(model.alphas[:2]))
     assert torch.equal(model.identity.classify(model.alphas.double()), model.identity.labels)
+    with pytest.raises(ValueError, match="whole k"):
+        model.nearest_vehicles(model.alphas[:2], k=2.5)
+    size = model.template.size_px
+    torch.testing.assert_close(model.project(np.zeros((size, size)).tolist()), model.project(torch.zeros(size, size)))
 
 
 def test_gradients_reach_alpha_view_and_widths(model):

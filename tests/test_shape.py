@@ -124,3 +124,10 @@ def test_bad_arguments_raise():
         dice(torch.zeros(4, dtype=torch.bool), torch.zeros(4, dtype=torch.bool))
     with pytest.raises(ValueError, match="H, W"):
         silhouette(torch.zeros(4))
+
+
+@pytest.mark.parametrize("tau", [float("inf"), float("nan"), 0.0, -1.0, torch.tensor(2.0), True])
+def test_signed_distance_needs_a_finite_positive_number(tau):
+    """tau_px = inf clipped every distance to 0 (an empty silhouette); a tensor failed in a bool test."""
+    with pytest.raises(ValueError, match="tau_px to be a finite number > 0"):
+        signed_distance(np.ones((4, 4), bool), tau)

@@ -400,6 +400,8 @@ def test_bad_inputs_raise(model, btr):
         tracker.reset(torch.zeros(4, 5))
     with pytest.raises(ValueError, match="all finite"):
         tracker.reset(torch.full((4, 6), math.nan))
+    with pytest.raises(ValueError, match="Expected a FrameTruth"):
+        tracker.initialise({"x": 0.0})
     with pytest.raises(ValueError, match="at least one particle"):  # it set no particles and broke the tracker
         tracker.reset(torch.zeros(0, 6))
     assert not tracker.initialised

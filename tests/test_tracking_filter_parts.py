@@ -143,3 +143,8 @@ def test_a_result_column_no_row_has_is_named_not_nan():
     np.testing.assert_array_equal(result.column("x"), [math.nan, 2.5])  # missing before the start: NaN
     with pytest.raises(ValueError, match="No row has a column 'xx'; columns: frame, lost, x"):
         result.column("xx")
+
+
+def test_predict_needs_floating_particles():
+    with pytest.raises(ValueError, match="floating particles; got torch.int64"):
+        predict(torch.zeros(3, 6, dtype=torch.long), 0.1, MotionConfig())

@@ -9,6 +9,9 @@ template pixels per particle before clipping.
 
 from __future__ import annotations
 
+import math
+import numbers
+
 import numpy as np
 import torch
 from scipy.ndimage import distance_transform_edt
@@ -84,8 +87,8 @@ def signed_distance(mask, tau_px: float) -> torch.Tensor:
     Returns:
         (..., H, W) float32 on ``mask``'s device.
     """
-    if not tau_px > 0:
-        raise ValueError(f"Expected tau_px > 0; got {tau_px}")
+    if isinstance(tau_px, bool) or not isinstance(tau_px, numbers.Real) or not 0 < tau_px < math.inf:
+        raise ValueError(f"Expected tau_px to be a finite number > 0 (pixels); got {tau_px!r}")
     return clip_distance(signed_distance_px(mask), tau_px)
 
 

@@ -215,11 +215,12 @@ class GenerativeShapeModel(nn.Module):
 
     def project(self, templates: torch.Tensor) -> torch.Tensor:
         """Pixel-basis coordinates of signed-distance templates: (..., H, W) -> (..., r)."""
+        like = self.core.core
+        templates = as_float_tensor("templates", templates, like=like).to(like)
         if templates.shape[-2:] != (self.template.size_px, self.template.size_px):
             raise ValueError(f"Expected templates of shape (..., {self.template.size_px}, {self.template.size_px}); "
                              f"got {tuple(templates.shape)}")
-        like = self.core.core
-        return self.core.project(as_float_tensor("templates", templates, like=like).to(like).flatten(-2))
+        return self.core.project(templates.flatten(-2))
 
     def silhouette(self, alpha: torch.Tensor, theta: torch.Tensor, phi: torch.Tensor) -> torch.Tensor:
         """The reconstructed silhouette y(α, Θ) > 0 for alpha, theta, phi: (N,). Returns (N, H, W) bool."""

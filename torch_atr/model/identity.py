@@ -277,8 +277,8 @@ class IdentityManifold(nn.Module):
 
     def nearest_vehicles(self, alpha: torch.Tensor, k: int = 2) -> torch.Tensor:
         """The k vehicles with αₖ nearest to alpha: (N,) on the circle. Returns (N, k) int64, nearest first."""
-        if not 1 <= k <= self.num_vehicles:
-            raise ValueError(f"Expected k in [1, {self.num_vehicles}]; got {k}")
+        if isinstance(k, bool) or not isinstance(k, int) or not 1 <= k <= self.num_vehicles:
+            raise ValueError(f"Expected a whole k in [1, {self.num_vehicles}]; got {k!r}")
         return self.circular_distances(alpha).argsort(dim=-1, stable=True)[:, :k]
 
     def classify(self, alpha: torch.Tensor) -> torch.Tensor:

@@ -334,6 +334,8 @@ class Tracker:
 
         Needs the truth's position (x, y, z), heading and, for α, its vehicle or class.
         """
+        if not isinstance(truth, FrameTruth):
+            raise ValueError(f"Expected a FrameTruth (sequence.truth(i)); got {type(truth).__name__}")
         needed = (truth.x, truth.y, truth.z, truth.heading)
         if not all(math.isfinite(v) for v in needed):
             raise ValueError(f"Truth initialisation needs x, y, z and heading; got {needed}")

@@ -79,6 +79,8 @@ def predict(particles: torch.Tensor, dt: float, cfg: MotionConfig, generator: to
         (N, 6) new particles.
     """
     check_shape("particles", particles, ("N", STATE_DIM))
+    if not particles.is_floating_point():
+        raise ValueError(f"Expected floating particles; got {particles.dtype}")
     std = cfg.std_per_step(dt).to(particles)
     noise = torch.randn(particles.shape, generator=generator, dtype=particles.dtype, device=particles.device)
     h, v = particles[:, HEADING], particles[:, SPEED]
