@@ -141,3 +141,46 @@ def test_restart_counts_only_blobs_clear_of_the_edge(model):
     assert all(abs(row["x"] - truth.x) < 5 for row in rows[:4])
     assert rows[3]["lost"] == 1 and rows[3]["overlap"] == 0
     assert rows[4]["lost"] == 0 and rows[4]["overlap"] > 0.3 and abs(rows[4]["x"] - truth.x) > 20
+
+
+def _restarted_run(model, seq, first: int, speed_frames: int, frames: int = 18) -> list[dict]:
+    """The thesis's start on the truth of frame ``first``, every particle moved 40 m to the side
+    (the windows miss the blob, as when a fast vehicle outran them), then the rendered silhouettes:
+    ``redetect.restart=10`` frames later the blind start runs again on the blob."""
+    cfg = _config("init.mode=truth", "filter.particles=300", "init.alpha_steps=24", "init.azimuth_steps=36",
+                  f"init.camera_height_m={seq.camera_height_m}", "redetect.every=0", "redetect.restart=10",
+                  f"init.speed_frames={speed_frames}")
+    tracker = Tracker(model, seq.camera, cfg, seed=0)
+    tracker.initialise(seq.truth(first))
+    particles = tracker.particles.clone()
+    particles[:, X] += 40.0
+    tracker.reset(particles)
+    return [tracker.step(mask=seq.true_mask(i)) for i in range(first, first + frames)]
+
+
+def test_a_restart_takes_the_speed_from_the_frames_it_missed(model):
+    """The T-72 at 40 m/s, 1000 m, crossing the image (frames 80-98: its silhouette clear of the
+    edge, 1.3 m a frame across the line of sight). After the restart at the 10th missed frame, the
+    blob's track over the missed frames sets the speeds on the next (once it spans 10 frames), not
+    10 frames after the restart: from then on the estimate's velocity across the line of sight is
+    the truth's (finite differences of the true positions) within 15 % (the speeds' prior, 0 ± 1
+    m/s, takes 5 %, and the mean column of a tank turning at 0.8 rad/s moves 5 % slower than its
+    centre), the track is never lost and stays within 2 m of the truth. Without the speeds
+    (``init.speed_frames=0``) the restarted windows, standing still, are outrun again and lost."""
+    seq = SyntheticSequence("t_72", SceneConfig(frames=200, speed_mps=40.0))
+    first, restart = 80, 9
+    assert all(seq.true_mask(i).any() and clear_of_border(seq.true_mask(i), 2) for i in range(first, first + 18))
+    axis = seq.camera.R[0].numpy()  # the camera's x axis in the world frame
+    true = np.array([[seq.truth(i).x, seq.truth(i).y, seq.truth(i).z] for i in range(first, first + 18)])
+    true_lateral = np.gradient(true @ axis) * seq.cfg.fps  # m/s across the line of sight
+    rows = _restarted_run(model, seq, first, 10)
+    assert [row["lost"] for row in rows[:restart]] == [1] * restart and rows[restart]["lost"] == 0
+    after = rows[restart + 1:]  # the speeds are set at the end of the first of these
+    lateral = np.array([row["speed"] * (axis[0] * math.sin(row["heading"]) + axis[2] * math.cos(row["heading"]))
+                        for row in after])
+    assert abs(lateral[0]) < 5 and abs(true_lateral[restart + 1]) > 35
+    np.testing.assert_allclose(lateral[1:], true_lateral[restart + 2:], rtol=0.15)
+    assert all(row["lost"] == 0 for row in after)
+    assert np.abs([row["x"] - row_true[0] for row, row_true in zip(after, true[restart + 1:])]).max() < 2.0
+    standing = _restarted_run(model, seq, first, 0)
+    assert sum(row["lost"] for row in standing[restart + 1:]) >= 4

@@ -97,7 +97,8 @@ def test_a_start_on_the_truth_keeps_its_speeds(model):
 
 def test_an_estimate_behind_the_camera_leaves_the_speeds_alone(model):
     """Particles behind the camera have no lateral scale (their depth is negative): the speeds are
-    not set from the blob, so the run is the one without the measurement."""
+    not set from the blob, so the run is the one without the measurement. No restart (the blob,
+    which no window reaches, would start the track blind again in front of the camera)."""
     seq = SyntheticSequence("btr_70", SceneConfig(frames=12))
     mask = np.zeros((seq.camera.height, seq.camera.width), dtype=bool)
     particles = torch.zeros(50, 6, dtype=torch.float64)
@@ -105,7 +106,8 @@ def test_an_estimate_behind_the_camera_leaves_the_speeds_alone(model):
     particles[:, 4] = 2.0
     rows = []
     for frames in (0, 10):
-        tracker = Tracker(model, seq.camera, _config("filter.particles=50", f"init.speed_frames={frames}"), seed=0)
+        cfg = _config("filter.particles=50", f"init.speed_frames={frames}", "redetect.restart=0")
+        tracker = Tracker(model, seq.camera, cfg, seed=0)
         tracker.reset(particles)
         run = []
         for i in range(12):
@@ -116,3 +118,32 @@ def test_an_estimate_behind_the_camera_leaves_the_speeds_alone(model):
     for a, b in zip(*rows):
         assert {k: v for k, v in a.items() if k != "step_ms"} == {k: v for k, v in b.items() if k != "step_ms"}
     assert all(math.isfinite(r["speed"]) for r in rows[1])
+
+
+def test_the_speed_track_leaves_out_blobs_cut_by_the_edge(model):
+    """A blob moving right 3 px a frame that reaches the image's right edge after 6 frames: its
+    cut centre then moves 1.5 px a frame. The speeds come from the 6 whole blobs alone, so a
+    side-on particle takes the closed form 3 px · fps · depth / fx (a wide speed prior: the
+    measurement alone)."""
+    seq = SyntheticSequence("btr_70", SceneConfig(frames=1))
+    camera = seq.camera
+    truth = seq.truth(0)
+    axis = camera.R[0]
+    particles = torch.zeros(50, 6, dtype=torch.float64)
+    particles[:, :3] = torch.tensor([truth.x, truth.y, truth.z], dtype=torch.float64)
+    particles[:, 3] = math.atan2(float(axis[0]), float(axis[2]))  # heading along the camera's x axis
+    depth = float(camera.world_to_sensor(particles[:1, :3])[0, 2])
+    cfg = _config("filter.particles=50", "init.speed_std_mps=1000", "redetect.restart=0", "redetect.every=0",
+                  "motion.sigma2_speed=0", "motion.sigma2_heading=0")
+    tracker = Tracker(model, camera, cfg, seed=0)
+    tracker.reset(particles)
+    mask = np.zeros((camera.height, camera.width), dtype=bool)
+    left = camera.width - 2 - 30 - 3 * 5  # frame 5: the last 2 px clear of the edge (init.border_px)
+    rows = []
+    for i in range(12):
+        mask[:] = False
+        mask[200:210, left + 3 * i:left + 3 * i + 30] = True
+        rows.append(tracker.step(mask=mask.copy()))
+    lateral = float(torch.linalg.vector_norm(axis[[0, 2]]))  # the heading's component along the camera's x axis
+    expected = 3 * tracker.cfg.filter.fps * depth / camera.fx / lateral
+    assert abs(rows[10]["speed"]) < 1 and rows[11]["speed"] == pytest.approx(expected, rel=1e-3)

@@ -15,9 +15,12 @@ Per frame (Table 5.1, with the segmentation of chapter 3.1 in front):
 5. resample (step 4) when the ESS falls below ``resample_ess`` · N (1.0: every frame, the
    thesis's SIR filter).
 
-After a blind start the speeds are unknown: ``init.speed_frames`` frames after it (10 by default)
-every particle's speed is set from the blob's motion across the line of sight over those frames
-(``initialise.speeds_from_track``), before which they follow only their random walk from about 0.
+After a blind start the speeds are unknown: once the blob's track spans ``init.speed_frames``
+frames (10 by default) every particle's speed is set from the blob's motion across the line of
+sight over them (``initialise.speeds_from_track``), before which they follow only their random
+walk from about 0. The track holds the frames whose blob is clear of the image's edge (a cut
+blob's centre lags the vehicle), from the start on and the frames in a row before it: a restart
+after ``redetect.restart`` missed frames has them, and sets the speeds at once.
 
 A frame gives no observation when its mask is empty or covers more than ``max_foreground`` of the
 image, and is lost when every particle's likelihood underflows (max log w below log of the
@@ -42,6 +45,7 @@ from __future__ import annotations
 import logging
 import math
 import time
+from collections import deque
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -66,6 +70,7 @@ from torch_atr.tracking.initialise import (
     InitConfig,
     blind_hypotheses,
     blind_particles,
+    blob_column,
     clear_of_border,
     speeds_from_track,
     truth_alpha,
@@ -314,8 +319,11 @@ class Tracker:
         self._frames = 0
         self._start = 0  # the frame the track started at (reset); re-detection counts from it
         self._searching = True  # whether re-detection follows the current start
-        self._track: list[tuple[float, float]] | None = None  # (s since the start, blob column): speeds unknown
-        self._track_time: float | None = None  # seconds since the start, while the track is measured
+        self._clock = 0.0  # seconds from the first frame to the current one
+        # (frame, s, blob column) of the latest frames in a row whose blob was clear of the edge, and of the
+        # current start's track while its speeds are unknown (None: known)
+        self._recent: deque[tuple[int, float, float]] = deque(maxlen=max(self.cfg.init.speed_frames, 1))
+        self._track: list[tuple[int, float, float]] | None = None
         self._half_heights: torch.Tensor | None = None  # H(α)/2 on a grid of α (ground contact)
         self._fresh = False  # the particles describe the coming frame (just initialised): no prediction
         self._cut_frames = 0  # frames the blind start has waited on a blob cut by the image's edge
@@ -358,8 +366,7 @@ class Tracker:
         self._fresh = True
         self._start = self._frames
         self._searching = True  # re-detection follows this start (initialise: only with after_truth)
-        self._track = [] if self.cfg.init.speed_frames else None  # speeds measured from the track (blind)
-        self._track_time = None
+        self._track = list(self._recent) if self.cfg.init.speed_frames else None  # speeds measured (blind)
         self._missed = 0
 
     @property
@@ -380,6 +387,8 @@ class Tracker:
         """
         start = time.perf_counter()
         dt = self.dt if dt is None else dt
+        if self._frames:
+            self._clock += dt
         if self.initialised and not self._fresh:
             self.particles = self._predict(dt)
         self._fresh = False
@@ -393,9 +402,11 @@ class Tracker:
         self.last_mask = mask
         area = int(mask.sum())
         observed = 0 < area <= self.cfg.filter.max_foreground * mask.size
+        clear = observed and clear_of_border(mask, self.cfg.init.border_px)
+        point = (self._frames, self._clock, blob_column(mask)) if clear else None
         if observed:
             distance = self._frame_distance(mask, side)
-        if observed and self._starts_blind(mask, box):
+        if observed and self._starts_blind(mask, box, clear):
             if self.initialised:  # a restart: the whole frame's distance, as at the first start
                 distance = self._frame_distance(mask, math.inf)
             self._initialise_blind(mask, distance, frame)
@@ -418,13 +429,17 @@ class Tracker:
             if not lost and self._optimiser is not None and self._frames % self.cfg.adapt.every == 0:
                 self._adapt(distance, row)
             if self._track is not None:
-                self._measure_speed(mask if observed else None, row, dt)
+                self._measure_speed(point, row)
             threshold = self.cfg.filter.resample_ess
             row["resampled"] = int(threshold >= 1 or row["ess"] < threshold * self.particles.shape[0])
             if row["resampled"]:
                 ancestors = resample(self.log_weights.exp(), self.cfg.filter.resample, self.generator)
                 self.particles = self.particles[ancestors]
                 self.log_weights = torch.full_like(self.log_weights, -math.log(self.particles.shape[0]))
+        if point is None:
+            self._recent.clear()
+        else:
+            self._recent.append(point)
         self._frames += 1
         row["step_ms"] = 1e3 * (time.perf_counter() - start)
         return row
@@ -467,13 +482,13 @@ class Tracker:
                              f"{getattr(mask, 'shape', type(mask).__name__)} {getattr(mask, 'dtype', '')}")
         return mask
 
-    def _starts_blind(self, mask: np.ndarray, box: tuple[float, float, float, float] | None) -> bool:
-        """Whether this frame's blob, ``mask`` (H, W) bool and not empty, starts the track blind (module
+    def _starts_blind(self, mask: np.ndarray, box: tuple[float, float, float, float] | None, clear: bool) -> bool:
+        """Whether this frame's blob, ``mask`` (H, W) bool and not empty (``clear`` of the image's edge or
+        not: ``clear_of_border``), starts the track blind (module
         docstring): before the start, when it is clear of the image's edge or the start has waited
         ``init.border_wait`` frames; after it, when for ``redetect.restart`` frames in a row the blob
         was clear of the edge and outside ``box`` (u0, v0, u1, v1), the predicted windows' box (None:
         no particle has a window). Counts the frames waited and missed."""
-        clear = clear_of_border(mask, self.cfg.init.border_px)
         if not self.initialised:
             if clear or self._cut_frames >= self.cfg.init.border_wait:
                 return True
@@ -629,18 +644,17 @@ class Tracker:
                   self._frames, m, float(hyp.max()), best)
         return log_lik
 
-    def _measure_speed(self, mask: np.ndarray | None, row: dict, dt: float) -> None:
-        """After a blind start (``init.speed_frames``): record the blob's mean column (``mask``, None
-        when the frame gave no observation), and ``speed_frames`` frames after the start set every
-        particle's speed from the blob's motion across the line of sight at the estimate's depth
+    def _measure_speed(self, point: tuple[int, float, float] | None, row: dict) -> None:
+        """After a blind start (``init.speed_frames``): add this frame's (frame, s, blob column) ``point``
+        (None: no blob clear of the image's edge) to the track, and once the track, with the frames in a
+        row before the start it began with, spans ``speed_frames`` frames, set every particle's speed
+        from the blob's motion across the line of sight at the estimate's depth
         (``initialise.speeds_from_track``). Until then the speeds follow only their random walk from
         about 0 and lag the vehicle (a vehicle at 10 m/s at 1000 m outran the windows)."""
-        elapsed = 0.0 if self._track_time is None else self._track_time + dt
-        self._track_time = elapsed
-        if mask is not None:
-            columns = mask.sum(axis=0)
-            self._track.append((elapsed, float(columns @ np.arange(columns.shape[0])) / float(columns.sum())))
-        if self._frames - self._start < self.cfg.init.speed_frames:
+        if point is not None:
+            self._track.append(point)
+        first = min(self._start, self._track[0][0]) if self._track else self._start
+        if self._frames - first < self.cfg.init.speed_frames:
             return
         track, self._track = self._track, None
         if len(track) < 3:
@@ -648,14 +662,15 @@ class Tracker:
         depth = float(self.camera.world_to_sensor(torch.tensor([float(row[k]) for k in "xyz"], dtype=torch.float64))[2])
         if not depth > 0:  # an estimate at or behind the camera has no lateral scale: the speeds stay
             return
-        times, columns = torch.tensor(track, dtype=torch.float64).unbind(1)
+        _, times, columns = torch.tensor(track, dtype=torch.float64).unbind(1)
         lateral = (columns - self.camera.cx) * (depth / self.camera.fx)  # metres along the camera's x axis;
         # lens distortion is left out: it bends a column by far less than the blob moves in 10 frames
         axis = self.camera.R[0].to(self.device, self.dtype)  # the camera's x axis in the world frame
         self.particles[:, SPEED] = speeds_from_track(times, lateral, axis, self.particles[:, HEADING],
                                                      self.particles[:, SPEED], self.cfg.init.speed_std_mps)
-        log.debug("frame %d: speeds set from the blob's motion across the line of sight, weighted mean %.2f m/s",
-                  self._frames, float(self.log_weights.exp() @ self.particles[:, SPEED]))
+        log.debug("frame %d: speeds set from the blob's motion across the line of sight over frames %d-%d, weighted "
+                  "mean %.2f m/s", self._frames, track[0][0], track[-1][0],
+                  float(self.log_weights.exp() @ self.particles[:, SPEED]))
 
     def _estimate(self) -> dict:
         """The estimate row of the current weighted particles (module docstring, step 4)."""

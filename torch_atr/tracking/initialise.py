@@ -24,9 +24,10 @@ masks without thin parts (``segmentation.thin_threshold``), which by day join fa
 the blob: turn them off with it.
 
 The first blob says nothing of the speed: the particles' signed speeds start at 0 ± ``speed_std_mps``,
-and ``speed_frames`` frames later the blob's motion across the line of sight sets them
-(:func:`speeds_from_track`; a random walk of σ²_v = 1 (m/s)²/s alone took about 60 frames to
-reach a vehicle's 5 m/s, and lost one at 10 m/s at 1000 m).
+and once the blob's track spans ``speed_frames`` frames (with the frames in a row before the start
+whose blob was clear of the image's edge: a restart's missed frames) its motion across the line
+of sight sets them (:func:`speeds_from_track`; a random walk of σ²_v = 1 (m/s)²/s alone took
+about 60 frames to reach a vehicle's 5 m/s, and lost one at 10 m/s at 1000 m).
 
 A blob that touches the image's edge is cut: its size, its lowest row and its shape lie (a
 T-72 driving in from the side was started on a 16-pixel sliver as a car 500 m too far). The blind
@@ -82,7 +83,7 @@ class InitConfig:
     range_std: float = 0.01  # blind: relative σ of the range around a hypothesis's range
     camera_height_m: float | None = None  # blind: above flat ground; null: the sequence's, if it knows it
     ground_row: float | None = 0.0  # blind: contact in rows below the lowest blob row's centre; null: from contrast
-    speed_frames: int = 10  # blind: speeds set from the track's lateral motion over this many frames; 0: off
+    speed_frames: int = 10  # blind: speeds set once the blob's track spans this many frames; 0: off
     border_px: int = 2  # blind: start only on a blob this many pixels clear of the image's edge; 0: any blob
     border_wait: int = 150  # blind: ... or on a cut blob, after waiting this many frames that had one
 
@@ -140,6 +141,15 @@ def clear_of_border(mask: np.ndarray, margin: int) -> bool:
     if margin <= 0:
         return True
     return not (mask[:margin].any() or mask[-margin:].any() or mask[:, :margin].any() or mask[:, -margin:].any())
+
+
+def blob_column(mask: np.ndarray) -> float:
+    """The mean column of the blob ``mask`` (H, W) bool, not empty: its centre across the image in
+    pixels (the blob's track for :func:`speeds_from_track`)."""
+    if not (isinstance(mask, np.ndarray) and mask.ndim == 2 and mask.any()):
+        raise ValueError(f"Expected mask to be a non-empty (H, W) array; got {getattr(mask, 'shape', type(mask))}")
+    columns = mask.sum(axis=0)
+    return float(columns @ np.arange(columns.shape[0])) / float(columns.sum())
 
 
 def truth_alpha(model, vehicle: str, vehicle_class: str, mode: str = "vehicle") -> float:
