@@ -7,6 +7,7 @@ import math
 
 import numpy as np
 import pytest
+import torch
 
 from torch_atr.config import ConfigError, load_config
 from torch_atr.data.synthetic import SceneConfig, SyntheticSequence
@@ -184,3 +185,31 @@ def test_a_restart_takes_the_speed_from_the_frames_it_missed(model):
     assert np.abs([row["x"] - row_true[0] for row, row_true in zip(after, true[restart + 1:])]).max() < 2.0
     standing = _restarted_run(model, seq, first, 0)
     assert sum(row["lost"] for row in standing[restart + 1:]) >= 4
+
+
+def test_windows_wholly_outside_the_image_see_nothing(model):
+    """Particles whose windows all lie outside the image (the estimate coasting on after its vehicle
+    left it) and a sliver of blob on the image's edge: each window would see only the edge's
+    pixels carried along (a flat band that matched a pickup better than the tank): the particles
+    get no weight, the frame is lost, and the particles keep their identity. A particle of the set
+    moved back inside is scored."""
+    seq = SyntheticSequence("t_72", SceneConfig(frames=1))
+    cfg = _config("init.mode=truth", "filter.particles=100", "redetect.restart=0", "motion.sigma2_alpha=0")
+    tracker = Tracker(model, seq.camera, cfg, seed=0)
+    truth = seq.truth(0)
+    tracker.initialise(truth)
+    particles = tracker.particles.clone()
+    particles[:, X] += 60.0  # 600 px to the right of the tank, beyond the 640 px image's edge
+    tracker.reset(particles)
+    sliver = np.zeros((seq.camera.height, seq.camera.width), dtype=bool)
+    rows, cols = np.nonzero(seq.true_mask(0))
+    sliver[rows.min():rows.max() + 1, -3:] = True  # the tank's rows, on the right edge
+    alphas = tracker.particles[:, -1].clone()
+    scores = tracker.score(sliver, particles)
+    assert torch.isneginf(scores).all()
+    row = tracker.step(mask=sliver)
+    assert row["lost"] == 1 and row["class"] == "tank"
+    assert torch.equal(tracker.particles[:, -1].sort().values, alphas.sort().values)
+    inside = particles[:1].clone()
+    inside[:, X] = truth.x
+    assert torch.isfinite(tracker.score(sliver, inside)).all()

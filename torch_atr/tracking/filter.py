@@ -24,7 +24,7 @@ after ``redetect.restart`` missed frames has them, and sets the speeds at once.
 
 A frame gives no observation when its mask is empty or covers more than ``max_foreground`` of the
 image, and is lost when every particle's likelihood underflows (max log w below log of the
-smallest normal float), or (``redetect.restart``) when its blob is clear of the image's edge and
+smallest normal float; a particle whose window lies wholly outside the image has none), or (``redetect.restart``) when its blob is clear of the image's edge and
 lies outside the box of the particles' predicted windows: the filter then keeps its prediction,
 leaves the weights as they are and flags the frame ``lost``. Estimates are never NaN once the
 filter is initialised.
@@ -89,8 +89,8 @@ from torch_atr.tracking.motion import (
 )
 from torch_atr.tracking.observation import (
     frame_distance,
-    observe,
     observe_windows,
+    outside_image,
     place_silhouette,
     project_windows,
 )
@@ -553,7 +553,9 @@ class Tracker:
 
     def _log_likelihood(self, distance: tuple[torch.Tensor, tuple[int, int]], particles: torch.Tensor
                         ) -> torch.Tensor:
-        """Eq. 5.2 per particle against the frame's (distance, origin); −inf where it is not finite.
+        """Eq. 5.2 per particle against the frame's (distance, origin); −inf where it is not finite or
+        the particle's window lies wholly outside the image (``observation.outside_image``: it sees only
+        the padding of the edge's pixels, and a blob at the edge, carried along, matched a flat car).
         Returns (N,).
 
         Particles are weighed in blocks (``_BLOCK_CPU``, ``_BLOCK_ACCELERATOR``): on the CPU each
@@ -562,16 +564,17 @@ class Tracker:
         goes to launching kernels.
         """
         theta, phi = self._views(particles)
+        uv, side = project_windows(self.camera, particles[:, X:Z + 1], self.model.template.window_m)
         scale = self.appearance.size ** 2 * 2.0 * self.cfg.filter.sigma ** 2
         sse = []
         size = _BLOCK_CPU if particles.device.type == "cpu" else _BLOCK_ACCELERATOR
         for block in torch.arange(particles.shape[0], device=particles.device).split(size):
-            p = particles[block]
-            z = observe(distance[0], self.camera, p[:, X:Z + 1], self.model.template, self.appearance.size,
-                        distance[1])
-            sse.append(self.appearance.squared_errors(z, p[:, ALPHA], theta[block], phi[block]))
+            z = observe_windows(distance[0], uv[block], side[block], self.model.template, self.appearance.size,
+                                distance[1])
+            sse.append(self.appearance.squared_errors(z, particles[block, ALPHA], theta[block], phi[block]))
         log_lik = -torch.cat(sse) / scale  # eq. 5.2: −mean((z − y)²) / 2σ²
-        return torch.where(log_lik.isfinite(), log_lik, -math.inf).to(self.dtype)
+        seen = log_lik.isfinite() & ~outside_image(uv, side, (self.camera.height, self.camera.width))
+        return torch.where(seen, log_lik, -math.inf).to(self.dtype)
 
     def _initialise_blind(self, mask: np.ndarray, distance: tuple[torch.Tensor, tuple[int, int]],
                           frame: np.ndarray | None) -> None:

@@ -13,7 +13,10 @@ pixels (:func:`~torch_atr.shape.signed_distance_px`). Per particle j with centre
    zⱼ of shape (L, L) in [−1, 1];
 4. the likelihood, eq. 5.2: log wⱼ = −mean((zⱼ − yⱼ)²) / (2σ²) against the predicted template yⱼ.
 
-Outside the frame the distance of the nearest border pixel is used (``padding_mode="border"``).
+Outside the frame the distance of the nearest border pixel is used (``padding_mode="border"``):
+a window partly outside sees the blob's edge pixels carried on beyond it. A window wholly outside
+(:func:`outside_image`) sees nothing of the frame but that padding, one edge pixel's distance
+carried along each row or column, and the tracker gives its particle no weight.
 """
 
 from __future__ import annotations
@@ -46,6 +49,16 @@ def project_windows(camera: Camera, centres: torch.Tensor, window_m: float) -> t
     f = torch.stack([camera.K[0, 0], camera.K[1, 1]]).to(uv)
     side = torch.where(depth.unsqueeze(-1) > 0, window_m * f / depth.unsqueeze(-1), torch.full_like(uv, math.nan))
     return uv, side
+
+
+def outside_image(uv: torch.Tensor, side: torch.Tensor, shape: tuple[int, int]) -> torch.Tensor:
+    """Whether each window lies wholly outside an image of ``shape`` (H, W): its box, ``side``
+    (N, 2) pixels around ``uv`` (N, 2), meets no pixel (pixel centres at 0 … W − 1, edges half a
+    pixel beyond). Returns (N,) bool; False for a non-finite window (``sample_windows`` gives it 0)."""
+    check_shape("uv", uv, ("N", 2))
+    check_shape("side", side, (uv.shape[0], 2))
+    far = uv.new_tensor([shape[1], shape[0]]) - 0.5
+    return ((uv + side / 2 < -0.5) | (uv - side / 2 > far)).any(dim=1)
 
 
 def silhouette_boxes(silhouettes: torch.Tensor) -> torch.Tensor:
