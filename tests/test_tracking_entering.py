@@ -192,7 +192,7 @@ def test_windows_wholly_outside_the_image_see_nothing(model):
     left it) and a sliver of blob on the image's edge: each window would see only the edge's
     pixels carried along (a flat band that matched a pickup better than the tank): the particles
     get no weight, the frame is lost, and the particles keep their identity. A particle of the set
-    moved back inside is scored."""
+    moved back inside is scored; one behind the camera is not."""
     seq = SyntheticSequence("t_72", SceneConfig(frames=1))
     cfg = _config("init.mode=truth", "filter.particles=100", "redetect.restart=0", "motion.sigma2_alpha=0")
     tracker = Tracker(model, seq.camera, cfg, seed=0)
@@ -213,3 +213,6 @@ def test_windows_wholly_outside_the_image_see_nothing(model):
     inside = particles[:1].clone()
     inside[:, X] = truth.x
     assert torch.isfinite(tracker.score(sliver, inside)).all()
+    behind = inside.clone()
+    behind[:, 2] = -100.0  # 100 m behind the camera: no window at all
+    assert torch.isneginf(tracker.score(sliver, behind)).all()

@@ -12,8 +12,8 @@ from torch_atr.data.synthetic import SceneConfig, SyntheticSequence
 from torch_atr.pose import VehiclePose, view_of_pose
 from torch_atr.render import render_mask, render_templates
 from torch_atr.shape import iou, signed_distance, signed_distance_px
-from torch_atr.tracking.observation import (log_likelihood, observe, outside_image, place_silhouette,
-                                            project_windows, sample_windows)
+from torch_atr.tracking.observation import (log_likelihood, observe, place_silhouette, project_windows,
+                                            sample_windows, sees_image)
 
 CFG = TemplateConfig()
 
@@ -108,21 +108,21 @@ def test_view_of_a_particle_at_the_truth_is_the_true_view(scene):
     assert theta.item() == pytest.approx(t.theta, abs=1e-12) and phi.item() == pytest.approx(t.phi, abs=1e-12)
 
 
-def test_outside_image_against_every_pixel():
-    """A window is wholly outside when no pixel's square (centre ± ½) meets its box, pixel by pixel
-    on a 5 × 7 image; a non-finite window is not."""
+def test_sees_image_against_every_pixel():
+    """A window sees the image when some pixel's square (centre ± ½) meets its box, pixel by pixel
+    on a 5 × 7 image; a non-finite window (behind the camera) sees nothing."""
     H, W = 5, 7
     g = torch.Generator().manual_seed(0)
     uv = torch.rand(2000, 2, generator=g, dtype=torch.float64) * torch.tensor([W + 8.0, H + 8.0]) - 4
     side = torch.rand(2000, 2, generator=g, dtype=torch.float64) * 4
-    got = outside_image(uv, side, (H, W))
+    got = sees_image(uv, side, (H, W))
     cols, rows = torch.arange(W, dtype=torch.float64), torch.arange(H, dtype=torch.float64)
-    for (u, v), (su, sv), out in zip(uv.tolist(), side.tolist(), got.tolist()):
+    for (u, v), (su, sv), sees in zip(uv.tolist(), side.tolist(), got.tolist()):
         meets_col = ((cols + 0.5 >= u - su / 2) & (cols - 0.5 <= u + su / 2)).any()
         meets_row = ((rows + 0.5 >= v - sv / 2) & (rows - 0.5 <= v + sv / 2)).any()
-        assert out == (not (meets_col and meets_row)), (u, v, su, sv)
+        assert sees == bool(meets_col and meets_row), (u, v, su, sv)
     assert 0.2 < got.double().mean() < 0.8  # both cases drawn
     nan = torch.tensor([[math.nan, 2.0]], dtype=torch.float64)
-    assert not outside_image(nan, torch.ones(1, 2, dtype=torch.float64), (H, W))[0]
+    assert not sees_image(nan, torch.ones(1, 2, dtype=torch.float64), (H, W))[0]
     with pytest.raises(ValueError, match="side"):
-        outside_image(uv, side[:3], (H, W))
+        sees_image(uv, side[:3], (H, W))

@@ -24,7 +24,8 @@ after ``redetect.restart`` missed frames has them, and sets the speeds at once.
 
 A frame gives no observation when its mask is empty or covers more than ``max_foreground`` of the
 image, and is lost when every particle's likelihood underflows (max log w below log of the
-smallest normal float; a particle whose window lies wholly outside the image has none), or (``redetect.restart``) when its blob is clear of the image's edge and
+smallest normal float; a particle whose window sees nothing of the image, behind the camera or
+wholly outside it, has none), or (``redetect.restart``) when its blob is clear of the image's edge and
 lies outside the box of the particles' predicted windows: the filter then keeps its prediction,
 leaves the weights as they are and flags the frame ``lost``. Estimates are never NaN once the
 filter is initialised.
@@ -90,9 +91,9 @@ from torch_atr.tracking.motion import (
 from torch_atr.tracking.observation import (
     frame_distance,
     observe_windows,
-    outside_image,
     place_silhouette,
     project_windows,
+    sees_image,
 )
 from torch_atr.tracking.resampling import SCHEMES, effective_sample_size, resample
 
@@ -453,7 +454,8 @@ class Tracker:
             mask: (H, W) bool, the target's mask (e.g. ``last_mask`` after a :meth:`step`), not empty.
             particles: (N, 6) [x, y, z, h, v, α].
         Returns:
-            (N,) log-likelihoods −mean((z − y)²)/2σ², −inf where not finite; higher is better.
+            (N,) log-likelihoods −mean((z − y)²)/2σ², −inf where not finite or where the window sees
+            nothing of the image (behind the camera or wholly outside it); higher is better.
         """
         mask = self._check_mask(mask)
         if not mask.any():
@@ -554,8 +556,9 @@ class Tracker:
     def _log_likelihood(self, distance: tuple[torch.Tensor, tuple[int, int]], particles: torch.Tensor
                         ) -> torch.Tensor:
         """Eq. 5.2 per particle against the frame's (distance, origin); −inf where it is not finite or
-        the particle's window lies wholly outside the image (``observation.outside_image``: it sees only
-        the padding of the edge's pixels, and a blob at the edge, carried along, matched a flat car).
+        the particle's window sees nothing of the image (``observation.sees_image``): behind the camera,
+        or wholly outside the image, where it sampled only the padding of the edge's pixels (a blob at
+        the edge, carried along, matched a flat car).
         Returns (N,).
 
         Particles are weighed in blocks (``_BLOCK_CPU``, ``_BLOCK_ACCELERATOR``): on the CPU each
@@ -573,7 +576,7 @@ class Tracker:
                                 distance[1])
             sse.append(self.appearance.squared_errors(z, particles[block, ALPHA], theta[block], phi[block]))
         log_lik = -torch.cat(sse) / scale  # eq. 5.2: −mean((z − y)²) / 2σ²
-        seen = log_lik.isfinite() & ~outside_image(uv, side, (self.camera.height, self.camera.width))
+        seen = log_lik.isfinite() & sees_image(uv, side, (self.camera.height, self.camera.width))
         return torch.where(seen, log_lik, -math.inf).to(self.dtype)
 
     def _initialise_blind(self, mask: np.ndarray, distance: tuple[torch.Tensor, tuple[int, int]],

@@ -15,8 +15,9 @@ pixels (:func:`~torch_atr.shape.signed_distance_px`). Per particle j with centre
 
 Outside the frame the distance of the nearest border pixel is used (``padding_mode="border"``):
 a window partly outside sees the blob's edge pixels carried on beyond it. A window wholly outside
-(:func:`outside_image`) sees nothing of the frame but that padding, one edge pixel's distance
-carried along each row or column, and the tracker gives its particle no weight.
+sees nothing of the frame but that padding, one edge pixel's distance carried along each row or
+column, and one behind the camera nothing at all (0); the tracker gives their particles no
+weight (:func:`sees_image`).
 """
 
 from __future__ import annotations
@@ -51,14 +52,14 @@ def project_windows(camera: Camera, centres: torch.Tensor, window_m: float) -> t
     return uv, side
 
 
-def outside_image(uv: torch.Tensor, side: torch.Tensor, shape: tuple[int, int]) -> torch.Tensor:
-    """Whether each window lies wholly outside an image of ``shape`` (H, W): its box, ``side``
-    (N, 2) pixels around ``uv`` (N, 2), meets no pixel (pixel centres at 0 … W − 1, edges half a
-    pixel beyond). Returns (N,) bool; False for a non-finite window (``sample_windows`` gives it 0)."""
+def sees_image(uv: torch.Tensor, side: torch.Tensor, shape: tuple[int, int]) -> torch.Tensor:
+    """Whether each window sees part of an image of ``shape`` (H, W): it is finite (not behind the
+    camera) and its box, ``side`` (N, 2) pixels around ``uv`` (N, 2), meets a pixel (pixel centres
+    at 0 … W − 1, edges half a pixel beyond). Returns (N,) bool."""
     check_shape("uv", uv, ("N", 2))
     check_shape("side", side, (uv.shape[0], 2))
     far = uv.new_tensor([shape[1], shape[0]]) - 0.5
-    return ((uv + side / 2 < -0.5) | (uv - side / 2 > far)).any(dim=1)
+    return ((uv + side / 2 >= -0.5) & (uv - side / 2 <= far)).all(dim=1)
 
 
 def silhouette_boxes(silhouettes: torch.Tensor) -> torch.Tensor:
