@@ -25,8 +25,8 @@ after ``redetect.restart`` missed frames has them, and sets the speeds at once.
 A frame gives no observation when its mask is empty or covers more than ``max_foreground`` of the
 image, and is lost when every particle's likelihood underflows (max log w below log of the
 smallest normal float; a particle whose window sees nothing of the image, behind the camera or
-wholly outside it, has none), or (``redetect.restart``) when its blob is clear of the image's edge and
-lies outside the box of the particles' predicted windows: the filter then keeps its prediction,
+wholly outside it, has none), or (``redetect.restart``) when its blob is clear of the image's
+edge and lies outside the box of the particles' predicted windows: the filter then keeps its prediction,
 leaves the weights as they are and flags the frame ``lost``. Estimates are never NaN once the
 filter is initialised.
 
@@ -485,12 +485,12 @@ class Tracker:
         return mask
 
     def _starts_blind(self, mask: np.ndarray, box: tuple[float, float, float, float] | None, clear: bool) -> bool:
-        """Whether this frame's blob, ``mask`` (H, W) bool and not empty (``clear`` of the image's edge or
-        not: ``clear_of_border``), starts the track blind (module
-        docstring): before the start, when it is clear of the image's edge or the start has waited
-        ``init.border_wait`` frames; after it, when for ``redetect.restart`` frames in a row the blob
-        was clear of the edge and outside ``box`` (u0, v0, u1, v1), the predicted windows' box (None:
-        no particle has a window). Counts the frames waited and missed."""
+        """Whether this frame's blob, ``mask`` (H, W) bool and not empty, ``clear`` of the image's edge or
+        not (``clear_of_border``), starts the track blind (module docstring): before the start, when it
+        is clear or the start has waited ``init.border_wait`` frames; after it, when for
+        ``redetect.restart`` frames in a row the blob was clear and outside ``box`` (u0, v0, u1, v1),
+        the predicted windows' box (None: no particle has a window). Counts the frames waited and
+        missed."""
         if not self.initialised:
             if clear or self._cut_frames >= self.cfg.init.border_wait:
                 return True
