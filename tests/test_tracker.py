@@ -43,9 +43,12 @@ def _config(*overrides: str) -> TrackerConfig:
     return load_config(TrackerConfig, None, list(overrides))
 
 
-def _reference_log_lik(model, camera, mask: np.ndarray, particle: torch.Tensor, L: int, sigma: float) -> float:
+def _reference_log_lik(model, camera, mask: np.ndarray, particle: torch.Tensor, L: int, sigma: float,
+                       padded: bool = False) -> float:
     """Eq. 5.2 for ONE particle, done the plain way: its view, the full reconstruction y(α, Θ)
-    average-pooled to L, its window sampled pixel by pixel, the clip, the mean squared error."""
+    average-pooled to L, its window sampled pixel by pixel, the clip, the mean squared error, with
+    the cells beyond an image edge on which the mask has a pixel left out of the sum (not of the
+    divisor L²), unless ``padded`` (the edge's distance carried on beyond it)."""
     x, y, z, h, _, alpha = particle.tolist()
     theta, phi = view_of_pose(VehiclePose(x, y, z, h), camera)
     with torch.no_grad():
@@ -54,13 +57,19 @@ def _reference_log_lik(model, camera, mask: np.ndarray, particle: torch.Tensor, 
     D = signed_distance_px(mask).numpy()
     uv, depth = camera.project(torch.tensor([x, y, z], dtype=torch.float64))
     s = camera.fx * model.template.window_m / depth.item()
-    obs = np.empty((L, L))
+    H, W = mask.shape
+    left, top, right, bottom = mask[:, 0].any(), mask[0].any(), mask[:, -1].any(), mask[-1].any()
+    total = 0.0
     for a in range(L):
         for b in range(L):
-            d = bilinear(D, uv[0].item() + ((b + 0.5) / L - 0.5) * s, uv[1].item() + ((a + 0.5) / L - 0.5) * s)
-            d *= model.template.size_px / s
-            obs[a, b] = min(max(d, -model.template.tau_px), model.template.tau_px) / model.template.tau_px
-    return -float(((obs - pred) ** 2).mean()) / (2 * sigma ** 2)
+            u, v = uv[0].item() + ((b + 0.5) / L - 0.5) * s, uv[1].item() + ((a + 0.5) / L - 0.5) * s
+            beyond = (left and u < -0.5) or (right and u > W - 0.5) or (top and v < -0.5) or (bottom and v > H - 0.5)
+            if beyond and not padded:
+                continue  # beyond an edge that cuts the blob: unknown
+            d = bilinear(D, u, v) * model.template.size_px / s
+            total += (min(max(d, -model.template.tau_px), model.template.tau_px) / model.template.tau_px
+                      - pred[a, b]) ** 2
+    return -total / L ** 2 / (2 * sigma ** 2)
 
 
 def test_batched_filter_equals_a_per_particle_loop_of_table_5_1(model, btr):
@@ -120,6 +129,31 @@ def test_score_equals_the_per_particle_likelihood_and_leaves_the_filter_alone(mo
     with pytest.raises(ValueError, match="particles"):
         tracker.score(mask, p[:, :5])
     assert tracker.score(mask, p[:0]).shape == (0,)
+
+
+def test_a_blob_cut_by_the_edge_is_scored_on_the_cells_the_image_holds(model, btr):
+    """The BTR-70 moved half out of the image on the right: particles whose windows reach beyond
+    that edge are scored on their cells on the image alone (the per-particle reference above), the
+    one at the truth as well as when the whole vehicle is seen, not by the padding carried on from
+    the edge; beyond the bottom edge, which the blob is clear of, the padding still counts."""
+    tracker = Tracker(model, btr.camera, _config("filter.likelihood_px=8", "filter.sigma=0.1"))
+    pose, t = btr.pose(0), btr.truth(0)
+    u = float(btr.camera.project(torch.tensor([t.x, t.y, t.z], dtype=torch.float64))[0][0])
+    shift = (btr.camera.width - 1 - u) * t.z / btr.camera.fx  # metres that put the centre on the last column
+    mask = render_mask(btr.vehicle, btr.camera, dataclasses.replace(pose, x=pose.x + shift)).numpy()
+    whole = render_mask(btr.vehicle, btr.camera, pose).numpy()
+    assert mask[:, -1].any() and not mask[:, 0].any() and not mask[-1].any()  # the scenario: cut on the right only
+    alpha = float(model.alphas[model.identity.labels == model.class_names.index("apc")][0])  # a training APC
+    p = torch.tensor([[t.x + shift + dx, t.y + dy, t.z, t.heading, 5.0, alpha]
+                      for dx, dy in [(0, 0), (-1.0, 0), (1.5, 0), (4.0, 0), (0, -3.0)]])
+    ref = torch.tensor([_reference_log_lik(model, btr.camera, mask, q, 8, 0.1) for q in p.double()],
+                       dtype=torch.float64)
+    got = tracker.score(mask, p).double()
+    torch.testing.assert_close(got, ref, atol=2e-3, rtol=0)
+    at_truth = tracker.score(whole, torch.tensor([[t.x, t.y, t.z, t.heading, 5.0, alpha]])).double()
+    padded = _reference_log_lik(model, btr.camera, mask, p[0].double(), 8, 0.1, padded=True)
+    assert got[0] == got.max() and got[0] > at_truth[0] - 0.1  # seen in part, the truth fits as well as seen whole
+    assert padded < 5 * at_truth[0]  # the padding: a vehicle that went on beyond the edge
 
 
 @pytest.mark.parametrize("device", DEVICES)

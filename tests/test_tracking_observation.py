@@ -1,7 +1,9 @@
 """The observation model against rendered ground truth and a per-particle reference of Table 5.1."""
 
+import itertools
 import math
 
+import numpy as np
 import pytest
 import torch
 
@@ -12,8 +14,8 @@ from torch_atr.data.synthetic import SceneConfig, SyntheticSequence
 from torch_atr.pose import VehiclePose, view_of_pose
 from torch_atr.render import render_mask, render_templates
 from torch_atr.shape import iou, signed_distance, signed_distance_px
-from torch_atr.tracking.observation import (log_likelihood, observe, place_silhouette, project_windows,
-                                            sample_windows, sees_image)
+from torch_atr.tracking.observation import (cut_edges, log_likelihood, observe, observed_cells, place_silhouette,
+                                            project_windows, sample_windows, sees_image)
 
 CFG = TemplateConfig()
 
@@ -126,3 +128,40 @@ def test_sees_image_against_every_pixel():
     assert not sees_image(nan, torch.ones(1, 2, dtype=torch.float64), (H, W))[0]
     with pytest.raises(ValueError, match="side"):
         sees_image(uv, side[:3], (H, W))
+
+
+def test_cut_edges_are_those_the_blob_has_a_pixel_on():
+    mask = np.zeros((5, 7), dtype=bool)
+    assert cut_edges(mask) == (False, False, False, False)
+    for (r, c), want in [((2, 0), (True, False, False, False)), ((0, 3), (False, True, False, False)),
+                         ((2, 6), (False, False, True, False)), ((4, 3), (False, False, False, True)),
+                         ((0, 6), (False, True, True, False)), ((1, 1), (False, False, False, False))]:
+        one = mask.copy()
+        one[r, c] = True
+        assert cut_edges(one) == want, (r, c)
+    with pytest.raises(ValueError, match="mask"):
+        cut_edges(np.zeros(5, dtype=bool))
+
+
+@pytest.mark.parametrize("cut", list(itertools.product([False, True], repeat=4)))
+def test_observed_cells_against_every_cell(cut):
+    """A cell of a window's L × L grid, centred at u + s((k + ½)/L − ½), is observed unless it lies
+    beyond an edge (left, top, right, bottom) that cuts the blob, cell by cell on a 5 × 7 image; a
+    non-finite window (behind the camera) observes none."""
+    H, W, L = 5, 7, 4
+    g = torch.Generator().manual_seed(0)
+    uv = torch.rand(300, 2, generator=g, dtype=torch.float64) * torch.tensor([W + 8.0, H + 8.0]) - 4
+    side = torch.rand(300, 2, generator=g, dtype=torch.float64) * 6
+    columns, rows = observed_cells(uv, side, L, (H, W), cut)
+    left, top, right, bottom = cut
+    for n, ((u, v), (su, sv)) in enumerate(zip(uv.tolist(), side.tolist())):
+        for k in range(L):
+            cu, cv = u + su * ((k + 0.5) / L - 0.5), v + sv * ((k + 0.5) / L - 0.5)
+            assert bool(columns[n, k]) == ((cu >= -0.5 or not left) and (cu <= W - 0.5 or not right)), (n, k)
+            assert bool(rows[n, k]) == ((cv >= -0.5 or not top) and (cv <= H - 0.5 or not bottom)), (n, k)
+    if any(cut):
+        assert not (columns.all(1) & rows.all(1)).all()  # some window loses cells
+    nan = torch.tensor([[math.nan, 2.0]], dtype=torch.float64)
+    assert not observed_cells(nan, torch.ones(1, 2, dtype=torch.float64), L, (H, W), cut)[0].any()
+    with pytest.raises(ValueError, match="side"):
+        observed_cells(uv, side[:3], L, (H, W), cut)

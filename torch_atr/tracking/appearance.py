@@ -124,18 +124,25 @@ class ShapeAppearance(nn.Module):
         out[order] = (weights[order].unsqueeze(-1) * local.view(N, SPLINE_POINTS, r)).sum(1)  # Σⱼ bⱼ 𝒜'_{s+j} Ψ
         return out
 
-    def squared_errors(self, z: torch.Tensor, alpha: torch.Tensor, theta: torch.Tensor, phi: torch.Tensor
-                       ) -> torch.Tensor:
+    def squared_errors(self, z: torch.Tensor, alpha: torch.Tensor, theta: torch.Tensor, phi: torch.Tensor,
+                       observed: torch.Tensor | None = None) -> torch.Tensor:
         """Σ (zⱼ − yⱼ)² over the L × L pixels of each particle, without forming yⱼ (Methods I–III).
 
         With y = B c on the pooled basis, ‖z − y‖² = ‖z‖² − 2 (Bᵀz)·c + cᵀ (BᵀB) c: one read of z
         for Bᵀz instead of forming y (N × L²) and three passes over z − y. Method IV compares the
         templates directly.
 
-        z: (N, L, L) observed signed distances; alpha, theta, phi: (N,). Returns (N,).
+        z: (N, L, L) observed signed distances; alpha, theta, phi: (N,). observed: optional
+        (N, L, L) bool, the pixels observed (``observation.observed_cells``): the sum runs over
+        them only, the others marginalised out of eq. 5.2's Gaussian (yⱼ is formed); NaN where a
+        particle observes none. Returns (N,).
         """
         alpha, theta, phi = self._queries(alpha, theta, phi)
         check_shape("z", z, (alpha.shape[0], self.size, self.size))
+        if observed is not None:
+            check_shape("observed", observed, tuple(z.shape))
+            errors = (z - self(alpha, theta, phi).to(z)).square().masked_fill(~observed, 0.0).sum(dim=(1, 2))
+            return torch.where(observed.any(dim=(1, 2)), errors, torch.nan)
         if self.method == "IV":
             return (z - self(alpha, theta, phi).to(z)).square().sum(dim=(1, 2))
         c = self.coords(*self.snap(alpha, theta, phi)[:3])  # (N, r)

@@ -6,10 +6,11 @@ Per frame (Table 5.1, with the segmentation of chapter 3.1 in front):
 2. segment the frame: the background model skips the predicted target box, the global gain is
    compensated, and the blob nearest the predicted centre is kept;
 3. weigh: the blob's signed distance in image pixels, sampled in each particle's window and
-   compared with its predicted shape (Methods I–IV), eq. 5.2 in log space, normalised by
-   log-sum-exp; on the frames ``RedetectConfig`` names (by default once, 10 frames after the
-   track's start) the blob is also searched as at the blind start, and the worst-explaining
-   particles are redrawn around hypotheses that beat them all;
+   compared with its predicted shape (Methods I–IV; cells beyond an image edge that cuts the blob
+   left out), eq. 5.2 in log space, normalised by log-sum-exp; on the frames ``RedetectConfig``
+   names (by default once, 10 frames after the track's start) the blob is also searched as at
+   the blind start, and the worst-explaining particles are redrawn around hypotheses that beat
+   them all;
 4. estimate (Table 5.1 step 3): weighted means, circular means of h and α, the maximum-weight
    particle, the class posterior, the two nearest training vehicles, the ESS and the view Θ;
 5. resample (step 4) when the ESS falls below ``resample_ess`` · N (1.0: every frame, the
@@ -89,8 +90,10 @@ from torch_atr.tracking.motion import (
     predict,
 )
 from torch_atr.tracking.observation import (
+    cut_edges,
     frame_distance,
     observe_windows,
+    observed_cells,
     place_silhouette,
     project_windows,
     sees_image,
@@ -98,6 +101,11 @@ from torch_atr.tracking.observation import (
 from torch_atr.tracking.resampling import SCHEMES, effective_sample_size, resample
 
 log = logging.getLogger(__name__)
+
+# A frame's observation as the likelihood reads it (Tracker._frame_distance): the blob's signed
+# distance near it, the frame pixel (u0, v0) of its (0, 0), and the edges (left, top, right,
+# bottom) that cut the blob.
+FrameDistance = tuple[torch.Tensor, tuple[int, int], tuple[bool, bool, bool, bool]]
 
 # Particles weighed at once (_log_likelihood), by device type: 2048 keeps a block in the CPU's
 # cache; an accelerator wants few, large launches (an H200 at 100 000 particles: 6.0 frames/s in
@@ -512,13 +520,14 @@ class Tracker:
                     "it (redetect.restart)", self._frames, self._missed)
         return True
 
-    def _frame_distance(self, mask: np.ndarray, side: float) -> tuple[torch.Tensor, tuple[int, int]]:
-        """The mask's signed distance near the blob and its origin (``observation.frame_distance``):
-        distances beyond τ in the largest window (``side`` pixels) are clipped, so only that margin
-        around the blob is transformed."""
+    def _frame_distance(self, mask: np.ndarray, side: float) -> FrameDistance:
+        """The mask's signed distance near the blob, its origin (``observation.frame_distance``) and
+        the image edges that cut the blob (``observation.cut_edges``): distances beyond τ in the
+        largest window (``side`` pixels) are clipped, so only that margin around the blob is
+        transformed."""
         template = self.model.template
         distance, origin = frame_distance(mask, min(template.tau_px * side / template.size_px, max(mask.shape)))
-        return distance.to(self.device), origin
+        return distance.to(self.device), origin, cut_edges(mask)
 
     def _predict(self, dt: float) -> torch.Tensor:
         """Eq. 5.1 and 5.3 for every particle, then (``filter.ground_contact``, camera height known)
@@ -553,33 +562,43 @@ class Tracker:
         pose = VehiclePose(particles[:, X], particles[:, Y], particles[:, Z], particles[:, HEADING])
         return view_of_pose(pose, self.camera)
 
-    def _log_likelihood(self, distance: tuple[torch.Tensor, tuple[int, int]], particles: torch.Tensor
-                        ) -> torch.Tensor:
-        """Eq. 5.2 per particle against the frame's (distance, origin); −inf where it is not finite or
-        the particle's window sees nothing of the image (``observation.sees_image``): behind the camera,
-        or wholly outside the image, where it sampled only the padding of the edge's pixels (a blob at
-        the edge, carried along, matched a flat car).
-        Returns (N,).
+    def _log_likelihood(self, distance: FrameDistance, particles: torch.Tensor) -> torch.Tensor:
+        """Eq. 5.2 per particle against the frame's (distance, origin, cut edges), summed over the cells
+        of its window it observes (``observation.observed_cells``): beyond an edge that cuts the
+        blob nothing is known, and the padding read there, the blob's edge carried on, made a
+        vehicle leaving the image look as if it went on and lost it; those cells are marginalised
+        out. −inf where it is not finite, observes no cell, or its window sees nothing of the image
+        (``observation.sees_image``): behind the camera, or wholly outside the image, where it
+        sampled only the padding of the edge's pixels (a blob at the edge, carried along, matched a
+        flat car). Returns (N,).
 
         Particles are weighed in blocks (``_BLOCK_CPU``, ``_BLOCK_ACCELERATOR``): on the CPU each
         block's sampling grid and windows stay in its cache (measured: 8000 particles at once ran
         2.6x slower than 4000, not 2x); on an accelerator blocks are large, since there the time
-        goes to launching kernels.
+        goes to launching kernels. Templates are formed only for windows with cells not observed.
         """
         theta, phi = self._views(particles)
         uv, side = project_windows(self.camera, particles[:, X:Z + 1], self.model.template.window_m)
-        scale = self.appearance.size ** 2 * 2.0 * self.cfg.filter.sigma ** 2
+        L, shape = self.appearance.size, (self.camera.height, self.camera.width)
+        columns, rows = observed_cells(uv, side, L, shape, distance[2])
+        partly = ~(columns.all(dim=1) & rows.all(dim=1))
+        scale = L ** 2 * 2.0 * self.cfg.filter.sigma ** 2
         sse = []
         size = _BLOCK_CPU if particles.device.type == "cpu" else _BLOCK_ACCELERATOR
         for block in torch.arange(particles.shape[0], device=particles.device).split(size):
-            z = observe_windows(distance[0], uv[block], side[block], self.model.template, self.appearance.size,
-                                distance[1])
+            z = observe_windows(distance[0], uv[block], side[block], self.model.template, L, distance[1])
             sse.append(self.appearance.squared_errors(z, particles[block, ALPHA], theta[block], phi[block]))
+            some = partly[block]
+            if some.any():
+                j = block[some]
+                observed = rows[j, :, None] & columns[j, None, :]  # (n, L, L)
+                sse[-1][some] = self.appearance.squared_errors(z[some], particles[j, ALPHA], theta[j], phi[j],
+                                                               observed).to(sse[-1])
         log_lik = -torch.cat(sse) / scale  # eq. 5.2: −mean((z − y)²) / 2σ²
-        seen = log_lik.isfinite() & sees_image(uv, side, (self.camera.height, self.camera.width))
+        seen = log_lik.isfinite() & sees_image(uv, side, shape)
         return torch.where(seen, log_lik, -math.inf).to(self.dtype)
 
-    def _initialise_blind(self, mask: np.ndarray, distance: tuple[torch.Tensor, tuple[int, int]],
+    def _initialise_blind(self, mask: np.ndarray, distance: FrameDistance,
                           frame: np.ndarray | None) -> None:
         """Particles from the first blob (``initialise.blind_hypotheses``); ``distance`` is the
         whole frame's; ``frame`` (None: a mask without its frame) gives the blob's contrast, measured
@@ -602,7 +621,7 @@ class Tracker:
         log.info("blind initialisation: best of %d hypotheses at x=%.1f z=%.1f m, α=%.2f (%s); ground row %+.2f",
                  states.shape[0], best[X], best[Z], best[ALPHA], name, self.cfg.init.contact_row(contrast))
 
-    def _redetect(self, mask: np.ndarray, distance: tuple[torch.Tensor, tuple[int, int]], frame: np.ndarray | None,
+    def _redetect(self, mask: np.ndarray, distance: FrameDistance, frame: np.ndarray | None,
                   log_lik: torch.Tensor, views_only: bool = False) -> torch.Tensor:
         """Re-detection (``RedetectConfig``): the worst-explaining particles redrawn around the blob's
         hypotheses that beat every particle by the margin, in place; returns the (N,) log-likelihoods
@@ -740,7 +759,7 @@ class Tracker:
         total = int(placed.sum()) + row["mask_area_px"]
         return 2.0 * int((placed & mask[r0:r1, c0:c1]).sum()) / total if total else 1.0
 
-    def _adapt(self, distance: tuple[torch.Tensor, tuple[int, int]], row: dict) -> None:
+    def _adapt(self, distance: FrameDistance, row: dict) -> None:
         """A few Adam steps on the kernel widths towards the observation at the estimate."""
         alpha, theta, phi, uv, side = self._estimate_window(row)
         z = observe_windows(distance[0], uv, side, self.model.template, self.appearance.size, distance[1])

@@ -13,11 +13,16 @@ pixels (:func:`~torch_atr.shape.signed_distance_px`). Per particle j with centre
    zⱼ of shape (L, L) in [−1, 1];
 4. the likelihood, eq. 5.2: log wⱼ = −mean((zⱼ − yⱼ)²) / (2σ²) against the predicted template yⱼ.
 
-Outside the frame the distance of the nearest border pixel is used (``padding_mode="border"``):
-a window partly outside sees the blob's edge pixels carried on beyond it. A window wholly outside
-sees nothing of the frame but that padding, one edge pixel's distance carried along each row or
-column, and one behind the camera nothing at all (0); the tracker gives their particles no
-weight (:func:`sees_image`).
+Outside the frame the distance of the nearest border pixel is used (``padding_mode="border"``).
+Where the blob is clear of an edge that is right: the target is one connected blob, so beyond
+that edge lies background, whose distance clips like the edge's. Beyond an edge that cuts the
+blob (:func:`cut_edges`) nothing is known, and the padding would carry the blob's edge pixels on
+as if the vehicle went on; there the tracker compares only the cells it observes
+(:func:`observed_cells`): eq. 5.2's sum runs over them, with its divisor L² kept, so the others
+are marginalised out of its Gaussian (a mean over the observed cells alone would favour windows
+that observe more of the vehicle's interior, measured 0.2 m inwards). A window wholly outside the
+image sees nothing of the frame but the padding, and one behind the camera nothing at all (0);
+the tracker gives their particles no weight (:func:`sees_image`), nor those that observe no cell.
 """
 
 from __future__ import annotations
@@ -60,6 +65,37 @@ def sees_image(uv: torch.Tensor, side: torch.Tensor, shape: tuple[int, int]) -> 
     check_shape("side", side, (uv.shape[0], 2))
     far = uv.new_tensor([shape[1], shape[0]]) - 0.5
     return ((uv + side / 2 >= -0.5) & (uv - side / 2 <= far)).all(dim=1)
+
+
+def cut_edges(mask: np.ndarray) -> tuple[bool, bool, bool, bool]:
+    """The image edges (left, top, right, bottom) on which the blob ``mask`` (H, W) bool has a pixel:
+    those that cut it."""
+    if not (isinstance(mask, np.ndarray) and mask.ndim == 2):
+        raise ValueError(f"Expected mask to be a (H, W) array; got {getattr(mask, 'shape', type(mask))}")
+    return bool(mask[:, 0].any()), bool(mask[0].any()), bool(mask[:, -1].any()), bool(mask[-1].any())
+
+
+def observed_cells(uv: torch.Tensor, side: torch.Tensor, size: int, shape: tuple[int, int],
+                   cut: tuple[bool, bool, bool, bool]) -> tuple[torch.Tensor, torch.Tensor]:
+    """Which cells of each window's L × L sampling grid (:func:`sample_windows`) are observed: their
+    centre lies on an image of ``shape`` (H, W) (pixel centres 0 … W − 1, its edges half a pixel
+    beyond) or beyond an edge that does not cut the blob (module docstring).
+
+    Args:
+        uv: (N, 2) window centres and side: (N, 2) window sizes, pixels; size: L.
+        cut: (left, top, right, bottom), the edges that cut the blob (:func:`cut_edges`).
+    Returns:
+        columns (N, L) and rows (N, L) bool: cell (i, j) of window n is observed when
+        ``rows[n, i]`` and ``columns[n, j]`` are; a non-finite window (behind the camera) has none.
+    """
+    check_shape("uv", uv, ("N", 2))
+    check_shape("side", side, (uv.shape[0], 2))
+    steps = (torch.arange(int(size), dtype=uv.dtype, device=uv.device) + 0.5) / size - 0.5  # (L,)
+    centres = uv[:, None, :] + steps[None, :, None] * side[:, None, :]  # (N, L, 2): u, v of each cell
+    low = uv.new_tensor([-0.5 if cut[0] else -math.inf, -0.5 if cut[1] else -math.inf])
+    high = uv.new_tensor([shape[1] - 0.5 if cut[2] else math.inf, shape[0] - 0.5 if cut[3] else math.inf])
+    observed = (centres >= low) & (centres <= high)  # NaN compares False
+    return observed[..., 0], observed[..., 1]
 
 
 def silhouette_boxes(silhouettes: torch.Tensor) -> torch.Tensor:
