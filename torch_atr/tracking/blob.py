@@ -27,7 +27,7 @@ import torch.nn.functional as F
 from torch_atr.data.sequence import FrameTruth
 from torch_atr.pose import wrap_angle
 from torch_atr.tracking.estimates import circular_mean, class_posterior
-from torch_atr.tracking.filter import Tracker, TrackerConfig
+from torch_atr.tracking.filter import FrameDistance, Tracker, TrackerConfig
 from torch_atr.tracking.initialise import best_hypotheses
 from torch_atr.tracking.motion import MotionConfig
 from torch_atr.tracking.observation import blob_windows, log_likelihood, observe_windows, silhouette_boxes
@@ -103,7 +103,7 @@ class BlobTracker(Tracker):
         uv, side = blob_windows(boxes, self._blob_box.to(boxes), self.appearance.size)
         return y, uv, side
 
-    def _set_blob(self, distance: tuple[torch.Tensor, tuple[int, int]]) -> None:
+    def _set_blob(self, distance: FrameDistance) -> None:
         """The blob's box from its distance map (positive inside), in frame pixels."""
         rows, cols = torch.nonzero(distance[0] > 0, as_tuple=True)
         u0, v0 = distance[1]
