@@ -462,8 +462,10 @@ class Tracker:
             mask: (H, W) bool, the target's mask (e.g. ``last_mask`` after a :meth:`step`), not empty.
             particles: (N, 6) [x, y, z, h, v, α].
         Returns:
-            (N,) log-likelihoods −mean((z − y)²)/2σ², −inf where not finite or where the window sees
-            nothing of the image (behind the camera or wholly outside it); higher is better.
+            (N,) log-likelihoods −mean((z − y)²)/2σ², the cells beyond an image edge on which the
+            mask has a pixel left out of the sum (``observation.observed_cells``); −inf where not
+            finite or where the window sees nothing of the image (behind the camera or wholly
+            outside it); higher is better.
         """
         mask = self._check_mask(mask)
         if not mask.any():
