@@ -145,7 +145,9 @@ def test_a_blob_cut_by_the_edge_is_scored_on_the_cells_the_image_holds(model, bt
     assert mask[:, -1].any() and not mask[:, 0].any() and not mask[-1].any()  # the scenario: cut on the right only
     alpha = float(model.alphas[model.identity.labels == model.class_names.index("apc")][0])  # a training APC
     p = torch.tensor([[t.x + shift + dx, t.y + dy, t.z, t.heading, 5.0, alpha]
-                      for dx, dy in [(0, 0), (-1.0, 0), (1.5, 0), (4.0, 0), (0, -3.0)]])
+                      for dx, dy in [(0, 0), (-1.0, 0), (1.5, 0), (4.0, 0), (0, -3.0), (0, -29.0)]])
+    uv, depth = btr.camera.project(p[-1:, :3].double())
+    assert uv[0, 1] + 0.5 * btr.camera.fy * model.template.window_m / depth[0] > btr.camera.height  # crosses the bottom
     ref = torch.tensor([_reference_log_lik(model, btr.camera, mask, q, 8, 0.1) for q in p.double()],
                        dtype=torch.float64)
     got = tracker.score(mask, p).double()
