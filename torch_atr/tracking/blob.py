@@ -105,8 +105,8 @@ class BlobTracker(Tracker):
 
     def _set_blob(self, distance: FrameDistance) -> None:
         """The blob's box from its distance map (positive inside), in frame pixels."""
-        rows, cols = torch.nonzero(distance[0] > 0, as_tuple=True)
-        u0, v0 = distance[1]
+        rows, cols = torch.nonzero(distance.signed > 0, as_tuple=True)
+        u0, v0 = distance.origin
         self._blob_box = torch.stack([cols.min() + u0, rows.min() + v0, cols.max() + u0, rows.max() + v0]).to(
             self.dtype)
 
@@ -125,8 +125,8 @@ class BlobTracker(Tracker):
                                                    ((v + 0.5) * (2 / L) - 1)[:, :, None]), dim=-1)
         y_box = F.grid_sample(y[:, None], torch.nan_to_num(grid), padding_mode="border", align_corners=False)[:, 0]
         scale = side / L  # image px per L-pixel
-        z = observe_windows(distance[0], uv + (centre - (L - 1) / 2) * scale, extent * scale, template, L,
-                            distance[1], image_px=side.prod(dim=1).sqrt() / template.size_px)
+        z = observe_windows(distance.signed, uv + (centre - (L - 1) / 2) * scale, extent * scale, template, L,
+                            distance.origin, image_px=side.prod(dim=1).sqrt() / template.size_px)
         log_lik = log_likelihood(z.to(y_box), y_box, self.cfg.filter.sigma)
         return torch.where(log_lik.isfinite(), log_lik, -math.inf).to(self.dtype)
 

@@ -49,6 +49,7 @@ import math
 import time
 from collections import deque
 from dataclasses import dataclass, field, replace
+from typing import NamedTuple
 
 import numpy as np
 import torch
@@ -102,10 +103,14 @@ from torch_atr.tracking.resampling import SCHEMES, effective_sample_size, resamp
 
 log = logging.getLogger(__name__)
 
-# A frame's observation as the likelihood reads it (Tracker._frame_distance): the blob's signed
-# distance near it, the frame pixel (u0, v0) of its (0, 0), and the edges (left, top, right,
-# bottom) that cut the blob.
-FrameDistance = tuple[torch.Tensor, tuple[int, int], tuple[bool, bool, bool, bool]]
+
+class FrameDistance(NamedTuple):
+    """A frame's observation as the likelihood reads it (:meth:`Tracker._frame_distance`)."""
+
+    signed: torch.Tensor  # (h, w) the blob's signed distance in image pixels, near the blob
+    origin: tuple[int, int]  # (u0, v0) the frame pixel of signed[0, 0]
+    cut: tuple[bool, bool, bool, bool]  # the image edges (left, top, right, bottom) that cut the blob
+
 
 # Particles weighed at once (_log_likelihood), by device type: 2048 keeps a block in the CPU's
 # cache; an accelerator wants few, large launches (an H200 at 100 000 particles: 6.0 frames/s in
@@ -529,7 +534,7 @@ class Tracker:
         transformed."""
         template = self.model.template
         distance, origin = frame_distance(mask, min(template.tau_px * side / template.size_px, max(mask.shape)))
-        return distance.to(self.device), origin, cut_edges(mask)
+        return FrameDistance(distance.to(self.device), origin, cut_edges(mask))
 
     def _predict(self, dt: float) -> torch.Tensor:
         """Eq. 5.1 and 5.3 for every particle, then (``filter.ground_contact``, camera height known)
@@ -582,13 +587,13 @@ class Tracker:
         theta, phi = self._views(particles)
         uv, side = project_windows(self.camera, particles[:, X:Z + 1], self.model.template.window_m)
         L, shape = self.appearance.size, (self.camera.height, self.camera.width)
-        columns, rows = observed_cells(uv, side, L, shape, distance[2])
+        columns, rows = observed_cells(uv, side, L, shape, distance.cut)
         partly = ~(columns.all(dim=1) & rows.all(dim=1))
         scale = L ** 2 * 2.0 * self.cfg.filter.sigma ** 2
         sse = []
         size = _BLOCK_CPU if particles.device.type == "cpu" else _BLOCK_ACCELERATOR
         for block in torch.arange(particles.shape[0], device=particles.device).split(size):
-            z = observe_windows(distance[0], uv[block], side[block], self.model.template, L, distance[1])
+            z = observe_windows(distance.signed, uv[block], side[block], self.model.template, L, distance.origin)
             sse.append(self.appearance.squared_errors(z, particles[block, ALPHA], theta[block], phi[block]))
             some = partly[block]
             if some.any():
@@ -612,7 +617,7 @@ class Tracker:
         wanted = self.cfg.init.ground_row is None and frame is not None and self.segmenter.ready
         contrast = self.segmenter.contrast(frame, mask) if wanted else math.nan
         blob = torch.from_numpy(mask).to(self.device)
-        states, log_lik = blind_hypotheses(blob, distance[0], self.camera, self.appearance, self.cfg.init,
+        states, log_lik = blind_hypotheses(blob, distance.signed, self.camera, self.appearance, self.cfg.init,
                                            self.cfg.filter.sigma, self.camera_height_m, contrast, grid=self._grid)
         classes = self.model.classify(states[:, ALPHA].to(self.dtype))
         self.reset(blind_particles(states, log_lik, self.cfg.filter.particles, self.cfg.init, self.camera,
@@ -642,9 +647,9 @@ class Tracker:
             alpha = float(circular_mean(self.particles[:, ALPHA].to(torch.float64), w.to(torch.float64))[0])
             nearest = round(alpha * steps / (2 * math.pi))
             alpha_index = torch.tensor([nearest - 1, nearest, nearest + 1]) % steps
-        states, hyp = blind_hypotheses(torch.from_numpy(mask).to(self.device), distance[0], self.camera,
+        states, hyp = blind_hypotheses(torch.from_numpy(mask).to(self.device), distance.signed, self.camera,
                                        self.appearance, self.cfg.init, self.cfg.filter.sigma, self.camera_height_m,
-                                       contrast, distance[1], depth if rc.keep_range else math.nan, self._grid,
+                                       contrast, distance.origin, depth if rc.keep_range else math.nan, self._grid,
                                        alpha_index)
         best = float(log_lik.max())
         better = hyp > best + rc.margin
@@ -764,7 +769,7 @@ class Tracker:
     def _adapt(self, distance: FrameDistance, row: dict) -> None:
         """A few Adam steps on the kernel widths towards the observation at the estimate."""
         alpha, theta, phi, uv, side = self._estimate_window(row)
-        z = observe_windows(distance[0], uv, side, self.model.template, self.appearance.size, distance[1])
+        z = observe_windows(distance.signed, uv, side, self.model.template, self.appearance.size, distance.origin)
         with torch.enable_grad():
             for _ in range(self.cfg.adapt.steps):
                 self._optimiser.zero_grad()
