@@ -30,7 +30,8 @@ from torch_atr.tracking.estimates import circular_mean, class_posterior
 from torch_atr.tracking.filter import FrameDistance, Tracker, TrackerConfig
 from torch_atr.tracking.initialise import best_hypotheses
 from torch_atr.tracking.motion import MotionConfig
-from torch_atr.tracking.observation import blob_windows, log_likelihood, observe_windows, silhouette_boxes
+from torch_atr.tracking.observation import (blob_windows, cell_offsets, log_likelihood, observe_windows,
+                                            silhouette_boxes)
 from torch_atr.tracking.resampling import effective_sample_size
 
 THETA, PHI, ALPHA = range(3)
@@ -119,7 +120,7 @@ class BlobTracker(Tracker):
         boxes = silhouette_boxes(y > 0)
         centre = (boxes[:, :2] + boxes[:, 2:]) / 2  # (N, 2) in L-pixel indices
         extent = boxes[:, 2:] - boxes[:, :2] + 1 + 2 * margin  # (N, 2) L-pixels
-        steps = (torch.arange(L, dtype=y.dtype, device=y.device) + 0.5) / L - 0.5
+        steps = cell_offsets(L, y)
         u, v = centre[:, 0:1] + steps * extent[:, 0:1], centre[:, 1:2] + steps * extent[:, 1:2]  # (N, L) indices
         grid = torch.stack(torch.broadcast_tensors(((u + 0.5) * (2 / L) - 1)[:, None, :],
                                                    ((v + 0.5) * (2 / L) - 1)[:, :, None]), dim=-1)

@@ -57,6 +57,13 @@ def project_windows(camera: Camera, centres: torch.Tensor, window_m: float) -> t
     return uv, side
 
 
+def cell_offsets(size: int, like: torch.Tensor) -> torch.Tensor:
+    """(L,) offsets of the L cell centres of a window from its centre, in window sides:
+    (k + ½)/L − ½ for k = 0 … L − 1 (the sampling grid of :func:`sample_windows`); ``like``'s
+    dtype and device."""
+    return (torch.arange(int(size), dtype=like.dtype, device=like.device) + 0.5) / size - 0.5
+
+
 def sees_image(uv: torch.Tensor, side: torch.Tensor, shape: tuple[int, int]) -> torch.Tensor:
     """Whether each window sees part of an image of ``shape`` (H, W): it is finite (not behind the
     camera) and its box, ``side`` (N, 2) pixels around ``uv`` (N, 2), meets a pixel (pixel centres
@@ -90,8 +97,7 @@ def observed_cells(uv: torch.Tensor, side: torch.Tensor, size: int, shape: tuple
     """
     check_shape("uv", uv, ("N", 2))
     check_shape("side", side, (uv.shape[0], 2))
-    steps = (torch.arange(int(size), dtype=uv.dtype, device=uv.device) + 0.5) / size - 0.5  # (L,)
-    centres = uv[:, None, :] + steps[None, :, None] * side[:, None, :]  # (N, L, 2): u, v of each cell
+    centres = uv[:, None, :] + cell_offsets(size, uv)[None, :, None] * side[:, None, :]  # (N, L, 2): u, v of each cell
     low = uv.new_tensor([-0.5 if cut[0] else -math.inf, -0.5 if cut[1] else -math.inf])
     high = uv.new_tensor([shape[1] - 0.5 if cut[2] else math.inf, shape[0] - 0.5 if cut[3] else math.inf])
     observed = (centres >= low) & (centres <= high)  # NaN compares False
@@ -187,9 +193,8 @@ def sample_windows(distance: torch.Tensor, uv: torch.Tensor, side: torch.Tensor,
         uv, side = torch.where(valid[:, None], uv, 0.0), torch.where(valid[:, None], side, 0.0)
     # grid_sample's normalised coordinates (align_corners=False): −1 is the left edge of pixel 0, so
     # pixel u is (2u + 1) / W − 1; the L cell centres of a window of side s sit at u_c + s·((k + ½)/L − ½).
-    steps = (torch.arange(L, dtype=uv.dtype, device=uv.device) + 0.5) / L - 0.5  # (L,)
     size = uv.new_tensor([W, H])
-    cells = (2 * (uv - uv.new_tensor(origin) + steps[:, None, None] * side) + 1) / size - 1  # (L, N, 2)
+    cells = (2 * (uv - uv.new_tensor(origin) + cell_offsets(L, uv)[:, None, None] * side) + 1) / size - 1  # (L, N, 2)
     gx = cells[:, :, 0].T.to(distance.dtype)  # (N, L): columns
     gy = cells[:, :, 1].T.to(distance.dtype)  # (N, L): rows
     grid = torch.empty(N, L, L, 2, dtype=distance.dtype, device=distance.device)  # filled in place: no stack copy
