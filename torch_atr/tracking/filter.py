@@ -587,16 +587,18 @@ class Tracker:
         theta, phi = self._views(particles)
         uv, side = project_windows(self.camera, particles[:, X:Z + 1], self.model.template.window_m)
         L, shape = self.appearance.size, (self.camera.height, self.camera.width)
-        columns, rows = observed_cells(uv, side, L, shape, distance.cut)
-        partly = ~(columns.all(dim=1) & rows.all(dim=1))
+        cut = any(distance.cut)
+        if cut:  # the particles whose windows reach beyond an edge that cuts the blob
+            columns, rows = observed_cells(uv, side, L, shape, distance.cut)
+            partly = ~(columns.all(dim=1) & rows.all(dim=1))
         scale = L ** 2 * 2.0 * self.cfg.filter.sigma ** 2
         sse = []
         size = _BLOCK_CPU if particles.device.type == "cpu" else _BLOCK_ACCELERATOR
         for block in torch.arange(particles.shape[0], device=particles.device).split(size):
             z = observe_windows(distance.signed, uv[block], side[block], self.model.template, L, distance.origin)
             sse.append(self.appearance.squared_errors(z, particles[block, ALPHA], theta[block], phi[block]))
-            some = partly[block]
-            if some.any():
+            if cut and partly[block].any():
+                some = partly[block]
                 j = block[some]
                 observed = rows[j, :, None] & columns[j, None, :]  # (n, L, L)
                 sse[-1][some] = self.appearance.squared_errors(z[some], particles[j, ALPHA], theta[j], phi[j],
