@@ -139,6 +139,13 @@ def test_cut_edges_are_those_the_blob_has_a_pixel_on():
         one = mask.copy()
         one[r, c] = True
         assert cut_edges(one) == want, (r, c)
+    g = np.random.default_rng(0)
+    for _ in range(200):  # any margin, against the distance of every blob pixel to each edge
+        blob = g.random((5, 7)) < 0.08
+        margin = int(g.integers(0, 4))
+        r, c = np.nonzero(blob)
+        want = tuple(bool((d < margin).any()) for d in (c, r, 6 - c, 4 - r))
+        assert cut_edges(blob, margin) == want, (blob, margin)
     with pytest.raises(ValueError, match="mask"):
         cut_edges(np.zeros(5, dtype=bool))
 

@@ -62,7 +62,7 @@ from torch_atr.data.sequence import MAX_CAMERA_HEIGHT_M
 from torch_atr.pose import camera_centre, wrap_angle
 from torch_atr.tracking.appearance import ShapeAppearance
 from torch_atr.tracking.motion import ALPHA, HEADING, SPEED, STATE_DIM, X, Z
-from torch_atr.tracking.observation import blob_windows, log_likelihood, observe, silhouette_boxes
+from torch_atr.tracking.observation import blob_windows, cut_edges, log_likelihood, observe, silhouette_boxes
 
 INIT_MODES = ("blind", "truth")
 
@@ -136,11 +136,7 @@ def clear_of_border(mask: np.ndarray, margin: int) -> bool:
     """Whether the blob ``mask`` (H, W) bool has no pixel within ``margin`` pixels of the image's
     edge, i.e. it is not cut by the edge (module docstring). ``margin`` 0: always; 1: no pixel on
     the edge itself."""
-    if not (isinstance(mask, np.ndarray) and mask.ndim == 2):
-        raise ValueError(f"Expected mask to be a (H, W) array; got {getattr(mask, 'shape', type(mask))}")
-    if margin <= 0:
-        return True
-    return not (mask[:margin].any() or mask[-margin:].any() or mask[:, :margin].any() or mask[:, -margin:].any())
+    return not any(cut_edges(mask, margin))
 
 
 def blob_column(mask: np.ndarray) -> float:

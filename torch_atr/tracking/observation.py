@@ -74,12 +74,16 @@ def sees_image(uv: torch.Tensor, side: torch.Tensor, shape: tuple[int, int]) -> 
     return ((uv + side / 2 >= -0.5) & (uv - side / 2 <= far)).all(dim=1)
 
 
-def cut_edges(mask: np.ndarray) -> tuple[bool, bool, bool, bool]:
-    """The image edges (left, top, right, bottom) on which the blob ``mask`` (H, W) bool has a pixel:
-    those that cut it."""
+def cut_edges(mask: np.ndarray, margin: int = 1) -> tuple[bool, bool, bool, bool]:
+    """The image edges (left, top, right, bottom) within ``margin`` pixels of which the blob
+    ``mask`` (H, W) bool has a pixel: those that cut it (``margin`` 1: a pixel on the edge itself;
+    0: none)."""
     if not (isinstance(mask, np.ndarray) and mask.ndim == 2):
         raise ValueError(f"Expected mask to be a (H, W) array; got {getattr(mask, 'shape', type(mask))}")
-    return bool(mask[:, 0].any()), bool(mask[0].any()), bool(mask[:, -1].any()), bool(mask[-1].any())
+    if margin <= 0:
+        return False, False, False, False
+    return (bool(mask[:, :margin].any()), bool(mask[:margin].any()), bool(mask[:, -margin:].any()),
+            bool(mask[-margin:].any()))
 
 
 def observed_cells(uv: torch.Tensor, side: torch.Tensor, size: int, shape: tuple[int, int],
