@@ -19,8 +19,9 @@ that edge lies background, whose distance clips like the edge's. Beyond an edge 
 blob (:func:`cut_edges`) nothing is known, and the padding would carry the blob's edge pixels on
 as if the vehicle went on; there the tracker compares only the cells it observes
 (:func:`observed_cells`): eq. 5.2's sum runs over them, with its divisor L² kept, so the others
-are marginalised out of its Gaussian (a mean over the observed cells alone would favour windows
-that observe more of the vehicle's interior, measured 0.2 m inwards). A window wholly outside the
+are marginalised out of its Gaussian (a mean over the observed cells alone favours windows that
+observe more of the vehicle's interior: 0.2–0.4 m further inside on a T-72 leaving the image,
+docs/tracking.md). A window wholly outside the
 image sees nothing of the frame but the padding, and one behind the camera nothing at all (0);
 the tracker gives their particles no weight (:func:`sees_image`), nor those that observe no cell.
 """
