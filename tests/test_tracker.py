@@ -24,9 +24,10 @@ from torch_atr.segmentation import ForegroundSegmenter
 from torch_atr.shape import signed_distance_px
 from torch_atr.tracking import METHODS, ShapeAppearance, Tracker, TrackerConfig
 from torch_atr.tracking import filter as filter_module
-from torch_atr.tracking.filter import tracker_segmentation
+from torch_atr.tracking.filter import FrameDistance, tracker_segmentation
 from torch_atr.tracking.initialise import InitConfig, blind_hypotheses, ground_row_from_contrast
 from torch_atr.tracking.job import run_summary
+from torch_atr.tracking.observation import cut_edges, observe_windows
 
 CKPT = Path(__file__).resolve().parents[1] / "checkpoints" / "default.pt"
 TWO_PI = 2 * math.pi
@@ -460,11 +461,9 @@ def test_kernel_width_adaptation_moves_the_widths_towards_the_observation(btr):
     tracker.warm_up(btr.warmup_frames(20))
     tracker.initialise(btr.truth(0))
     row = tracker.step(btr.frame(0))
-    distance = (signed_distance_px(tracker.last_mask), (0, 0))
+    distance = FrameDistance(signed_distance_px(tracker.last_mask), (0, 0), cut_edges(tracker.last_mask))
     alpha, theta, phi, uv, side = tracker._estimate_window(row)
-    from torch_atr.tracking.observation import observe_windows
-
-    z = observe_windows(distance[0], uv, side, model.template, tracker.appearance.size)
+    z = observe_windows(distance.signed, uv, side, model.template, tracker.appearance.size)
     with torch.no_grad():
         error_before = (tracker.appearance(alpha, theta, phi) - z).square().mean().item()
     tracker._adapt(distance, row)
