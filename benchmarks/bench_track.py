@@ -11,7 +11,9 @@ particles, each with its own prediction, view, model query (full size, pooled), 
 likelihood — on the same frames, segmentation included, always on the CPU; the speed-up is the
 ratio of the two medians at the same particle count, measured in this run (with ``--device cuda``,
 the GPU's filter against the CPU's loop). The tracker's segmentation is also timed alone (no
-particles): the floor under every row. Frames per second are the median
+particles), the floor under every row, and inside the step, between the filter's tensor
+operations, where on two cores it shares them with torch's threads (docs/tracking.md, "Speed
+across hosts"). Frames per second are the median
 step's; the rate over all frames is printed beside it, since re-detection searches the blob on
 a few frames only (by default once, 10 frames after the start; ``redetect``) and the median does
 not see it.
@@ -62,12 +64,31 @@ def tracker_config(n: int, overrides: list[str]) -> TrackerConfig:
     return load_config(TrackerConfig, None, [f"filter.particles={n}", "init.mode=truth", *overrides])
 
 
+class TimedSegmenter:
+    """A tracker's segmenter that keeps each call's wall time (s) in ``times``: the segmentation as
+    it runs inside the step, between the filter's tensor operations, without a profiler."""
+
+    def __init__(self, segmenter: ForegroundSegmenter):
+        self.segmenter, self.times = segmenter, []
+
+    def __call__(self, *args, **kwargs):
+        start = time.perf_counter()
+        mask = self.segmenter(*args, **kwargs)
+        self.times.append(time.perf_counter() - start)
+        return mask
+
+    def __getattr__(self, name: str):
+        return getattr(self.segmenter, name)
+
+
 def tracker_fps(model, seq, frames, n: int, device: str, skip: int, overrides: list[str]
-                ) -> tuple[float, list[float]]:
-    """Median frames per second of the batched tracker with n particles, and the step times (s)."""
+                ) -> tuple[float, list[float], list[float]]:
+    """Median frames per second of the batched tracker with n particles, the step times (s) and the
+    segmentation's times inside them (s)."""
     cfg = tracker_config(n, overrides)
     tracker = Tracker(model, seq.camera, cfg, device=device, seed=0)
     tracker.warm_up(seq.warmup_frames(50))
+    tracker.segmenter = TimedSegmenter(tracker.segmenter)
     tracker.initialise(seq.truth(0))
     times = []
     for frame in frames:
@@ -76,7 +97,7 @@ def tracker_fps(model, seq, frames, n: int, device: str, skip: int, overrides: l
         if device.startswith("cuda"):
             torch.cuda.synchronize()
         times.append(time.perf_counter() - start)
-    return 1.0 / statistics.median(times[skip:]), times[skip:]
+    return 1.0 / statistics.median(times[skip:]), times[skip:], tracker.segmenter.times[skip:]
 
 
 def reference_step(model, camera, mask, particles: list[list[float]], motion: MotionConfig, dt: float,
@@ -204,9 +225,10 @@ def main() -> None:
     frames = [seq.frame(i) for i in range(args.frames)]
     log.info("T-72 at 1000 m, %d frames of %dx%d, device %s, %d torch threads, overrides %s", args.frames,
              seq.cfg.width, seq.cfg.height, args.device, torch.get_num_threads(), args.set or "none")
-    rows = []
+    rows, in_step_ms = [], {}
     for n in args.particles:
-        fps, times = tracker_fps(model, seq, frames, n, args.device, args.skip, args.set)
+        fps, times, seg_times = tracker_fps(model, seq, frames, n, args.device, args.skip, args.set)
+        in_step_ms[n] = 1e3 * statistics.median(seg_times)
         rows.append({"particles": n, "frames_per_second": fps, "particles_per_second": fps * n,
                      "frames_per_second_mean": len(times) / sum(times),
                      "ms_per_frame_p90": 1e3 * sorted(times)[int(0.9 * (len(times) - 1))]})
@@ -215,13 +237,17 @@ def main() -> None:
     n_ref = args.reference_particles
     ref = reference_fps(model.cpu(), seq, frames[:args.reference_frames], n_ref,  # each Tracker moved it to --device
                         tracker_config(n_ref, args.set))
-    batched = next((r["frames_per_second"] for r in rows if r["particles"] == n_ref), None) or \
-        tracker_fps(model, seq, frames, n_ref, args.device, args.skip, args.set)[0]
+    if n_ref in in_step_ms:
+        batched = next(r["frames_per_second"] for r in rows if r["particles"] == n_ref)
+    else:
+        batched, _, seg_times = tracker_fps(model, seq, frames, n_ref, args.device, args.skip, args.set)
+        in_step_ms[n_ref] = 1e3 * statistics.median(seg_times)
     log.info("per-particle reference at N = %d: %.3f frames/s; the batched filter is %.0fx faster", n_ref, ref,
              batched / ref)
     seg_ms = segmentation_ms(seq, frames, tracker_config(n_ref, args.set))
-    log.info("segmentation alone (MOG2 with the tracker's settings, on the CPU): %.1f ms per frame (median of %d)",
-             seg_ms, len(frames))
+    log.info("segmentation alone (MOG2 with the tracker's settings, on the CPU): %.1f ms per frame (median of %d); "
+             "inside the step at N = %d: %.1f ms (the thread pools of torch and OpenCV share the cores; "
+             "docs/tracking.md)", seg_ms, len(frames), n_ref, in_step_ms[n_ref])
     stages = profile(model, seq, frames, n_ref, args.device, args.set)
     log.info("where the time goes at N = %d (ms per frame, cumulative):", n_ref)
     for name, ms in sorted(stages.items(), key=lambda kv: -kv[1]):
@@ -229,7 +255,8 @@ def main() -> None:
     if args.json:
         atomic_write_text(json.dumps({"runs": rows, "reference": {"particles": n_ref, "frames_per_second": ref,
                                                                    "speed_up": batched / ref},
-                                      "segmentation_ms": seg_ms, "profile_ms": stages,
+                                      "segmentation_ms": seg_ms, "segmentation_in_step_ms": in_step_ms,
+                                      "profile_ms": stages,
                                       "threads": torch.get_num_threads()}, indent=2),
                           args.json)
 
