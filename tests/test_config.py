@@ -101,6 +101,12 @@ def test_a_bad_override_is_reported_as_an_override_not_against_the_file(tmp_path
 
     with pytest.raises(ConfigError, match=r"^override tracker.init.speed_frames=-1: init.speed_frames must be"):
         load_config(TrackConfig, None, ["frames=3", "tracker.init.speed_frames=-1"])
+    # An unknown section is blamed on the override that opened it, not on a key the list of known ones names.
+    with pytest.raises(ConfigError, match=r"^override filter.sigma=0.1: unknown config key\(s\) filter; known: .*"
+                                          r"\(did you mean tracker.filter\?\)$"):
+        load_config(TrackConfig, None, ["out=x", "filter.sigma=0.1"])
+    with pytest.raises(ConfigError, match=r"^override tracker.filtr.sigma=0.1: unknown config key\(s\) tracker.filtr;"):
+        load_config(TrackConfig, None, ["tracker.filter.particles=9", "tracker.filtr.sigma=0.1"])
     with pytest.raises(ConfigError, match=r"^override seed=99999999999999999999: seed must be in \[0, 2\*\*64 - 1\]"):
         load_config(TrackConfig, None, ["seed=99999999999999999999"])
     # A file that is bad on its own is blamed even when overrides follow.

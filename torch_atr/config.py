@@ -135,8 +135,11 @@ def _build(cls: type[T], data: dict, prefix: str = "", base: Any = None) -> T:
     fields = {f.name: f for f in dataclasses.fields(cls)}
     unknown = sorted(set(data) - set(fields), key=str)
     if unknown:
+        homes = [f"{prefix}{k}.{key}" for key in unknown for k in sorted(fields)
+                 if dataclasses.is_dataclass(hints[k]) and key in {f.name for f in dataclasses.fields(hints[k])}]
         raise ConfigError(f"unknown config key(s) {', '.join(prefix + str(k) for k in unknown)}; "
-                          f"known: {', '.join(prefix + k for k in sorted(fields))}")
+                          f"known: {', '.join(prefix + k for k in sorted(fields))}"
+                          + (f" (did you mean {' or '.join(homes)}?)" if homes else ""))
     kwargs = {}
     for k, v in data.items():
         tp = hints[k]
@@ -263,9 +266,15 @@ def _override_value(cls: type, dotted: str, raw: str) -> Any:
 
 def _mentions(message: str, dotted: str) -> bool:
     """True if ``message`` names the key ``dotted`` or a dotted tail of it (``init.speed_frames``,
-    ``speed_frames``) as a whole word: ``frames`` is not named by ``speed_frames``."""
+    ``speed_frames``) as a whole word (``frames`` is not named by ``speed_frames``), or calls a
+    dotted head of it an unknown key (``filter`` of ``filter.sigma``). The known keys listed after
+    an unknown one name nothing: ``out`` among them is not at fault."""
+    message = message.partition("; known:")[0]
     parts = dotted.split(".")
-    return any(re.search(rf"(?<![\w.]){re.escape('.'.join(parts[i:]))}(?!\w)", message) for i in range(len(parts)))
+    if any(re.search(rf"(?<![\w.]){re.escape('.'.join(parts[i:]))}(?!\w)", message) for i in range(len(parts))):
+        return True
+    return "unknown config key" in message and any(
+        re.search(rf"(?<![\w.]){re.escape('.'.join(parts[:i]))}(?![\w.])", message) for i in range(1, len(parts)))
 
 
 @dataclass(frozen=True)
