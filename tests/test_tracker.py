@@ -448,6 +448,13 @@ def test_bad_inputs_raise(model, btr):
     with pytest.raises(ValueError, match="bool array"):
         tracker.step(mask=np.zeros(size))
     assert tracker.step(mask=torch.zeros(size, dtype=torch.bool))["lost"] == 1  # a tensor mask is taken
+    # A bad time step is refused before the tracker moves: the clock once became NaN before the prediction raised.
+    tracker.reset(torch.zeros(4, 6))
+    for dt in (-1.0, 0.0, math.nan, math.inf, "0.1"):
+        with pytest.raises(ValueError, match=r"Expected dt, the seconds since the previous frame, to be positive"):
+            tracker.step(mask=np.zeros(size, dtype=bool), dt=dt)
+    assert tracker._clock == 0.0 and tracker._frames == 1
+    assert tracker.step(mask=np.zeros(size, dtype=bool), dt=0.5)["lost"] == 1 and tracker._clock == 0.5
     with pytest.raises(ValueError, match="device 'tpu' is not available"):
         Tracker(model, btr.camera, _config("filter.particles=10"), device="tpu")
 

@@ -46,6 +46,7 @@ from __future__ import annotations
 
 import logging
 import math
+import numbers
 import time
 from collections import deque
 from dataclasses import dataclass, field, replace
@@ -395,12 +396,14 @@ class Tracker:
 
         Args:
             frame: (H, W) or (H, W, 3), the warm-up frames' size and dtype.
-            dt: seconds since the previous frame; default 1 / fps.
+            dt: seconds since the previous frame, positive and finite; default 1 / fps.
             mask: (H, W) bool, the target's mask from your own segmentation, used instead of
                 segmenting ``frame`` (which may then be None).
         """
         start = time.perf_counter()
         dt = self.dt if dt is None else dt
+        if not (isinstance(dt, numbers.Real) and math.isfinite(dt) and dt > 0):  # checked before anything moves
+            raise ValueError(f"Expected dt, the seconds since the previous frame, to be positive and finite; got {dt!r}")
         if self._frames:
             self._clock += dt
         if self.initialised and not self._fresh:
