@@ -55,7 +55,7 @@ PROFILE_WARMUP = 5  # frames stepped before the profiler starts
 STAGES = {"__call__": "segmentation (MOG2, gain, blob)", "frame_distance": "frame distance (EDT near the blob)",
           "_predict": "prediction (eq. 5.1, 5.3)", "_predicted_region": "predicted region",
           "_log_likelihood": "likelihoods (eq. 5.2), of which:", "_views": "  views Θ of the particles",
-          "observe": "  windows and their samples", "squared_errors": "  predicted shapes and errors (Method I)",
+          "observe_windows": "  windows and their samples", "squared_errors": "  predicted shapes and errors (Method I)",
           "_estimate": "estimates", "_overlap": "overlap (placed silhouette)", "resample": "resampling",
           "_redetect": "re-detection (its share of every frame)"}
 
