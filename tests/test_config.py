@@ -107,6 +107,9 @@ def test_a_bad_override_is_reported_as_an_override_not_against_the_file(tmp_path
         load_config(TrackConfig, None, ["out=x", "filter.sigma=0.1"])
     with pytest.raises(ConfigError, match=r"^override tracker.filtr.sigma=0.1: unknown config key\(s\) tracker.filtr;"):
         load_config(TrackConfig, None, ["tracker.filter.particles=9", "tracker.filtr.sigma=0.1"])
+    # A range check's message lists every key of its section; only the override that fails is blamed.
+    with pytest.raises(ConfigError, match=r"^override tracker.filter.sigma=-1: filter: bad value\(s\) sigma=-1.0 "):
+        load_config(TrackConfig, None, ["tracker.filter.particles=9", "tracker.filter.sigma=-1"])
     with pytest.raises(ConfigError, match=r"^override seed=99999999999999999999: seed must be in \[0, 2\*\*64 - 1\]"):
         load_config(TrackConfig, None, ["seed=99999999999999999999"])
     # A file that is bad on its own is blamed even when overrides follow.

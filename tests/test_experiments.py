@@ -135,6 +135,9 @@ def test_scene_overrides_reach_the_simulator_and_bad_ones_name_their_key():
         SensiacLikeConfig(scene=("nite=1",))
     with pytest.raises(ConfigError, match="sets the grid itself"):
         SensiacLikeConfig(scene=("range_m=500",))
+    # The tracker's overrides are checked as the config is made, not once a worker has built its scene.
+    with pytest.raises(ConfigError, match="override bogus.key=1: unknown config key"):
+        SensiacLikeConfig(tracker=("bogus.key=1",))
 
 
 def test_each_study_changes_one_thing_and_its_rows_average_its_sequences(tmp_path):

@@ -126,6 +126,10 @@ def test_visible_config_checks():
         visible_scene(ambient=float("nan"))
     with pytest.raises(ConfigError, match="range_m"):
         visible_scene(range_m=6.5)  # the circle would pass under the camera
+    from torch_atr.experiments.visible import VisibleConfig
+
+    with pytest.raises(ConfigError, match="override filter.sigma=-1: filter: bad value"):  # before any worker runs
+        VisibleConfig(tracker=("filter.sigma=-1",))
 
 
 # --- checkerboards ---------------------------------------------------------------------------------

@@ -6,6 +6,7 @@ name the key and the file or the override at fault.
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import math
 import re
@@ -225,22 +226,28 @@ def load_config(cls: type[T], path: str | Path | None = None, overrides: list[st
             raise ConfigError(f"{path}: {exc}") from None
         if not overrides:
             return built
+    base = copy.deepcopy(data)
+    parsed = []  # (item, key, value)
     for item in overrides or []:
         key, sep, raw = item.partition("=")
         if not sep or not key.strip():
             raise ConfigError(f"{what} {item!r} is not of the form key=value")
         try:
-            _set_dotted(data, key.strip(), _override_value(cls, key.strip(), raw))
+            value = _override_value(cls, key.strip(), raw)
+            _set_dotted(data, key.strip(), value)
         except yaml.YAMLError as exc:
             raise ConfigError(f"{what} {item!r}: not a YAML value: {' '.join(str(exc).split())}") from None
         except ConfigError as exc:
             raise ConfigError(f"{what} {item!r}: {exc}") from None
+        parsed.append((item, key.strip(), value))
     try:
         return _build(cls, data)
     except ConfigError as exc:
-        # Name the overrides whose key the message mentions (all of them if it names none).
-        named = [item for item in overrides or [] if _mentions(str(exc), item.partition("=")[0].strip())]
-        at_fault = named or list(overrides or [])
+        # Blame the overrides that fail on their own; else (a clash of several) those whose key the
+        # message names; else all. A message may list every key of a section (a range check's help).
+        alone = [item for item, key, value in parsed if not _builds_with(cls, base, key, value)]
+        named = [item for item, key, _ in parsed if _mentions(str(exc), key)]
+        at_fault = alone or named or [item for item, _, _ in parsed]
         label = f"{what}{'s' if len(at_fault) > 1 else ''} {', '.join(at_fault)}" if at_fault else "config"
         raise ConfigError(f"{label}: {exc}") from None
 
@@ -262,6 +269,17 @@ def _override_value(cls: type, dotted: str, raw: str) -> Any:
     if str not in arms or not arms <= {str, type(None)} or raw.strip()[:1] in ("'", '"'):
         return parse_yaml(raw)
     return None if type(None) in arms and raw.strip() in ("null", "~") else raw
+
+
+def _builds_with(cls: type, base: dict, dotted: str, value: Any) -> bool:
+    """Whether ``cls`` builds from ``base`` (a file's data, or none) with the one override ``dotted`` = ``value``."""
+    data = copy.deepcopy(base)
+    try:
+        _set_dotted(data, dotted, value)
+        _build(cls, data)
+    except ConfigError:
+        return False
+    return True
 
 
 def _mentions(message: str, dotted: str) -> bool:

@@ -27,7 +27,7 @@ import numpy as np
 from torch_atr.config import ConfigError, load_config
 from torch_atr.data.sequence import Sequence
 from torch_atr.io import atomic_write_text
-from torch_atr.tracking import METHODS
+from torch_atr.tracking import METHODS, TrackerConfig
 from torch_atr.tracking.filter import column
 from torch_atr.vehicles.specs import SPLITS
 
@@ -76,6 +76,8 @@ class SensiacLikeConfig:
         from torch_atr.data.synthetic import SceneConfig
 
         load_config(SceneConfig, None, list(self.scene), what="--scene")  # fails here, naming the key, not in a worker
+        for method in self.methods:  # so do the tracker's: a bad key failed once every worker had built its scene
+            load_config(TrackerConfig, None, self.tracker_overrides(method))
 
     def tracker_overrides(self, method: str) -> list[str]:
         return [f"filter.particles={self.particles}", f"filter.method={method}", f"init.mode={self.init}",
@@ -178,7 +180,7 @@ def _run_sequence(vehicle: str, range_m: float, cfg: SensiacLikeConfig) -> dict:
     import torch
 
     from torch_atr.data.synthetic import SyntheticSequence
-    from torch_atr.tracking import Tracker, TrackerConfig
+    from torch_atr.tracking import Tracker
     from torch_atr.tracking.job import run_summary
 
     start = time.perf_counter()

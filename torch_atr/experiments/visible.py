@@ -49,7 +49,7 @@ import torch_atr
 from torch_atr.config import ConfigError, load_config
 from torch_atr.experiments.sensiac_like import HELDOUT_PREFIX, FrameCache, worker_model, json_number, worker_templates, in_processes
 from torch_atr.io import atomic_write_text
-from torch_atr.tracking import METHODS
+from torch_atr.tracking import METHODS, TrackerConfig
 
 log = logging.getLogger(__name__)
 
@@ -102,6 +102,8 @@ class VisibleConfig:
                               f"{self.image_scale}, {self.boards}, {self.start_deg}")
         for role in ROLES:
             scene(role, self)  # fails here, naming the field, not in a worker
+        for method in self.methods:  # as do the tracker's overrides
+            load_config(TrackerConfig, None, self.tracker_overrides(method))
 
     def tracker_overrides(self, method: str) -> list[str]:
         return [f"filter.particles={self.particles}", f"filter.method={method}", f"init.mode={self.init}",
@@ -204,7 +206,7 @@ def _run_visible_sequence(role: str, vehicle: str, calibration: dict | None, cfg
     from torch_atr.camera import Camera
     from torch_atr.data.synthetic import SyntheticSequence
     from torch_atr.experiments.sensiac_like import load_experiment_vehicle
-    from torch_atr.tracking import Tracker, TrackerConfig
+    from torch_atr.tracking import Tracker
     from torch_atr.tracking.blob import BlobTracker
     from torch_atr.tracking.filter import column
     from torch_atr.tracking.job import run_summary
