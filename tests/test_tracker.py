@@ -420,6 +420,27 @@ def test_no_observation_keeps_the_prediction_and_flags_the_frame(model, btr):
     assert row["lost"] == 1 and math.isfinite(row["x"]) and tracker.particles.shape == before.shape
 
 
+def test_a_blob_no_particle_explains_is_lost_and_the_tracker_says_why_once(model, btr, caplog):
+    """A 12 m x 4.8 m box on the particles' window, as a vehicle longer than the window would fill it
+    (the semi-truck's cab: every frame lost, and nothing said why)."""
+    from torch_atr.tracking.observation import project_windows
+
+    tracker = Tracker(model, btr.camera, _config("filter.particles=100"), seed=0)
+    t = btr.truth(0)
+    tracker.reset(torch.tensor([[t.x, t.y, t.z, t.heading, 0.0, 0.5]]).repeat(100, 1))
+    uv, side = project_windows(btr.camera, torch.tensor([[t.x, t.y, t.z]]), model.template.window_m)
+    (u, v), s = uv[0].tolist(), float(side[0, 0])
+    box = np.zeros((btr.camera.height, btr.camera.width), dtype=bool)
+    box[round(v - 0.2 * s):round(v + 0.2 * s), round(u - 0.5 * s):round(u + 0.5 * s)] = True
+    assert float(tracker.score(box, tracker.particles).max()) < math.log(torch.finfo(torch.float32).tiny)
+    with caplog.at_level("WARNING", logger="torch_atr.tracking.filter"):
+        rows = [tracker.step(mask=box) for _ in range(12)]
+    assert all(row["lost"] == 1 for row in rows)
+    said = [r.getMessage() for r in caplog.records if "no particle explains the blob" in r.getMessage()]
+    assert len(said) == 1 and said[0].startswith("frames 0-9: ")
+    assert f"The blob spans {box.any(0).sum()} x {box.any(1).sum()} px" in said[0]
+
+
 def test_target_leaving_the_image_is_lost_not_nan(model):
     seq = SyntheticSequence("btr_70", SceneConfig(frames=30, start_deg=150.0, speed_mps=20.0, clockwise=False))  # exits right
     result = Tracker(model, seq.camera, _config("filter.particles=200", "init.mode=truth"), seed=0).run(

@@ -119,6 +119,7 @@ class FrameDistance(NamedTuple):
 _BLOCK_CPU = 2048
 _BLOCK_ACCELERATOR = 65536
 _GRID_TOLERANCE = 0.01  # rad: re-detection reuses the grid's silhouette boxes within this of their elevation
+_UNEXPLAINED_WARNING = 10  # frames in a row whose blob no particle explains before the tracker says why
 
 
 @dataclass(frozen=True)
@@ -343,6 +344,7 @@ class Tracker:
         self._fresh = False  # the particles describe the coming frame (just initialised): no prediction
         self._cut_frames = 0  # frames the blind start has waited on a blob cut by the image's edge
         self._missed = 0  # lost frames in a row whose blob no predicted window reaches (redetect.restart)
+        self._unexplained = 0  # frames in a row whose blob no particle explains (every likelihood underflows)
         self._optimiser = (torch.optim.Adam([self.model.rbf.log_width], lr=self.cfg.adapt.lr)
                            if self.cfg.adapt.every else None)
         self._grid = HypothesisGrid(self.model, self.cfg.init, _GRID_TOLERANCE)  # blind start, re-detection
@@ -382,7 +384,7 @@ class Tracker:
         self._start = self._frames
         self._searching = True  # re-detection follows this start (initialise: only with after_truth)
         self._track = list(self._recent) if self.cfg.init.speed_frames else None  # speeds measured (blind)
-        self._missed = 0
+        self._missed = self._unexplained = 0
 
     @property
     def initialised(self) -> bool:
@@ -437,7 +439,11 @@ class Tracker:
                 log_lik = self._redetect(mask, distance, frame, log_lik, views_only=True)
             if log_lik.max() >= math.log(torch.finfo(self.dtype).tiny):
                 self.log_weights = torch.log_softmax(self.log_weights + log_lik, dim=0)
-                lost = False
+                lost, self._unexplained = False, 0
+            else:
+                self._unexplained += 1
+                if self._unexplained == _UNEXPLAINED_WARNING:
+                    self._warn_unexplained(mask, float(log_lik.max()), side)
         row = {"frame": self._frames, "lost": int(lost), "mask_area_px": area}
         if self.initialised:
             row.update(self._estimate())
@@ -486,6 +492,17 @@ class Tracker:
         side = side[side.isfinite()]
         return self._log_likelihood(self._frame_distance(mask, float(side.max()) if side.numel() else math.inf),
                                     particles)
+
+    def _warn_unexplained(self, mask: np.ndarray, best: float, side: float) -> None:
+        """Say why the last ``_UNEXPLAINED_WARNING`` frames were lost although they had a blob: ``best``
+        the best particle's log-likelihood, ``side`` the largest predicted window in pixels."""
+        rows, cols = np.nonzero(mask.any(axis=1))[0], np.nonzero(mask.any(axis=0))[0]
+        log.warning("frames %d-%d: no particle explains the blob (best log-likelihood %.0f; a frame is lost below "
+                    "%.0f), so the track keeps its prediction. The blob spans %d x %d px, the largest predicted "
+                    "window %.0f px (the model's %g m): a vehicle longer than the window, or unlike every vehicle "
+                    "the model was trained on, cannot be explained", self._frames - _UNEXPLAINED_WARNING + 1,
+                    self._frames, best, math.log(torch.finfo(self.dtype).tiny), cols[-1] - cols[0] + 1,
+                    rows[-1] - rows[0] + 1, side, self.model.template.window_m)
 
     def _check_mask(self, mask) -> np.ndarray:
         """A user's mask as an (H, W) bool array (a tensor is taken too) of the camera's image size
