@@ -110,6 +110,11 @@ def test_a_bad_override_is_reported_as_an_override_not_against_the_file(tmp_path
     # A range check's message lists every key of its section; only the override that fails is blamed.
     with pytest.raises(ConfigError, match=r"^override tracker.filter.sigma=-1: filter: bad value\(s\) sigma=-1.0 "):
         load_config(TrackConfig, None, ["tracker.filter.particles=9", "tracker.filter.sigma=-1"])
+    # Two overrides that clash, each fine on its own, are both blamed (the keys the message names).
+    from torch_atr.data.synthetic import SceneConfig
+
+    with pytest.raises(ConfigError, match=r"^overrides circle_diameter_m=1000, range_m=400: "):
+        load_config(SceneConfig, None, ["seed=1", "circle_diameter_m=1000", "range_m=400"])
     with pytest.raises(ConfigError, match=r"^override seed=99999999999999999999: seed must be in \[0, 2\*\*64 - 1\]"):
         load_config(TrackConfig, None, ["seed=99999999999999999999"])
     # A file that is bad on its own is blamed even when overrides follow.

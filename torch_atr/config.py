@@ -284,15 +284,9 @@ def _builds_with(cls: type, base: dict, dotted: str, value: Any) -> bool:
 
 def _mentions(message: str, dotted: str) -> bool:
     """True if ``message`` names the key ``dotted`` or a dotted tail of it (``init.speed_frames``,
-    ``speed_frames``) as a whole word (``frames`` is not named by ``speed_frames``), or calls a
-    dotted head of it an unknown key (``filter`` of ``filter.sigma``). The known keys listed after
-    an unknown one name nothing: ``out`` among them is not at fault."""
-    message = message.partition("; known:")[0]
+    ``speed_frames``) as a whole word: ``frames`` is not named by ``speed_frames``."""
     parts = dotted.split(".")
-    if any(re.search(rf"(?<![\w.]){re.escape('.'.join(parts[i:]))}(?!\w)", message) for i in range(len(parts))):
-        return True
-    return "unknown config key" in message and any(
-        re.search(rf"(?<![\w.]){re.escape('.'.join(parts[:i]))}(?![\w.])", message) for i in range(1, len(parts)))
+    return any(re.search(rf"(?<![\w.]){re.escape('.'.join(parts[i:]))}(?!\w)", message) for i in range(len(parts)))
 
 
 @dataclass(frozen=True)
