@@ -207,7 +207,7 @@ class RedetectConfig:
     scene seeds) they fired in 8 of 32 and lowered Method I's aspect error in all 8 (the 2S3 at
     1000 m 1.87 -> 0.41 rad), mean 1.19 -> 1.04 rad; the 300-frame bars' runs never fired; behind
     a berm one sequence in 16 lost recognition at the new view; over the full 1000-frame run
-    Method I's aspect fell 1.19 -> 1.09 rad and its recognition 78.3 -> 77.1 % (docs/tracking.md).
+    Method I's aspect fell 1.17 -> 1.09 rad and its recognition 76.1 -> 74.6 % (2026-11-27; README).
     What they cannot mend is θ against π − θ: at a grazing view the two silhouettes are the same.
 
     Restarts (``restart`` > 0) mend a track that no longer sees its blob at all, which no search
