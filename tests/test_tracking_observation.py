@@ -14,8 +14,8 @@ from torch_atr.data.synthetic import SceneConfig, SyntheticSequence
 from torch_atr.pose import VehiclePose, view_of_pose
 from torch_atr.render import render_mask, render_templates
 from torch_atr.shape import iou, signed_distance, signed_distance_px
-from torch_atr.tracking.observation import (cut_edges, log_likelihood, observe, observed_cells, place_silhouette,
-                                            project_windows, sample_windows, sees_image)
+from torch_atr.tracking.observation import (cut_edges, log_likelihood, mask_box, observe, observed_cells,
+                                            place_silhouette, project_windows, sample_windows, sees_image)
 
 CFG = TemplateConfig()
 
@@ -128,6 +128,16 @@ def test_sees_image_against_every_pixel():
     assert not sees_image(nan, torch.ones(1, 2, dtype=torch.float64), (H, W))[0]
     with pytest.raises(ValueError, match="side"):
         sees_image(uv, side[:3], (H, W))
+
+
+def test_mask_box_is_the_first_and_last_set_column_and_row():
+    g = np.random.default_rng(1)
+    for _ in range(200):  # against the set pixels' extremes, also on strided views (cv2 reads them as empty)
+        full = g.random((9, 16)) < g.choice([0.0, 0.01, 0.05, 0.5])
+        for mask in (full, full[:, ::2], full[::-1, 3:]):
+            r, c = np.nonzero(mask)
+            want = (c.min(), r.min(), c.max(), r.max()) if r.size else None
+            assert mask_box(mask) == want, mask
 
 
 def test_cut_edges_are_those_the_blob_has_a_pixel_on():

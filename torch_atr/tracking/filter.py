@@ -94,6 +94,7 @@ from torch_atr.tracking.motion import (
 from torch_atr.tracking.observation import (
     cut_edges,
     frame_distance,
+    mask_box,
     observe_windows,
     observed_cells,
     place_silhouette,
@@ -496,13 +497,12 @@ class Tracker:
     def _warn_unexplained(self, mask: np.ndarray, best: float, side: float) -> None:
         """Say why the last ``_UNEXPLAINED_WARNING`` frames were lost although they had a blob: ``best``
         the best particle's log-likelihood, ``side`` the largest predicted window in pixels."""
-        rows, cols = np.nonzero(mask.any(axis=1))[0], np.nonzero(mask.any(axis=0))[0]
+        u0, v0, u1, v1 = mask_box(mask)
         log.warning("frames %d-%d: no particle explains the blob (best log-likelihood %.0f; a frame is lost below "
                     "%.0f), so the track keeps its prediction. The blob spans %d x %d px, the largest predicted "
                     "window %.0f px (the model's %g m): a vehicle longer than the window, or unlike every vehicle "
                     "the model was trained on, cannot be explained", self._frames - _UNEXPLAINED_WARNING + 1,
-                    self._frames, best, math.log(torch.finfo(self.dtype).tiny), cols[-1] - cols[0] + 1,
-                    rows[-1] - rows[0] + 1, side, self.model.template.window_m)
+                    self._frames, best, math.log(torch.finfo(self.dtype).tiny), u1 - u0 + 1, v1 - v0 + 1, side, self.model.template.window_m)
 
     def _check_mask(self, mask) -> np.ndarray:
         """A user's mask as an (H, W) bool array (a tensor is taken too) of the camera's image size
@@ -537,9 +537,8 @@ class Tracker:
             return False
         if not self.cfg.redetect.restart or self.camera is None:
             return False
-        rows, cols = np.nonzero(mask.any(axis=1))[0], np.nonzero(mask.any(axis=0))[0]
-        reached = box is not None and (box[0] <= cols[-1] and cols[0] <= box[2] and box[1] <= rows[-1]
-                                       and rows[0] <= box[3])
+        u0, v0, u1, v1 = mask_box(mask)
+        reached = box is not None and box[0] <= u1 and u0 <= box[2] and box[1] <= v1 and v0 <= box[3]
         self._missed = 0 if reached or not clear else self._missed + 1
         if self._missed < self.cfg.redetect.restart:
             return False

@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import math
 
+import cv2
 import numpy as np
 import torch
 import torch.nn.functional as F
@@ -150,6 +151,14 @@ def blob_windows(boxes: torch.Tensor, blob_box: torch.Tensor, size: int, side: t
     return uv, side
 
 
+def mask_box(mask: np.ndarray) -> tuple[int, int, int, int] | None:
+    """The box (u0, v0, u1, v1), first and last column and row, of the pixels set in ``mask`` (H, W)
+    bool; None when none is (``cv2.boundingRect``, which reads a strided array as empty: made
+    contiguous first)."""
+    u0, v0, w, h = cv2.boundingRect(np.ascontiguousarray(mask).view(np.uint8))
+    return None if w == 0 else (u0, v0, u0 + w - 1, v0 + h - 1)
+
+
 def frame_distance(mask: np.ndarray, margin: float) -> tuple[torch.Tensor, tuple[int, int]]:
     """The signed distance of a frame's target mask in image pixels, on the region that matters.
 
@@ -164,13 +173,13 @@ def frame_distance(mask: np.ndarray, margin: float) -> tuple[torch.Tensor, tuple
     Returns:
         distance: (h, w) float32 tensor; origin: (u0, v0), the frame pixel of its (0, 0).
     """
-    rows, cols = np.nonzero(mask.any(axis=1))[0], np.nonzero(mask.any(axis=0))[0]
-    if rows.size == 0:
+    box = mask_box(mask)
+    if box is None:
         raise ValueError("Expected a non-empty mask")
     pad = int(math.ceil(margin)) + 1
-    r0, r1 = max(rows[0] - pad, 0), min(rows[-1] + pad + 1, mask.shape[0])
-    c0, c1 = max(cols[0] - pad, 0), min(cols[-1] + pad + 1, mask.shape[1])
-    return signed_distance_px(mask[r0:r1, c0:c1]), (int(c0), int(r0))
+    r0, r1 = max(box[1] - pad, 0), min(box[3] + pad + 1, mask.shape[0])
+    c0, c1 = max(box[0] - pad, 0), min(box[2] + pad + 1, mask.shape[1])
+    return signed_distance_px(mask[r0:r1, c0:c1]), (c0, r0)
 
 
 def sample_windows(distance: torch.Tensor, uv: torch.Tensor, side: torch.Tensor, size: int,
