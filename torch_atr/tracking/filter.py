@@ -438,13 +438,14 @@ class Tracker:
                 log_lik = self._redetect(mask, distance, frame, log_lik)
             elif self.cfg.redetect.view_searches(k):
                 log_lik = self._redetect(mask, distance, frame, log_lik, views_only=True)
-            if log_lik.max() >= math.log(torch.finfo(self.dtype).tiny):
+            floor = math.log(torch.finfo(self.dtype).tiny)  # below it every weight underflows
+            if log_lik.max() >= floor:
                 self.log_weights = torch.log_softmax(self.log_weights + log_lik, dim=0)
                 lost, self._unexplained = False, 0
             else:
                 self._unexplained += 1
                 if self._unexplained == _UNEXPLAINED_WARNING:
-                    self._warn_unexplained(mask, float(log_lik.max()), side)
+                    self._warn_unexplained(mask, float(log_lik.max()), floor, side)
         row = {"frame": self._frames, "lost": int(lost), "mask_area_px": area}
         if self.initialised:
             row.update(self._estimate())
@@ -494,15 +495,16 @@ class Tracker:
         return self._log_likelihood(self._frame_distance(mask, float(side.max()) if side.numel() else math.inf),
                                     particles)
 
-    def _warn_unexplained(self, mask: np.ndarray, best: float, side: float) -> None:
+    def _warn_unexplained(self, mask: np.ndarray, best: float, floor: float, side: float) -> None:
         """Say why the last ``_UNEXPLAINED_WARNING`` frames were lost although they had a blob: ``best``
-        the best particle's log-likelihood, ``side`` the largest predicted window in pixels."""
+        the best particle's log-likelihood, ``floor`` the one below which a frame is lost, ``side``
+        the largest predicted window in pixels."""
         u0, v0, u1, v1 = mask_box(mask)
         log.warning("frames %d-%d: no particle explains the blob (best log-likelihood %.0f; a frame is lost below "
                     "%.0f), so the track keeps its prediction. The blob spans %d x %d px, the largest predicted "
                     "window %.0f px (the model's %g m): a vehicle longer than the window, or unlike every vehicle "
                     "the model was trained on, cannot be explained", self._frames - _UNEXPLAINED_WARNING + 1,
-                    self._frames, best, math.log(torch.finfo(self.dtype).tiny), u1 - u0 + 1, v1 - v0 + 1, side, self.model.template.window_m)
+                    self._frames, best, floor, u1 - u0 + 1, v1 - v0 + 1, side, self.model.template.window_m)
 
     def _check_mask(self, mask) -> np.ndarray:
         """A user's mask as an (H, W) bool array (a tensor is taken too) of the camera's image size
