@@ -138,6 +138,9 @@ def test_mask_box_is_the_first_and_last_set_column_and_row():
             r, c = np.nonzero(mask)
             want = (c.min(), r.min(), c.max(), r.max()) if r.size else None
             assert mask_box(mask) == want, mask
+            assert mask_box(mask.astype(np.float32) * 0.5) == want  # any dtype: its non-zero pixels
+    with pytest.raises(ValueError, match="mask"):
+        mask_box(np.ones(5, dtype=bool))
 
 
 def test_cut_edges_are_those_the_blob_has_a_pixel_on():

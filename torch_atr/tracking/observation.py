@@ -153,9 +153,11 @@ def blob_windows(boxes: torch.Tensor, blob_box: torch.Tensor, size: int, side: t
 
 def mask_box(mask: np.ndarray) -> tuple[int, int, int, int] | None:
     """The box (u0, v0, u1, v1), first and last column and row, of the pixels set in ``mask`` (H, W)
-    bool; None when none is (``cv2.boundingRect``, which reads a strided array as empty: made
-    contiguous first)."""
-    u0, v0, w, h = cv2.boundingRect(np.ascontiguousarray(mask).view(np.uint8))
+    bool (another dtype: its non-zero pixels); None when none is (``cv2.boundingRect``, which reads
+    a strided array as empty: made contiguous first)."""
+    if not (isinstance(mask, np.ndarray) and mask.ndim == 2):
+        raise ValueError(f"Expected mask to be a (H, W) array; got {getattr(mask, 'shape', type(mask))}")
+    u0, v0, w, h = cv2.boundingRect(np.ascontiguousarray(mask, dtype=bool).view(np.uint8))
     return None if w == 0 else (u0, v0, u0 + w - 1, v0 + h - 1)
 
 
