@@ -7,8 +7,10 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from torch_atr.validate import (InputError, image_size, integer, parse_real, read_json_object, read_text, real,
-                                rotation, show, vector)
+from PIL import Image
+
+from torch_atr.validate import (InputError, image_size, integer, parse_real, read_image, read_json_object, read_text,
+                                real, rotation, show, vector)
 
 
 def test_real_accepts_finite_real_numbers_only():
@@ -57,6 +59,24 @@ def test_image_size_bounds():
         image_size("f", 640, 512.0)
     with pytest.raises(InputError, match=r"^f: 16384 x 16384 = 268435456 pixels; expected at most 67108864"):
         image_size("f", 16384, 16384)
+
+
+def test_read_image_gives_the_pixels_as_stored_and_names_a_bad_file(tmp_path):
+    rng = np.random.default_rng(0)
+    grey16 = rng.integers(0, 2 ** 16, (5, 7), dtype=np.uint16)
+    rgb = rng.integers(0, 256, (4, 6, 3), dtype=np.uint8)
+    Image.fromarray(grey16).save(tmp_path / "grey16.png")  # written by Pillow, read by OpenCV
+    Image.fromarray(rgb).save(tmp_path / "rgb.png")
+    got = read_image(tmp_path / "grey16.png")
+    assert got.dtype == np.uint16 and np.array_equal(got, grey16)
+    assert np.array_equal(read_image(tmp_path / "rgb.png"), rgb[..., ::-1])  # OpenCV's BGR order
+    (tmp_path / "text.png").write_text("not an image")
+    with pytest.raises(InputError, match=f"^{re.escape(str(tmp_path / 'text.png'))}: cannot be read as an image"):
+        read_image(tmp_path / "text.png")
+    whole = (tmp_path / "rgb.png").read_bytes()
+    (tmp_path / "cut.png").write_bytes(whole[:len(whole) // 2])  # the header intact, the pixels cut short
+    with pytest.raises(InputError, match=f"^{re.escape(str(tmp_path / 'cut.png'))}: cannot be"):
+        read_image(tmp_path / "cut.png")
 
 
 def test_rotation_accepts_rotations_and_reflections_of_them():

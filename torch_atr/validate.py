@@ -25,6 +25,8 @@ import warnings
 from pathlib import Path
 from typing import Any
 
+import cv2
+import numpy as np
 from PIL import Image
 
 MAX_IMAGE_SIDE = 16384
@@ -123,6 +125,20 @@ def image_file_size(path: str | os.PathLike) -> tuple[int, int]:
     except Exception as exc:  # Pillow's parsers raise many kinds on corrupt headers
         raise InputError(f"{path}: cannot be read as an image ({type(exc).__name__}: {show(str(exc))})") from None
     return image_size(str(path), width, height)
+
+
+def read_image(path: str | os.PathLike) -> np.ndarray:
+    """An image file's pixels as stored (OpenCV's ``IMREAD_UNCHANGED``: (H, W) grey or (H, W, C)
+    BGR, 8 or 16 bits), its header checked by :func:`image_file_size` before decoding; InputError
+    naming the file for one that is too large or cannot be decoded."""
+    image_file_size(path)
+    try:
+        img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    except cv2.error as exc:
+        raise InputError(f"{path}: cannot be decoded ({' '.join(str(exc).split())})") from None
+    if img is None:
+        raise InputError(f"{path}: cannot be read as an image")
+    return img
 
 
 def rotation(where: str, value: Any, atol: float = 1e-6) -> list[list[float]]:

@@ -35,8 +35,8 @@ from tqdm import tqdm
 
 from torch_atr.data.sequence import (MAX_CAMERA_HEIGHT_M, TEXT_FIELDS, TRUTH_FIELDS, FrameTruth, Sequence,
                                      load_camera_json, register_scheme)
-from torch_atr.validate import (InputError, image_file_size, image_size, integer, parse_real, read_json_object,
-                                read_text, real, show)
+from torch_atr.validate import (InputError, image_file_size, image_size, integer, parse_real, read_image,
+                                read_json_object, read_text, real, show)
 
 logger = logging.getLogger(__name__)
 
@@ -104,12 +104,7 @@ class FolderSequence(Sequence):
         if (height, width) != self._shape[:2]:
             raise InputError(f"{path}: image is {width} x {height} px; meta.json says {self._shape[1]} x "
                              f"{self._shape[0]}")
-        try:
-            img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-        except cv2.error as exc:
-            raise InputError(f"{path}: cannot be decoded ({' '.join(str(exc).split())})") from None
-        if img is None:
-            raise InputError(f"{path}: cannot be read as an image")
+        img = read_image(path)
         if img.ndim == 3 and img.shape[2] == 3:
             img = cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
         if img.shape != self._shape or img.dtype != self._dtype:

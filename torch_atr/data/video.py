@@ -21,7 +21,7 @@ import numpy as np
 
 from torch_atr.camera import Camera
 from torch_atr.data.sequence import Sequence, check_fps, parse_reader_spec, register_scheme
-from torch_atr.validate import InputError, image_file_size, image_size
+from torch_atr.validate import InputError, image_size, read_image
 
 logger = logging.getLogger(__name__)
 
@@ -132,14 +132,7 @@ class VideoSequence(Sequence):
 
     def _read_image(self, i: int) -> np.ndarray:
         path = self._files[i]
-        image_file_size(path)  # the header's size within the bounds before decoding
-        try:
-            img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-        except cv2.error as exc:
-            raise InputError(f"{path}: cannot be decoded ({' '.join(str(exc).split())})") from None
-        if img is None:
-            raise InputError(f"{path}: cannot be read as an image")
-        img = _convert(img, self.color, str(path))
+        img = _convert(read_image(path), self.color, str(path))
         if i > 0 and (img.shape != self._first.shape or img.dtype != self._first.dtype):
             raise InputError(f"{path}: image is {img.shape} {img.dtype}; {self._files[0].name} was "
                              f"{self._first.shape} {self._first.dtype}")
