@@ -163,6 +163,7 @@ def test_catalog_manifest_errors_name_the_entry(tmp_path):
         ("  - {file: camry_cm.obj, class: car, scale: 0.01, up: null}", r"vehicles\[4\].*up: expected a string"),
         ("  - {file: ., class: car, scale: 0.01}", r"vehicles\[4\] \(.\):.*is a folder"),
         ("vehicles: []", r"key 'vehicles' repeated"),
+        ("  - {file: camry_cm.obj, class: car", r"catalog.yaml: not valid YAML: "),
     ]:
         manifest.write_text(good + line + "\n")
         with pytest.raises((ValueError, FileNotFoundError), match=message):

@@ -186,6 +186,17 @@ def parse_yaml(text: str):
     return yaml.load(text, Loader=_UniqueKeyLoader)  # noqa: S506 - a SafeLoader subclass
 
 
+def read_yaml(path: Path):
+    """A YAML file's content, read within ``MAX_CONFIG_BYTES`` as UTF-8 and parsed by :func:`parse_yaml`;
+    ConfigError naming the file when it cannot be."""
+    try:
+        return parse_yaml(read_text(path, MAX_CONFIG_BYTES))
+    except yaml.YAMLError as exc:
+        raise ConfigError(f"{path}: not valid YAML: {' '.join(str(exc).split())}") from None
+    except InputError as exc:
+        raise ConfigError(str(exc)) from None
+
+
 def _set_dotted(data: dict, dotted: str, value: Any) -> None:
     parts = dotted.split(".")
     if not all(parts):
@@ -211,12 +222,7 @@ def load_config(cls: type[T], path: str | Path | None = None, overrides: list[st
         path = Path(path)
         if not path.exists():
             raise ConfigError(f"config file not found: {path}")
-        try:
-            loaded = parse_yaml(read_text(path, MAX_CONFIG_BYTES))
-        except yaml.YAMLError as exc:
-            raise ConfigError(f"{path}: not valid YAML: {' '.join(str(exc).split())}") from None
-        except InputError as exc:
-            raise ConfigError(str(exc)) from None
+        loaded = read_yaml(path)
         if loaded is not None and not isinstance(loaded, dict):
             raise ConfigError(f"{path}: top level must be a mapping; got {type(loaded).__name__}")
         data = loaded or {}

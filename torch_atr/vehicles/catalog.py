@@ -15,10 +15,7 @@ import typing
 from dataclasses import dataclass, fields
 from pathlib import Path
 
-import yaml
-
-from torch_atr.config import MAX_CONFIG_BYTES, ConfigError, check_type, parse_yaml
-from torch_atr.validate import read_text
+from torch_atr.config import ConfigError, check_type, read_yaml
 from torch_atr.vehicles.loader import CLASS_NAMES, MIN_THICKNESS_M, Vehicle, body_rotation, load_vehicle
 from torch_atr.vehicles.specs import SPLITS
 
@@ -89,10 +86,7 @@ def read_catalog_manifest(folder: str | Path) -> list[CatalogEntry]:
     path = Path(folder) / CATALOG_MANIFEST
     if not path.is_file():
         raise FileNotFoundError(f"catalog manifest not found: {path} (a catalog folder needs a {CATALOG_MANIFEST})")
-    try:
-        data = parse_yaml(read_text(path, MAX_CONFIG_BYTES))
-    except yaml.YAMLError as exc:
-        raise ValueError(f"{path}: not valid YAML: {' '.join(str(exc).split())}") from None
+    data = read_yaml(path)
     if not isinstance(data, dict) or set(data) != {"vehicles"} or not isinstance(data["vehicles"], list) \
             or not data["vehicles"]:
         raise ValueError(f"{path}: expected a mapping with the single key 'vehicles' holding a non-empty list")
@@ -177,7 +171,7 @@ class HeldoutEntry:
 def read_manifest(path: str | Path = MANIFEST) -> list[HeldoutEntry]:
     """Entries of a held-out manifest (YAML: ``meshes:`` list of mappings with HeldoutEntry's keys)."""
     path = Path(path)
-    data = yaml.safe_load(path.read_text(encoding="utf-8"))
+    data = read_yaml(path)
     if not isinstance(data, dict) or set(data) != {"meshes"} or not isinstance(data["meshes"], list):
         raise ValueError(f"{path}: expected a mapping with the single key 'meshes' holding a list")
     keys = {f.name for f in fields(HeldoutEntry)}
