@@ -106,7 +106,9 @@ def _track(cfg: TrackConfig, model: GenerativeShapeModel, catalog: str, sequence
                  "n/a" if overlap is None else f"{overlap:.3f}")
     else:
         log.info("no estimate: no frame had a target to start on")
-    log.info("wrote %s: estimates.csv, metrics.json, config.yaml, %s", out, ", ".join(f"{n}.png" for n in figures))
+    written = ["estimates.csv", "metrics.json", "config.yaml", *(f"{n}.png" for n in figures)]
+    written += ["overlay.mp4"] * cfg.video + [f"TensorBoard events (tensorboard --logdir {out.parent})"] * cfg.tensorboard
+    log.info("wrote %s: %s", out, ", ".join(written))
     return metrics
 
 

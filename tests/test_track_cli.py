@@ -2,6 +2,7 @@
 
 import csv
 import json
+import logging
 import shutil
 import subprocess
 import sys
@@ -18,17 +19,30 @@ SHORT = "synthetic:vehicle=bmp_2,range=1000,frames=12,seed=3"
 @pytest.fixture(scope="module")
 def run(tmp_path_factory):
     out = tmp_path_factory.mktemp("track") / "run"
-    metrics = track.main(["--sequence", SHORT, "--particles", "200", "--init", "truth", "--out", str(out),
-                          "--tensorboard", "--video", "tracker.filter.resample=residual"])
-    return out, metrics
+    said = []  # track.py's summary lines
+    handler, logger = logging.Handler(logging.INFO), logging.getLogger("track")
+    handler.emit = lambda record: said.append(record.getMessage())
+    level = logger.level
+    logger.addHandler(handler)
+    logger.setLevel(logging.INFO)
+    try:
+        metrics = track.main(["--sequence", SHORT, "--particles", "200", "--init", "truth", "--out", str(out),
+                              "--tensorboard", "--video", "tracker.filter.resample=residual"])
+    finally:
+        logger.removeHandler(handler)
+        logger.setLevel(level)
+    return out, metrics, said
 
 
 def test_outputs_are_written_and_consistent(run):
-    out, metrics = run
+    out, metrics, said = run
     names = {p.name for p in out.iterdir()}
     assert {"estimates.csv", "metrics.json", "config.yaml", "alpha_over_time.png", "errors_over_time.png",
             "view_trajectory.png", "frames.png", "overlay.mp4"} <= names
     assert any(n.startswith("events.out.tfevents") for n in names)
+    wrote = next(line for line in said if line.startswith(f"wrote {out}: "))  # the summary names every output
+    assert all(name in wrote for name in names if not name.startswith(("events.", ".torch_atr")))
+    assert "TensorBoard events" in wrote
     rows = list(csv.DictReader((out / "estimates.csv").open()))
     assert len(rows) == 12 and {"x", "z", "theta", "alpha", "class", "nearest_1", "true_x", "ess"} <= set(rows[0])
     assert list(rows[0])[:3] == ["frame", "time_s", "lost"]  # the README's order
@@ -46,7 +60,7 @@ def test_outputs_are_written_and_consistent(run):
 
 
 def test_an_existing_run_is_kept_unless_overwrite(run, tmp_path):
-    out, _ = run
+    out, *_ = run
     with pytest.raises(OSError, match="--overwrite"):
         track.main(["--sequence", SHORT, "--out", str(out), "--frames", "2"])
     foreign = tmp_path / "notes"
