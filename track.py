@@ -107,7 +107,8 @@ def _track(cfg: TrackConfig, model: GenerativeShapeModel, catalog: str, sequence
     else:
         log.info("no estimate: no frame had a target to start on")
     written = ["estimates.csv", "metrics.json", "config.yaml", *(f"{n}.png" for n in figures)]
-    written += ["overlay.mp4"] * cfg.video + [f"TensorBoard events (tensorboard --logdir {out.parent})"] * cfg.tensorboard
+    written += ["overlay.mp4"] * cfg.video
+    written += [f"TensorBoard events (tensorboard --logdir {out.parent})"] * cfg.tensorboard
     log.info("wrote %s: %s", out, ", ".join(written))
     return metrics
 
