@@ -11,9 +11,9 @@ particles, each with its own prediction, view, model query (full size, pooled), 
 likelihood — on the same frames, segmentation included, always on the CPU; the speed-up is the
 ratio of the two medians at the same particle count, measured in this run (with ``--device cuda``,
 the GPU's filter against the CPU's loop). The tracker's segmentation is also timed alone (no
-particles), the floor under every row, and inside the step, between the filter's tensor
-operations, where on two cores it shares them with torch's threads (docs/tracking.md, "Speed
-across hosts"). Frames per second are the median
+particles), the floor under every row: back to back, and with its calls a frame period apart,
+idle in between, as a live camera feeds them (slower: docs/tracking.md, "Speed across hosts");
+and inside the step, between the filter's tensor operations. Frames per second are the median
 step's; the rate over all frames is printed beside it, since re-detection searches the blob on
 a few frames only (by default once, 10 frames after the start; ``redetect``) and the median does
 not see it.
@@ -165,12 +165,15 @@ def reference_fps(model, seq, frames, n: int, tracker_cfg: TrackerConfig) -> flo
     return 1.0 / statistics.median(times)
 
 
-def segmentation_ms(seq, frames, tracker_cfg: TrackerConfig) -> float:
+def segmentation_ms(seq, frames, tracker_cfg: TrackerConfig, period_s: float = 0.0) -> float:
     """Median milliseconds of the tracker's segmentation alone (its settings, no predicted region),
-    outside the profiler: the floor under every frame's time, whatever the particle count."""
+    outside the profiler: the floor under every frame's time, whatever the particle count. With
+    ``period_s`` > 0 the calls start that far apart, idle in between, as a live camera feeds them."""
     seg = warmed_segmenter(seq, tracker_cfg)
     times = []
     for frame in frames:
+        if times and period_s > 0:
+            time.sleep(max(period_s - times[-1], 0.0))
         start = time.perf_counter()
         seg(frame)
         times.append(time.perf_counter() - start)
@@ -245,9 +248,11 @@ def main() -> None:
     log.info("per-particle reference at N = %d: %.3f frames/s; the batched filter is %.0fx faster", n_ref, ref,
              batched / ref)
     seg_ms = segmentation_ms(seq, frames, tracker_config(n_ref, args.set))
-    log.info("segmentation alone (MOG2 with the tracker's settings, on the CPU): %.1f ms per frame (median of %d); "
-             "inside the step at N = %d: %.1f ms (the thread pools of torch and OpenCV share the cores; "
-             "docs/tracking.md)", seg_ms, len(frames), n_ref, in_step_ms[n_ref])
+    live_ms = segmentation_ms(seq, frames, tracker_config(n_ref, args.set), 1 / seq.fps)
+    log.info("segmentation alone (MOG2 with the tracker's settings, on the CPU): %.1f ms per frame back to back, "
+             "%.1f ms with the calls %.0f ms apart as a live camera feeds them (medians of %d); inside the step at "
+             "N = %d: %.1f ms (docs/tracking.md, \"Speed across hosts\")", seg_ms, live_ms, 1e3 / seq.fps,
+             len(frames), n_ref, in_step_ms[n_ref])
     stages = profile(model, seq, frames, n_ref, args.device, args.set)
     log.info("where the time goes at N = %d (ms per frame, cumulative):", n_ref)
     for name, ms in sorted(stages.items(), key=lambda kv: -kv[1]):
@@ -255,7 +260,8 @@ def main() -> None:
     if args.json:
         atomic_write_text(json.dumps({"runs": rows, "reference": {"particles": n_ref, "frames_per_second": ref,
                                                                    "speed_up": batched / ref},
-                                      "segmentation_ms": seg_ms, "segmentation_in_step_ms": in_step_ms,
+                                      "segmentation_ms": seg_ms, "segmentation_live_ms": live_ms,
+                                      "segmentation_in_step_ms": in_step_ms,
                                       "profile_ms": stages,
                                       "threads": torch.get_num_threads()}, indent=2),
                           args.json)
