@@ -136,11 +136,12 @@ def test_weighted_mean_cov_and_class_posterior_against_numpy():
 
 
 def test_a_result_column_no_row_has_is_named_not_nan():
-    """A typo ("xx") read as a run without estimates: all NaN."""
+    """A typo ("xx") read as a run without estimates: all NaN. Text columns come back as text."""
     from torch_atr.tracking import TrackResult
 
-    result = TrackResult([{"frame": 0, "lost": 1}, {"frame": 1, "lost": 0, "x": 2.5}], [], 1.0)
+    result = TrackResult([{"frame": 0, "lost": 1}, {"frame": 1, "lost": 0, "x": 2.5, "class": "suv"}], [], 1.0)
     np.testing.assert_array_equal(result.column("x"), [math.nan, 2.5])  # missing before the start: NaN
+    assert result.column("class").tolist() == ["", "suv"]  # and no text before it
     with pytest.raises(ValueError, match="No row has a column 'xx'; columns: frame, lost, x"):
         result.column("xx")
 

@@ -284,11 +284,15 @@ class TrackResult:
     seconds: float
 
     def column(self, name: str) -> np.ndarray:
-        """One numeric column over the frames, (T,) float64 (NaN where a row lacks it); ValueError
-        naming the columns when no row has it (a typo would read as a run without estimates)."""
+        """One column over the frames: (T,) float64, NaN where a row lacks it, or (T,) str for a
+        text column (``class``, ``nearest_1``, ``true_vehicle``, ...), "" where a row lacks it.
+        ValueError naming the columns when no row has it (a typo would read as a run without
+        estimates)."""
         if self.rows and not any(name in row for row in self.rows):
             columns = ", ".join(dict.fromkeys(key for row in self.rows for key in row))
             raise ValueError(f"No row has a column {name!r}; columns: {columns}")
+        if any(isinstance(row.get(name), str) for row in self.rows):
+            return np.array([row.get(name, "") for row in self.rows], dtype=str)
         return column(self.rows, name)
 
     @property
