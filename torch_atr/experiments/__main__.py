@@ -15,8 +15,9 @@ a held-out car and SUV tracked in 3D with Methods I-IV, and a van tracked withou
 DIR/report.md, DIR/results.json (and the figures). Finished sequences are kept in DIR/sequences/
 and not re-run; ``--ray ADDRESS`` runs them as tasks of a Ray cluster instead of local processes.
 all runs the four, each into DIR/NAME/, and writes one DIR/report.md of them all (it takes
---quick, --init, --seed, --checkpoint and --workers). ``key=value`` are tracker config overrides (``motion.sigma2_alpha=1.0``); ``--scene key=value``
-overrides the simulator's scene (day: ``night=false``; an occluder, a turning turret).
+--quick, --init, --seed, --checkpoint and --workers). ``key=value`` are tracker config overrides
+(``motion.sigma2_alpha=1.0``); ``--scene key=value`` overrides the simulator's scene (day:
+``night=false``; an occluder, a turning turret).
 """
 
 from __future__ import annotations
