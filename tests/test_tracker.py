@@ -478,6 +478,9 @@ def test_bad_inputs_raise(model, btr):
     assert tracker.step(mask=np.zeros(size, dtype=bool), dt=0.5)["lost"] == 1 and tracker._clock == 0.5
     with pytest.raises(ValueError, match="device 'tpu' is not available"):
         Tracker(model, btr.camera, _config("filter.particles=10"), device="tpu")
+    for frames in (0, -1, 3.5, True, "3"):  # 3.5 was tracked as 3 frames
+        with pytest.raises(ValueError, match=r"Expected frames to be a whole number >= 1, or None for all; got "):
+            tracker.run(btr, frames, progress=False)
 
 
 def test_kernel_width_adaptation_moves_the_widths_towards_the_observation(btr):

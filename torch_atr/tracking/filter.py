@@ -410,7 +410,8 @@ class Tracker:
         start = time.perf_counter()
         dt = self.dt if dt is None else dt
         if not (isinstance(dt, numbers.Real) and math.isfinite(dt) and dt > 0):  # checked before anything moves
-            raise ValueError(f"Expected dt, the seconds since the previous frame, to be positive and finite; got {dt!r}")
+            raise ValueError("Expected dt, the seconds since the previous frame, to be positive and finite; "
+                             f"got {dt!r}")
         if self._frames:
             self._clock += dt
         if self.initialised and not self._fresh:
@@ -826,6 +827,8 @@ class Tracker:
         """
         from tqdm import tqdm
 
+        if frames is not None and (isinstance(frames, bool) or not isinstance(frames, numbers.Integral) or frames < 1):
+            raise ValueError(f"Expected frames to be a whole number >= 1, or None for all; got {frames!r}")
         n = len(sequence) if frames is None else min(int(frames), len(sequence))
         if n < 1:
             raise ValueError(f"{sequence.name}: nothing to track ({n} frames)")
