@@ -43,6 +43,7 @@ import numpy as np
 import torch
 
 from torch_atr.evaluation import alpha_grid_iou
+from torch_atr.io import atomic_write_text
 from torch_atr.model import GenerativeShapeModel
 from torch_atr.render import render_templates
 from torch_atr.shape import iou
@@ -213,7 +214,8 @@ def main() -> None:
                              f"overlaid 64 x 64 templates, central 7.5 m, 5° elevation")
         save_figures({args.figure.stem: fig}, args.figure.parent)
     if args.json is not None:
-        args.json.write_text(json.dumps({"checkpoint": str(args.checkpoint), "rows": rows, "summary": table}, indent=1))
+        atomic_write_text(json.dumps({"checkpoint": str(args.checkpoint), "rows": rows, "summary": table}, indent=1),
+                          args.json)
 
 
 if __name__ == "__main__":
