@@ -334,7 +334,7 @@ def is_checkpoint(path: str | os.PathLike) -> bool:
     """True when ``path`` is a file :meth:`GenerativeShapeModel.save` wrote (its format says so; the
     tensors are memory-mapped, not read, and nothing else is checked)."""
     try:
-        ckpt = torch.load(path, map_location="cpu", weights_only=True, mmap=True)
+        ckpt = torch.load(os.fspath(path), map_location="cpu", weights_only=True, mmap=True)  # str: torch 2.2's mmap
     except Exception:  # anything torch cannot read is not ours
         return False
     return isinstance(ckpt, dict) and ckpt.get("format") == FORMAT
@@ -470,7 +470,8 @@ def _load_error(path: Path, exc: Exception) -> InputError:
     """An InputError for an exception of ``torch.load``, without PyTorch's advice to retry with
     ``weights_only=False`` (which would run whatever the file holds)."""
     boilerplate = ("Weights only load failed", "Please file an issue", "Check the documentation")
-    detail = " ".join(line.strip() for line in str(exc).splitlines() if line.strip()
+    text = str(exc).split("WeightsUnpickler error:")[-1]  # torch 2.2 gives the reason after this, on the advice's line
+    detail = " ".join(line.strip() for line in text.splitlines() if line.strip()
                       and not line.startswith(boilerplate) and "weights_only" not in line)[:200] or type(exc).__name__
     if isinstance(exc, pickle.UnpicklingError):
         return InputError(f"{path}: refused to load: it holds something other than tensors and plain data, which "
