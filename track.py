@@ -8,7 +8,7 @@ With no arguments it tracks a built-in simulated sequence (the held-out T-72 at 
 frames) with the shipped checkpoint. Steps: open the sequence and the model; warm up the
 background model; initialise the particles (blind from the first blob, or from the truth);
 run the particle filter over the frames; write ``estimates.csv``, ``metrics.json``,
-``config.yaml`` and the figures into the run folder (README, "Outputs").
+``config.yaml`` and the figures into the run folder (README, "Command line").
 """
 
 from __future__ import annotations
@@ -33,10 +33,18 @@ log = logging.getLogger("track")
 REPO = Path(__file__).resolve().parent
 SETTLE_FRAMES = 60  # metrics.json's "settled" block: the frames after a blind start's first 2 s
 
-# Command-line flags and the config keys they set.
-FLAGS = {"sequence": "sequence", "checkpoint": "checkpoint", "method": "tracker.filter.method",
-         "particles": "tracker.filter.particles", "init": "tracker.init.mode", "device": "device", "out": "out",
-         "frames": "frames"}
+# Command-line flags: the config key each sets, its metavar and what it means (defaults: configs/track.yaml).
+FLAGS = {
+    "sequence": ("sequence", "SPEC", "what to track, as open_sequence takes it: a folder, video:FILE, "
+                                     "sensiac:FILE.arf, synthetic:vehicle=NAME,range=M,..."),
+    "checkpoint": ("checkpoint", "PATH", "the trained model"),
+    "method": ("tracker.filter.method", "I|II|III|IV", "view and identity continuous (I) or snapped"),
+    "particles": ("tracker.filter.particles", "N", "the number of particles"),
+    "init": ("tracker.init.mode", "blind|truth", "start from the first blob and the camera, or from frame 0's truth"),
+    "device": ("device", "DEVICE", "where the particles live: cpu, cuda, cuda:1, ..."),
+    "out": ("out", "DIR", "the run folder"),
+    "frames": ("frames", "N", "track only the first N frames"),
+}
 
 
 def resolve(path: str) -> Path:
@@ -47,16 +55,17 @@ def resolve(path: str) -> Path:
 
 def main(argv: list[str] | None = None) -> dict:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--config", default=str(REPO / "configs" / "track.yaml"), help="YAML config")
-    for flag in FLAGS:
-        parser.add_argument(f"--{flag}", help=f"sets {FLAGS[flag]}")
+    parser.add_argument("--config", default=str(REPO / "configs" / "track.yaml"), metavar="YAML",
+                        help="the config whose keys the flags and overrides set (default: configs/track.yaml)")
+    for flag, (key, metavar, meaning) in FLAGS.items():
+        parser.add_argument(f"--{flag}", metavar=metavar, help=f"{meaning} (sets {key})")
     parser.add_argument("--tensorboard", action="store_true", help="also log to TensorBoard in the run folder")
     parser.add_argument("--video", action="store_true", help="also write overlay.mp4")
     parser.add_argument("--overwrite", action="store_true", help="replace an earlier run in --out (only ours)")
     parser.add_argument("overrides", nargs="*", help="key=value overrides (tracker.filter.sigma=0.03)")
     args = parser.parse_intermixed_args(argv)  # flags may sit between the key=value overrides
     console_logging()
-    flags = [f"{key}={getattr(args, flag)}" for flag, key in FLAGS.items() if getattr(args, flag) is not None]
+    flags = [f"{key}={getattr(args, flag)}" for flag, (key, *_) in FLAGS.items() if getattr(args, flag) is not None]
     flags += [f"{name}=true" for name in ("tensorboard", "video") if getattr(args, name)]
     cfg = load_config(TrackConfig, args.config, flags + args.overrides)
 
