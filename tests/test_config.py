@@ -105,6 +105,11 @@ def test_a_bad_override_is_reported_as_an_override_not_against_the_file(tmp_path
     with pytest.raises(ConfigError, match=r"^override filter.sigma=0.1: unknown config key\(s\) filter; known: .*"
                                           r"\(did you mean tracker.filter\?\)$"):
         load_config(TrackConfig, None, ["out=x", "filter.sigma=0.1"])
+    # A key given without its sections is found at any depth below (tracker.filter.particles).
+    with pytest.raises(ConfigError, match=r"^override particles=9: .*\(did you mean tracker.filter.particles\?\)$"):
+        load_config(TrackConfig, None, ["particles=9"])
+    with pytest.raises(ConfigError, match=r"\(did you mean tracker.adapt.every or tracker.redetect.every\?\)$"):
+        load_config(TrackConfig, None, ["every=3"])
     with pytest.raises(ConfigError, match=r"^override tracker.filtr.sigma=0.1: unknown config key\(s\) tracker.filtr;"):
         load_config(TrackConfig, None, ["tracker.filter.particles=9", "tracker.filtr.sigma=0.1"])
     # A range check's message lists every key of its section; only the override that fails is blamed.

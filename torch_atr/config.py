@@ -128,6 +128,18 @@ def _field_default(field: dataclasses.Field) -> Any:
     return dataclasses.MISSING
 
 
+def _homes(cls: type, key: Any, prefix: str = "") -> list[str]:
+    """The dotted paths of the fields named ``key`` in the sections below ``cls``, at any depth."""
+    hints, homes = typing.get_type_hints(cls), []
+    for field in dataclasses.fields(cls):
+        section = hints[field.name]
+        if dataclasses.is_dataclass(section):
+            path = f"{prefix}{field.name}."
+            homes += [path + str(key)] * (key in {f.name for f in dataclasses.fields(section)})
+            homes += _homes(section, key, path)
+    return homes
+
+
 def _build(cls: type[T], data: dict, prefix: str = "", base: Any = None) -> T:
     """``cls`` from ``data``: the keys it gives on top of ``base`` (an instance of ``cls``; None:
     the class's defaults). A nested section builds on the field's own default, so a section whose
@@ -136,8 +148,7 @@ def _build(cls: type[T], data: dict, prefix: str = "", base: Any = None) -> T:
     fields = {f.name: f for f in dataclasses.fields(cls)}
     unknown = sorted(set(data) - set(fields), key=str)
     if unknown:
-        homes = [f"{prefix}{k}.{key}" for key in unknown for k in sorted(fields)
-                 if dataclasses.is_dataclass(hints[k]) and key in {f.name for f in dataclasses.fields(hints[k])}]
+        homes = [home for key in unknown for home in _homes(cls, key, prefix)]
         raise ConfigError(f"unknown config key(s) {', '.join(prefix + str(k) for k in unknown)}; "
                           f"known: {', '.join(prefix + k for k in sorted(fields))}"
                           + (f" (did you mean {' or '.join(homes)}?)" if homes else ""))
