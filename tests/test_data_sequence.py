@@ -395,6 +395,9 @@ def test_open_sequence_errors(tmp_path):
     unknown = r"Unknown scheme 'nosuch' in sequence spec 'nosuch:x'; known schemes: .*folder"
     with pytest.raises(ValueError, match=unknown):
         open_sequence("nosuch:x")
+    # The simulator registers on first use; a typo of it is still named, with the scheme meant.
+    with pytest.raises(ValueError, match=r"known schemes: .*synthetic.* \(did you mean synthetic\?\)$"):
+        open_sequence("syntetic:vehicle=t_72")
     with pytest.raises(FileNotFoundError, match=re.escape(str(tmp_path / "absent"))):
         open_sequence(str(tmp_path / "absent"))
     (tmp_path / "clip.avi").write_bytes(b"x")

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import abc
 import dataclasses
+import difflib
 import importlib
 import math
 import numbers
@@ -190,6 +191,7 @@ class Sequence(abc.ABC):
 
 Opener = Callable[[str], Sequence]
 _SCHEMES: dict[str, Opener] = {}
+_BUILT_IN_ON_USE = ("synthetic",)  # schemes of modules here that register when first used (the simulator)
 _SCHEME_RE = re.compile(r"[a-z][a-z0-9_]+")
 _SPEC_RE = re.compile(r"([A-Za-z][A-Za-z0-9_]+):(.*)", re.DOTALL)
 
@@ -235,8 +237,10 @@ def open_sequence(spec: str) -> Sequence:
             if exc.name != f"{__package__}.{scheme}":
                 raise
     if scheme not in _SCHEMES:
-        known = ", ".join(registered_schemes()) or "none"
-        raise InputError(f"Unknown scheme {scheme!r} in sequence spec {show(spec)}; known schemes: {known}")
+        known = sorted(set(registered_schemes()) | set(_BUILT_IN_ON_USE))
+        close = difflib.get_close_matches(scheme, known, n=1)
+        raise InputError(f"Unknown scheme {scheme!r} in sequence spec {show(spec)}; known schemes: {', '.join(known)}"
+                         + (f" (did you mean {close[0]}?)" if close else ""))
     return _SCHEMES[scheme](rest)
 
 
