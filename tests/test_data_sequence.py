@@ -243,7 +243,8 @@ def test_bad_meta(saved):
     with pytest.raises(ValueError, match="meta.json, key 'frames': expected an integer >= 1; got 0"):
         FolderSequence(saved)
     (saved / "meta.json").unlink()
-    with pytest.raises(FileNotFoundError, match="meta.json is missing"):
+    with pytest.raises(FileNotFoundError, match=re.escape(f"meta.json is missing (a folder of plain images opens with "
+                                                          f"'video:{saved}')")):
         open_sequence(str(saved))
 
 

@@ -120,7 +120,8 @@ def _read_meta(path: Path) -> dict:
     """meta.json, checked: our format and version, a name, fps null or > 0, camera_height_m absent,
     null or in (0, MAX_CAMERA_HEIGHT_M], frames >= 1 and a frame shape and dtype we store within the image bounds of
     :mod:`torch_atr.validate`."""
-    meta = read_json_object(path, f"Not a sequence folder: {path} is missing")
+    meta = read_json_object(path, f"Not a sequence folder: {path} is missing (a folder of plain images opens "
+                                  f"with 'video:{path.parent}')")
     missing = [k for k in ("format", "format_version", "name", "fps", "frames", "dtype", "shape") if k not in meta]
     if missing:
         raise InputError(f"{path}: missing key(s) {', '.join(missing)}")
