@@ -481,6 +481,17 @@ def test_bad_inputs_raise(model, btr):
     for frames in (0, -1, 3.5, True, "3"):  # 3.5 was tracked as 3 frames
         with pytest.raises(ValueError, match=r"Expected frames to be a whole number >= 1, or None for all; got "):
             tracker.run(btr, frames, progress=False)
+    with pytest.raises(ValueError, match=r"Expected a Sequence \(torch_atr.data.open_sequence\(spec\)\); got list"):
+        tracker.run([btr.frame(0)], progress=False)
+    # Constructor arguments of the wrong kind are named (they raised AttributeErrors deep inside).
+    config = _config("filter.particles=10")
+    for args, kwargs, message in [
+            (("checkpoints/default.pt", btr.camera, config), {}, "Expected model to be a GenerativeShapeModel"),
+            ((model, None, config), {}, r"Expected camera to be a Camera; got NoneType .*BlobTracker"),
+            ((model, btr.camera, {"filter": {"particles": 10}}), {}, "Expected config to be a TrackerConfig"),
+            ((model, btr.camera, config), {"seed": "0"}, "Expected seed to be an integer; got '0'")]:
+        with pytest.raises(ValueError, match=message):
+            Tracker(*args, **kwargs)
 
 
 def test_kernel_width_adaptation_moves_the_widths_towards_the_observation(btr):

@@ -61,6 +61,8 @@ class BlobTracker(Tracker):
     docstring). Same arguments as :class:`Tracker` without the camera; estimate rows carry θ, φ,
     α, the class, the nearest vehicles, the class posterior, the ESS and the overlap, no x, y, z."""
 
+    needs_camera = False
+
     def __init__(self, model, config: TrackerConfig | None = None, **kwargs):
         super().__init__(model, None, config, **kwargs)
         if self.cfg.adapt.every:

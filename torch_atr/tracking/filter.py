@@ -317,8 +317,21 @@ class Tracker:
     its ranges (:meth:`run` takes the sequence's).
     """
 
+    needs_camera = True  # BlobTracker tracks without one
+
     def __init__(self, model: GenerativeShapeModel, camera: Camera, config: TrackerConfig | None = None, *,
                  device: str | torch.device | None = None, seed: int = 0, templates: torch.Tensor | None = None):
+        if not isinstance(model, GenerativeShapeModel):
+            raise ValueError(f"Expected model to be a GenerativeShapeModel (GenerativeShapeModel.from_checkpoint("
+                             f"path)); got {type(model).__name__}")
+        if self.needs_camera and not isinstance(camera, Camera):
+            raise ValueError(f"Expected camera to be a Camera; got {type(camera).__name__} (an uncalibrated sequence: "
+                             f"track its blob with BlobTracker)")
+        if config is not None and not isinstance(config, TrackerConfig):
+            raise ValueError(f"Expected config to be a TrackerConfig (load_config(TrackerConfig, path, overrides)); "
+                             f"got {type(config).__name__}")
+        if isinstance(seed, bool) or not isinstance(seed, numbers.Integral):
+            raise ValueError(f"Expected seed to be an integer; got {seed!r}")
         self.cfg = TrackerConfig() if config is None else config
         self.device = check_device(device) if device is not None else model.alphas.device
         self.model = model.to(self.device)
@@ -827,6 +840,8 @@ class Tracker:
         """
         from tqdm import tqdm
 
+        if not isinstance(sequence, Sequence):
+            raise ValueError(f"Expected a Sequence (torch_atr.data.open_sequence(spec)); got {type(sequence).__name__}")
         if frames is not None and (isinstance(frames, bool) or not isinstance(frames, numbers.Integral) or frames < 1):
             raise ValueError(f"Expected frames to be a whole number >= 1, or None for all; got {frames!r}")
         n = len(sequence) if frames is None else min(int(frames), len(sequence))
