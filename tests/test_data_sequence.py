@@ -93,6 +93,7 @@ def test_folder_round_trip(tmp_path, kind):
         assert back.truth(i) == truths[i]
     assert [f.tobytes() for f in back] == [f.tobytes() for f in frames]
     assert back.camera.to_dict() == seq.camera.to_dict()
+    assert [f.tobytes() for f in open_sequence(out)] == [f.tobytes() for f in frames]  # a Path is a folder too
     assert math.isnan(back.camera_height_m)  # the source did not know it
     meta = json.loads((out / "meta.json").read_text())
     assert meta["frames"] == n and meta["dtype"] == str(frames[0].dtype) and meta["shape"] == list(frames[0].shape)

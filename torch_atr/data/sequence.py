@@ -25,6 +25,7 @@ import importlib
 import math
 import numbers
 import operator
+import os
 import re
 from dataclasses import dataclass
 from pathlib import Path
@@ -216,13 +217,15 @@ def registered_schemes() -> tuple[str, ...]:
     return tuple(sorted(_SCHEMES))
 
 
-def open_sequence(spec: str) -> Sequence:
+def open_sequence(spec: str | os.PathLike) -> Sequence:
     """Open the sequence ``spec`` names (see the module docstring for the forms).
 
-    A spec without a ``scheme:`` prefix is a folder in our format. Raises ``InputError`` (a
-    ``ValueError``) for a bad spec, unknown scheme or option and for a bad file,
-    ``FileNotFoundError`` for a missing file, each naming it.
+    A spec without a ``scheme:`` prefix, or a path object (``pathlib.Path``), is a folder in our
+    format. Raises ``InputError`` (a ``ValueError``) for a bad spec, unknown scheme or option and
+    for a bad file, ``FileNotFoundError`` for a missing file, each naming it.
     """
+    if isinstance(spec, os.PathLike):
+        return _SCHEMES["folder"](os.fspath(spec))
     if not isinstance(spec, str) or not spec.strip():
         raise InputError(f"Expected a sequence spec string; got {show(spec)}")
     m = _SPEC_RE.fullmatch(spec)
