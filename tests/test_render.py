@@ -297,6 +297,8 @@ def test_bad_inputs_raise():
         render_templates(_toy_car(), [0.0, 1.0, 2.0], [0.0, 0.1])
     with pytest.raises(ValueError, match=r"theta to have shape \(V\); got \(2, 2\)"):
         view_directions(torch.zeros(2, 2), torch.zeros(2, 2))
+    with pytest.raises(ValueError, match="theta and phi to be finite radians"):  # NaN rendered an empty template
+        render_templates(_toy_car(), [0.0, math.nan], [0.0, 0.1])
     with pytest.raises(ValueError, match="size_px"):
         TemplateConfig(size_px=0)
     with pytest.raises(ValueError, match="window_m"):

@@ -214,6 +214,8 @@ def render_templates(vehicle, theta, phi, cfg: TemplateConfig | None = None) -> 
     verts, faces, centre = _mesh_arrays(vehicle)
     theta, phi = _view_angles(theta, phi)
     theta, phi = theta.detach().cpu().double(), phi.detach().cpu().double()
+    if not bool(torch.isfinite(theta).all() & torch.isfinite(phi).all()):
+        raise ValueError("Expected theta and phi to be finite radians; they hold NaN or inf")
     right, up = view_basis(theta, phi)
     axes = torch.stack([right, up], dim=-1)  # (V, 3, 2)
     verts = verts - centre
