@@ -46,3 +46,16 @@ def test_overlay_colours_and_identity_figure():
     assert rgb.T.tolist() == [[1, 1, 1], [1, 0, 0], [0, 1, 1], [0, 0, 0]]  # both, missed, extra, neither
     fig = viz.identity_circle_figure([0.0, 2.0], ["a", "b"], [0, 1], ["x", "y"], [(0, 5.0, 7.28), (1, 1.0, 5.0)])
     assert len(fig.axes) == 1
+
+
+def test_track_figures_of_a_run_without_an_estimate_span_it_and_say_so():
+    """A run in which no frame had a target: α over the run's 2 s, not an axis shrunk round nothing."""
+    model = GenerativeShapeModel.from_checkpoint(CKPT)
+    rows = [{"frame": i, "time_s": i / 30, "lost": 1, "mask_area_px": 0} for i in range(61)]
+    alpha = viz.alpha_figure(rows, model, "empty")
+    view = viz.view_figure(rows, "empty")
+    assert alpha.axes[0].get_xlim() == pytest.approx((0.0, 2.0))
+    for fig in (alpha, view):
+        assert "no estimate" in " ".join(text.get_text() for text in fig.axes[0].texts)
+    rows[5]["alpha"], rows[5]["theta"], rows[5]["phi"] = 0.3, 1.0, 0.1
+    assert not viz.alpha_figure(rows, model, "one").axes[0].texts

@@ -251,6 +251,12 @@ def _rows_column(rows: list[dict], name: str) -> np.ndarray:
     return np.array([float(r.get(name, math.nan)) for r in rows], dtype=np.float64)
 
 
+def _note_no_estimate(ax) -> None:
+    """Say so in an axes of a run in which no frame had an estimate, rather than draw it empty."""
+    ax.text(0.5, 0.5, "no estimate: no frame had a target to start on", transform=ax.transAxes,
+            ha="center", va="center", fontsize=10, bbox={"facecolor": "white", "alpha": 0.8, "lw": 0})
+
+
 def alpha_figure(rows: list[dict], model, title: str):
     """α over time with the class arcs as coloured bands and the two nearest training vehicles
     of the sequence as dashed lines (Fig. 6.10). rows: estimate rows. Returns a Figure."""
@@ -270,6 +276,11 @@ def alpha_figure(rows: list[dict], model, title: str):
         a = float(model.alphas[model.vehicle_names.index(name)])
         ax.axhline(a, ls="--", lw=1.2, color="0.25" if k == 0 else "0.55", label=f"best match {k + 1}: {name}")
     ax.plot(t, alpha, ".", ms=3, color="k", label="estimated α")
+    times = t[np.isfinite(t)]
+    if times.size and times.max() > times.min():  # the whole run, estimated or not
+        ax.set_xlim(times.min(), times.max())
+    if not np.isfinite(alpha).any():
+        _note_no_estimate(ax)
     true_class = next((r.get("true_class") for r in rows if r.get("true_class")), "")
     ax.set(xlabel="time (s)", ylabel="identity α (rad)", ylim=(0, 2 * math.pi),
            title=f"{title}: identity over time" + (f" (true class: {true_class})" if true_class else ""))
@@ -314,7 +325,10 @@ def view_figure(rows: list[dict], title: str):
     if np.isfinite(true_theta).any():
         ax.plot(np.degrees(true_theta) % 360, np.degrees(true_phi), ".", ms=3, color="crimson", label="truth")
     phi = np.degrees(_rows_column(rows, "phi"))
-    sc = ax.scatter(np.degrees(_rows_column(rows, "theta")) % 360, phi, c=t, s=8, cmap="viridis", label="estimate")
+    theta = _rows_column(rows, "theta")
+    sc = ax.scatter(np.degrees(theta) % 360, phi, c=t, s=8, cmap="viridis", label="estimate")
+    if not np.isfinite(theta).any():
+        _note_no_estimate(ax)
     shown = np.concatenate([phi[np.isfinite(phi)], [-5.0, 50.0]])  # the training views span 0°-40°
     ax.set(xlim=(0, 360), xticks=range(0, 361, 45), ylim=(shown.min() - 1, shown.max() + 1),
            xlabel="azimuth θ from the vehicle's front (degrees)", ylabel="elevation φ (degrees)",
