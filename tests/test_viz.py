@@ -1,6 +1,7 @@
 import math
 from pathlib import Path
 
+import numpy as np
 import pytest
 import torch
 
@@ -57,5 +58,9 @@ def test_track_figures_of_a_run_without_an_estimate_span_it_and_say_so():
     assert alpha.axes[0].get_xlim() == pytest.approx((0.0, 2.0))
     for fig in (alpha, view):
         assert "no estimate" in " ".join(text.get_text() for text in fig.axes[0].texts)
-    rows[5]["alpha"], rows[5]["theta"], rows[5]["phi"] = 0.3, 1.0, 0.1
+    blank = np.zeros((40, 50), dtype=bool)
+    shots = [{"frame": i, "image": np.zeros((40, 50), np.uint8), "mask": blank, "silhouette": blank} for i in (0, 5)]
+    rows[5].update({"alpha": 0.3, "theta": 1.0, "phi": 0.1, "class": "tank"})
+    strip = viz.frame_strip_figure(shots, rows, "strip")
+    assert [ax.get_title() for ax in strip.axes] == ["frame 0: no estimate", "frame 5: tank\nα = 0.30"]
     assert not viz.alpha_figure(rows, model, "one").axes[0].texts

@@ -358,8 +358,8 @@ def frame_strip_figure(snapshots: list[dict], rows: list[dict], title: str, crop
         ax.imshow(image[r0:v + crop, c0:u + crop], extent=(c0, c0 + image[r0:v + crop, c0:u + crop].shape[1],
                                                            r0 + image[r0:v + crop, c0:u + crop].shape[0], r0))
         row = rows[shot["frame"]]
-        ax.set_title(f"frame {shot['frame']}: {row.get('class', '—')}\nα = {row.get('alpha', math.nan):.2f}",
-                     fontsize=8)
+        estimate = f"{row['class']}\nα = {row['alpha']:.2f}" if "alpha" in row else "no estimate"
+        ax.set_title(f"frame {shot['frame']}: {estimate}", fontsize=8)
         ax.set_xlabel("u (px)", fontsize=7)
         ax.set_ylabel("v (px)", fontsize=7)
         ax.tick_params(labelsize=6)
