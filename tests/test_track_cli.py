@@ -87,7 +87,7 @@ def test_an_existing_run_is_kept_unless_overwrite(run, tmp_path):
 @pytest.mark.parametrize("args, message", [
     (["tracker.filter.method=V"], "method='V'"),
     (["--particles", "0"], "particles=0"),
-    (["tracker.filter.likelihood_px=7"], "likelihood_px=7 must divide"),
+    (["tracker.filter.likelihood_px=7"], "likelihood_px=7 must divide the model's template size 64 (e.g. 64, 32, 16)"),
     (["--sequence", "synthetic:vehicle=nope"], "nope"),
     (["--checkpoint", "missing.pt"], "missing.pt"),
     (["--device", "tpu"], "device 'tpu' is not available"),

@@ -337,9 +337,11 @@ class Tracker:
         self.model = model.to(self.device)
         self.camera = camera
         fc = self.cfg.filter
-        if model.template.size_px % fc.likelihood_px:
-            raise ConfigError(f"filter.likelihood_px={fc.likelihood_px} must divide the model's template size "
-                              f"{model.template.size_px}")
+        size = model.template.size_px
+        if size % fc.likelihood_px:
+            fits = [d for d in range(size, 0, -1) if size % d == 0][:3]
+            raise ConfigError(f"filter.likelihood_px={fc.likelihood_px} must divide the model's template size {size} "
+                              f"(e.g. {', '.join(map(str, fits))})")
         self.appearance = ShapeAppearance(self.model, fc.method, fc.likelihood_px, templates).to(self.device)
         self.segmenter = ForegroundSegmenter(self.cfg.segmentation)
         self.generator = torch.Generator(self.device).manual_seed(seed)
