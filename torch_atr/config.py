@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import copy
 import dataclasses
+import difflib
 import math
 import re
 import types
@@ -148,7 +149,8 @@ def _build(cls: type[T], data: dict, prefix: str = "", base: Any = None) -> T:
     fields = {f.name: f for f in dataclasses.fields(cls)}
     unknown = sorted(set(data) - set(fields), key=str)
     if unknown:
-        homes = [home for key in unknown for home in _homes(cls, key, prefix)]
+        homes = [home for key in unknown for home in _homes(cls, key, prefix)] or [
+            prefix + near for key in unknown for near in difflib.get_close_matches(str(key), sorted(fields), n=1)]
         raise ConfigError(f"unknown config key(s) {', '.join(prefix + str(k) for k in unknown)}; "
                           f"known: {', '.join(prefix + k for k in sorted(fields))}"
                           + (f" (did you mean {' or '.join(homes)}?)" if homes else ""))
