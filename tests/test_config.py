@@ -113,6 +113,9 @@ def test_a_bad_override_is_reported_as_an_override_not_against_the_file(tmp_path
     # A misspelt key gets the nearest of its section's.
     with pytest.raises(ConfigError, match=r"partciles; .*\(did you mean tracker.filter.particles\?\)$"):
         load_config(TrackConfig, None, ["tracker.filter.partciles=9"])
+    with pytest.raises(ConfigError, match=r"\(did you mean tracker.init.speed_frames or tracker.init.speed_mps or "
+                                          r"tracker.init.speed_std_mps\?\)$"):  # every key it begins
+        load_config(TrackConfig, None, ["tracker.init.speed=9"])
     with pytest.raises(ConfigError, match=r"^override tracker.filtr.sigma=0.1: unknown config key\(s\) tracker.filtr;"):
         load_config(TrackConfig, None, ["tracker.filter.particles=9", "tracker.filtr.sigma=0.1"])
     # A range check's message lists every key of its section; only the override that fails is blamed.

@@ -141,6 +141,12 @@ def _homes(cls: type, key: Any, prefix: str = "") -> list[str]:
     return homes
 
 
+def _nearest(key: str, names: list[str]) -> list[str]:
+    """The names ``key`` most likely meant: those it begins (speed -> speed_frames, speed_mps, ...),
+    else the closest spelling (partciles -> particles); [] when none is close."""
+    return [name for name in names if name.startswith(key)][:3] or difflib.get_close_matches(key, names, n=1)
+
+
 def _build(cls: type[T], data: dict, prefix: str = "", base: Any = None) -> T:
     """``cls`` from ``data``: the keys it gives on top of ``base`` (an instance of ``cls``; None:
     the class's defaults). A nested section builds on the field's own default, so a section whose
@@ -150,7 +156,7 @@ def _build(cls: type[T], data: dict, prefix: str = "", base: Any = None) -> T:
     unknown = sorted(set(data) - set(fields), key=str)
     if unknown:
         homes = [home for key in unknown for home in _homes(cls, key, prefix)] or [
-            prefix + near for key in unknown for near in difflib.get_close_matches(str(key), sorted(fields), n=1)]
+            prefix + near for key in unknown for near in _nearest(str(key), sorted(fields))]
         raise ConfigError(f"unknown config key(s) {', '.join(prefix + str(k) for k in unknown)}; "
                           f"known: {', '.join(prefix + k for k in sorted(fields))}"
                           + (f" (did you mean {' or '.join(homes)}?)" if homes else ""))
