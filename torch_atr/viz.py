@@ -247,10 +247,6 @@ def save_figures(figures: dict, folder: str | Path) -> None:
 
 # --- tracking figures (chapter 6.2) -------------------------------------------------------------
 
-def _rows_column(rows: list[dict], name: str) -> np.ndarray:
-    return np.array([float(r.get(name, math.nan)) for r in rows], dtype=np.float64)
-
-
 def _note_no_estimate(ax) -> None:
     """Say so in an axes of a run in which no frame had an estimate, rather than draw it empty."""
     ax.text(0.5, 0.5, "no estimate: no frame had a target to start on", transform=ax.transAxes,
@@ -261,10 +257,11 @@ def alpha_figure(rows: list[dict], model, title: str):
     """α over time with the class arcs as coloured bands and the two nearest training vehicles
     of the sequence as dashed lines (Fig. 6.10). rows: estimate rows. Returns a Figure."""
     from torch_atr.evaluation import best_matches
+    from torch_atr.tracking.filter import column
 
     plt = pyplot()
     colours = plt.get_cmap("tab10")
-    t, alpha = _rows_column(rows, "time_s"), _rows_column(rows, "alpha")
+    t, alpha = column(rows, "time_s"), column(rows, "alpha")
     fig, ax = plt.subplots(figsize=(9, 4.5))
     for c, start, end in model.identity.class_arcs():
         for lo, hi in ((start, min(end, 2 * math.pi)), (0.0, end - 2 * math.pi)):
@@ -293,11 +290,12 @@ def error_figure(rows: list[dict], title: str):
     """Horizontal, range and aspect errors over time (Fig. 6.8), with their means. Returns a Figure
     (None when the rows carry no truth)."""
     from torch_atr.evaluation import wrapped_abs
+    from torch_atr.tracking.filter import column
 
-    t = _rows_column(rows, "time_s")
-    errors = [("horizontal |x̂ − x|", "m", np.abs(_rows_column(rows, "x") - _rows_column(rows, "true_x"))),
-              ("range |ẑ − z|", "m", np.abs(_rows_column(rows, "z") - _rows_column(rows, "true_z"))),
-              ("aspect |θ̂ − θ|", "rad", wrapped_abs(_rows_column(rows, "theta") - _rows_column(rows, "true_theta")))]
+    t = column(rows, "time_s")
+    errors = [("horizontal |x̂ − x|", "m", np.abs(column(rows, "x") - column(rows, "true_x"))),
+              ("range |ẑ − z|", "m", np.abs(column(rows, "z") - column(rows, "true_z"))),
+              ("aspect |θ̂ − θ|", "rad", wrapped_abs(column(rows, "theta") - column(rows, "true_theta")))]
     errors = [error for error in errors if np.isfinite(error[2]).any()]  # no x, z without a camera
     if not errors:
         return None
@@ -318,14 +316,16 @@ def error_figure(rows: list[dict], title: str):
 def view_figure(rows: list[dict], title: str):
     """The view Θ = (θ, φ) over the run on the view manifold (Fig. 6.15): azimuth against
     elevation, in degrees, coloured by time, with the truth where known. Returns a Figure."""
+    from torch_atr.tracking.filter import column
+
     plt = pyplot()
     fig, ax = plt.subplots(figsize=(8, 4.5))
-    t = _rows_column(rows, "time_s")
-    true_theta, true_phi = _rows_column(rows, "true_theta"), _rows_column(rows, "true_phi")
+    t = column(rows, "time_s")
+    true_theta, true_phi = column(rows, "true_theta"), column(rows, "true_phi")
     if np.isfinite(true_theta).any():
         ax.plot(np.degrees(true_theta) % 360, np.degrees(true_phi), ".", ms=3, color="crimson", label="truth")
-    phi = np.degrees(_rows_column(rows, "phi"))
-    theta = _rows_column(rows, "theta")
+    phi = np.degrees(column(rows, "phi"))
+    theta = column(rows, "theta")
     sc = ax.scatter(np.degrees(theta) % 360, phi, c=t, s=8, cmap="viridis", label="estimate")
     if not np.isfinite(theta).any():
         _note_no_estimate(ax)
