@@ -70,6 +70,9 @@ def test_read_image_gives_the_pixels_as_stored_and_names_a_bad_file(tmp_path):
     got = read_image(tmp_path / "grey16.png")
     assert got.dtype == np.uint16 and np.array_equal(got, grey16)
     assert np.array_equal(read_image(tmp_path / "rgb.png"), rgb[..., ::-1])  # OpenCV's BGR order
+    assert np.array_equal(read_image(tmp_path / "grey16.png", (7, 5), "meta.json"), grey16)
+    with pytest.raises(InputError, match=r"grey16.png: image is 7 x 5 px; meta.json says 5 x 7$"):
+        read_image(tmp_path / "grey16.png", (5, 7), "meta.json")
     (tmp_path / "text.png").write_text("not an image")
     with pytest.raises(InputError, match=f"^{re.escape(str(tmp_path / 'text.png'))}: cannot be read as an image"):
         read_image(tmp_path / "text.png")

@@ -127,11 +127,16 @@ def image_file_size(path: str | os.PathLike) -> tuple[int, int]:
     return image_size(str(path), width, height)
 
 
-def read_image(path: str | os.PathLike) -> np.ndarray:
+def read_image(path: str | os.PathLike, expect_size: tuple[int, int] | None = None,
+               expected_by: str = "") -> np.ndarray:
     """An image file's pixels as stored (OpenCV's ``IMREAD_UNCHANGED``: (H, W) grey or (H, W, C)
-    BGR, 8 or 16 bits), its header checked by :func:`image_file_size` before decoding; InputError
-    naming the file for one that is too large or cannot be decoded."""
-    image_file_size(path)
+    BGR, 8 or 16 bits), its header checked by :func:`image_file_size` before decoding, and against
+    ``expect_size`` (width, height) if given (``expected_by`` names what expects it); InputError
+    naming the file for one that is too large, of another size or cannot be decoded."""
+    width, height = image_file_size(path)
+    if expect_size is not None and (width, height) != tuple(expect_size):
+        raise InputError(f"{path}: image is {width} x {height} px; {expected_by} says {expect_size[0]} x "
+                         f"{expect_size[1]}")
     try:
         img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
     except cv2.error as exc:

@@ -35,8 +35,8 @@ from tqdm import tqdm
 
 from torch_atr.data.sequence import (MAX_CAMERA_HEIGHT_M, TEXT_FIELDS, TRUTH_FIELDS, FrameTruth, Sequence,
                                      load_camera_json, register_scheme)
-from torch_atr.validate import (InputError, image_file_size, image_size, integer, parse_real, read_image,
-                                read_json_object, read_text, real, show)
+from torch_atr.validate import (InputError, image_size, integer, parse_real, read_image, read_json_object, read_text,
+                                real, show)
 
 logger = logging.getLogger(__name__)
 
@@ -100,11 +100,7 @@ class FolderSequence(Sequence):
 
     def _read_frame(self, i: int) -> np.ndarray:
         path = self.folder / "frames" / _frame_filename(i)
-        width, height = image_file_size(path)  # from the header: no decoding of a huge claimed size
-        if (height, width) != self._shape[:2]:
-            raise InputError(f"{path}: image is {width} x {height} px; meta.json says {self._shape[1]} x "
-                             f"{self._shape[0]}")
-        img = read_image(path)
+        img = read_image(path, (self._shape[1], self._shape[0]), "meta.json")  # a wrong size found before decoding
         if img.ndim == 3 and img.shape[2] == 3:
             img = cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
         if img.shape != self._shape or img.dtype != self._dtype:
