@@ -13,13 +13,15 @@ ratio of the two medians at the same particle count, measured in this run (with 
 the GPU's filter against the CPU's loop). The tracker's segmentation is also timed alone (no
 particles), the floor under every row: back to back, and with its calls a frame period apart,
 idle in between, as a live camera feeds them (slower: docs/tracking.md, "Speed across hosts");
-and inside the step, between the filter's tensor operations. Frames per second are the median
+with ``--segmentation-gaps`` also with that many milliseconds of busy waiting between calls; and
+inside the step, between the filter's tensor operations. Frames per second are the median
 step's; the rate over all frames is printed beside it, since re-detection searches the blob on
 a few frames only (by default once, 10 frames after the start; ``redetect``) and the median does
 not see it.
 
     python benchmarks/bench_track.py [--particles 250 500 1000 2000 4000 8000 16000] [--frames 60]
-        [--device cpu] [--checkpoint checkpoints/default.pt] [--set filter.likelihood_px=16] [--json OUT]
+        [--device cpu] [--checkpoint checkpoints/default.pt] [--set filter.likelihood_px=16]
+        [--segmentation-gaps 1 3 12 33] [--json OUT]
 """
 
 from __future__ import annotations
@@ -165,15 +167,23 @@ def reference_fps(model, seq, frames, n: int, tracker_cfg: TrackerConfig) -> flo
     return 1.0 / statistics.median(times)
 
 
-def segmentation_ms(seq, frames, tracker_cfg: TrackerConfig, period_s: float = 0.0) -> float:
+def busy_wait(seconds: float) -> None:
+    """Keep the CPU busy, touching no memory, for ``seconds``."""
+    end = time.perf_counter() + seconds
+    while time.perf_counter() < end:
+        pass
+
+
+def segmentation_ms(seq, frames, tracker_cfg: TrackerConfig, between=None) -> float:
     """Median milliseconds of the tracker's segmentation alone (its settings, no predicted region),
-    outside the profiler: the floor under every frame's time, whatever the particle count. With
-    ``period_s`` > 0 the calls start that far apart, idle in between, as a live camera feeds them."""
+    outside the profiler: the floor under every frame's time, whatever the particle count.
+    ``between(last_s)``, if given, runs before every call but the first, given the last call's
+    seconds: idle or busy time between the calls (a live camera's period, the filter's share)."""
     seg = warmed_segmenter(seq, tracker_cfg)
     times = []
     for frame in frames:
-        if times and period_s > 0:
-            time.sleep(max(period_s - times[-1], 0.0))
+        if times and between is not None:
+            between(times[-1])
         start = time.perf_counter()
         seg(frame)
         times.append(time.perf_counter() - start)
@@ -214,8 +224,12 @@ def main() -> None:
     parser.add_argument("--checkpoint", default=str(SHIPPED))
     parser.add_argument("--set", nargs="*", default=[], metavar="KEY=VALUE",
                         help="tracker config overrides, e.g. filter.likelihood_px=16")
+    parser.add_argument("--segmentation-gaps", type=float, nargs="*", default=[], metavar="MS",
+                        help="also time the segmentation alone with this much busy waiting (ms) between its calls")
     parser.add_argument("--json", help="also write the numbers here")
     args = parser.parse_args()
+    if any(not 0 <= gap <= 1e3 for gap in args.segmentation_gaps):
+        parser.error(f"--segmentation-gaps must be in [0, 1000] ms; got {args.segmentation_gaps}")
     if min(args.particles + [args.reference_particles, args.reference_frames]) < 1:
         parser.error("--particles, --reference-particles and --reference-frames must be at least 1")
     if args.skip < 0 or args.frames < max(args.skip + 1, PROFILE_WARMUP + 1):
@@ -248,11 +262,17 @@ def main() -> None:
     log.info("per-particle reference at N = %d: %.3f frames/s; the batched filter is %.0fx faster", n_ref, ref,
              batched / ref)
     seg_ms = segmentation_ms(seq, frames, tracker_config(n_ref, args.set))
-    live_ms = segmentation_ms(seq, frames, tracker_config(n_ref, args.set), 1 / seq.fps)
+    period = 1 / seq.fps  # a live camera: each call starts a frame period after the last, idle in between
+    live_ms = segmentation_ms(seq, frames, tracker_config(n_ref, args.set),
+                              lambda last: time.sleep(max(period - last, 0.0)))
     log.info("segmentation alone (MOG2 with the tracker's settings, on the CPU): %.1f ms per frame back to back, "
              "%.1f ms with the calls %.0f ms apart as a live camera feeds them (medians of %d); inside the step at "
              "N = %d: %.1f ms (docs/tracking.md, \"Speed across hosts\")", seg_ms, live_ms, 1e3 / seq.fps,
              len(frames), n_ref, in_step_ms[n_ref])
+    gap_ms = {gap: segmentation_ms(seq, frames, tracker_config(n_ref, args.set),
+                                   lambda _, gap=gap: busy_wait(gap / 1e3)) for gap in args.segmentation_gaps}
+    for gap, ms in gap_ms.items():
+        log.info("segmentation alone with %g ms of busy waiting before each call: %.1f ms", gap, ms)
     stages = profile(model, seq, frames, n_ref, args.device, args.set)
     log.info("where the time goes at N = %d (ms per frame, cumulative):", n_ref)
     for name, ms in sorted(stages.items(), key=lambda kv: -kv[1]):
@@ -261,6 +281,7 @@ def main() -> None:
         atomic_write_text(json.dumps({"runs": rows, "reference": {"particles": n_ref, "frames_per_second": ref,
                                                                    "speed_up": batched / ref},
                                       "segmentation_ms": seg_ms, "segmentation_live_ms": live_ms,
+                                      "segmentation_busy_gap_ms": gap_ms,
                                       "segmentation_in_step_ms": in_step_ms,
                                       "profile_ms": stages,
                                       "threads": torch.get_num_threads()}, indent=2),
