@@ -194,3 +194,36 @@ def test_unwritable_outputs_are_named_before_the_work(tmp_path):
             pass
     check_writable(tmp_path / "new" / "model.pt")
     assert (tmp_path / "new").is_dir() and not any((tmp_path / "new").iterdir())
+
+
+def test_a_run_that_fails_before_writing_leaves_the_earlier_run_as_it_was(tmp_path):
+    run = tmp_path / "run"
+    with claimed_output_dir(run, "run", replaces=("report.json",)):
+        for name in ("report.json", "figure.png", "events.out.tfevents.1.host"):
+            (run / name).write_text(name)
+    earlier = {p.name: p.read_text() for p in run.iterdir()}
+    with pytest.raises(ValueError):
+        with claimed_output_dir(run, "run", replaces=("report.json",)):
+            assert {p.name for p in run.iterdir()} == {RUN_CLAIM, "figure.png", ".report.json.replaced",
+                                                       ".events.out.tfevents.1.host.replaced"}
+            raise ValueError("a bad frame, found by the work")
+    assert {p.name: p.read_text() for p in run.iterdir()} == earlier
+    (run / RUN_CLAIM).unlink()  # a finished run of an older version: its files alone
+    earlier.pop(RUN_CLAIM)
+    with pytest.raises(KeyboardInterrupt):
+        with claimed_output_dir(run, "run", replaces=("report.json",)):
+            raise KeyboardInterrupt
+    assert {p.name: p.read_text() for p in run.iterdir()} == earlier
+    with pytest.raises(ValueError):  # once it wrote something, the earlier run's marker and events are gone
+        with claimed_output_dir(run, "run", replaces=("report.json",)):
+            (run / "figure.png").write_text("new")
+            raise ValueError("late")
+    assert {p.name for p in run.iterdir()} == {RUN_CLAIM, "figure.png"}
+
+
+def test_files_a_killed_run_set_aside_go_at_the_next_claim(tmp_path):
+    (tmp_path / RUN_CLAIM).write_text("{}")
+    (tmp_path / ".report.json.replaced").write_text("old")  # set aside by a run that was killed
+    with claimed_output_dir(tmp_path, "run", replaces=("report.json",)):
+        (tmp_path / "report.json").write_text("new")
+    assert {p.name for p in tmp_path.iterdir()} == {RUN_CLAIM, "report.json"}

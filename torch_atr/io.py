@@ -200,24 +200,49 @@ def claimed_output_dir(folder: Path, what: str, replaces: tuple[str, ...] = ()) 
 
     Of the run it replaces, the files named in ``replaces`` (its marker, so that the folder reads
     as interrupted until this run finishes; outputs this run may not write again) and the
-    TensorBoard event files (or TensorBoard shows two runs as one) are removed. If the block
-    raises before anything else was written, the claim (and a folder it created) goes.
+    TensorBoard event files (or TensorBoard shows two runs as one) are set aside (renamed
+    ``.NAME.replaced``) and deleted when the block ends. If the block raises before anything was
+    written (say a bad frame or value the work found), they come back and a claim it made (and a
+    folder it created) goes: the earlier run is as it was. Files set aside by a killed run are deleted.
     """
-    created = not folder.exists()
+    created, claimed = not folder.exists(), (folder / RUN_CLAIM).exists()
     try:
         atomic_write_text(json.dumps({"format": RUN_CLAIM, "what": what}) + "\n", folder / RUN_CLAIM)
     except OSError as exc:
         raise OSError(exc.errno, f"cannot write the {what} into {folder}: {exc.strerror}") from None
-    for old in [folder / name for name in replaces] + list(folder.glob("events.out.tfevents.*")):
-        old.unlink(missing_ok=True)
+    for left in folder.glob(f".*{_SET_ASIDE}"):
+        left.unlink(missing_ok=True)
+    olds = [folder / name for name in replaces if (folder / name).exists()] + list(folder.glob("events.out.tfevents.*"))
+    before = _listing(folder, skip=olds)
+    aside = [(old, old.with_name(f".{old.name}{_SET_ASIDE}")) for old in olds]
+    for old, kept in aside:
+        os.replace(old, kept)
     try:
         yield folder
     except BaseException:
-        if all(entry.name == RUN_CLAIM or _is_stale_temp(entry) for entry in folder.iterdir()):
-            (folder / RUN_CLAIM).unlink(missing_ok=True)
-            if created and not any(folder.iterdir()):
+        if _listing(folder, skip=[kept for _, kept in aside]) == before:  # nothing written: undo the claim
+            for old, kept in aside:
+                os.replace(kept, old)
+            if not claimed:
+                (folder / RUN_CLAIM).unlink(missing_ok=True)
+            if created and all(_is_stale_temp(entry) for entry in folder.iterdir()):
+                for entry in folder.iterdir():
+                    entry.unlink()
                 folder.rmdir()
         raise
+    finally:
+        for _, kept in aside:
+            kept.unlink(missing_ok=True)
+
+
+_SET_ASIDE = ".replaced"  # claimed_output_dir: the suffix of a replaced run's files until the new run ends
+
+
+def _listing(folder: Path, skip: list[Path]) -> dict[str, tuple[int, int]]:
+    """{name: (mtime ns, size)} of the entries of ``folder`` but ``skip`` and killed writes' temp files."""
+    names = {p.name for p in skip}
+    return {e.name: (e.stat().st_mtime_ns, e.stat().st_size) for e in folder.iterdir()
+            if e.name not in names and not _is_stale_temp(e)}
 
 
 def check_writable(path: str | os.PathLike) -> None:
