@@ -32,6 +32,9 @@ from torch_atr.training import trained_catalog, training_templates
 log = logging.getLogger("track")
 REPO = Path(__file__).resolve().parent
 SETTLE_FRAMES = 60  # metrics.json's "settled" block: the frames after a blind start's first 2 s
+# The summary line's errors: label, metrics.json key, format, unit.
+ERRORS = (("horizontal", "horizontal_error_m", ".2f", "m"), ("range", "range_error_m", ".1f", "m"),
+          ("aspect", "aspect_error_rad", ".2f", "rad"))
 
 # Command-line flags: the config key each sets, its metavar and what it means (defaults: configs/track.yaml).
 FLAGS = {
@@ -69,28 +72,32 @@ def main(argv: list[str] | None = None) -> dict:
     flags += [f"{name}=true" for name in ("tensorboard", "video") if getattr(args, name)]
     cfg = load_config(TrackConfig, args.config, flags + args.overrides)
 
-    # 1. The model, the sequence and (for Method IV) the training templates. A bad input is
-    # reported before the run folder is checked: a typo in --sequence is not "runs/track exists".
+    # 1. The model, the sequence, the run folder and the tracker. A bad input is reported before
+    # the run folder is checked (a typo in --sequence is not "runs/track exists"), and a value the
+    # tracker refuses before the folder is claimed.
     model, extra = load_checkpoint(resolve(cfg.checkpoint), map_location=cfg.device)
     sequence = open_sequence(cfg.sequence)
     out = check_output_dir(cfg.out, args.overwrite, "metrics.json", is_track_run, "tracking run")
+    tracker = make_tracker(cfg, model, trained_catalog(extra), sequence)
     with claimed_output_dir(out, "tracking run", replaces=("metrics.json", "overlay.mp4")):
-        return _track(cfg, model, trained_catalog(extra), sequence, out)
+        return _track(cfg, model, tracker, sequence, out)
 
 
-def _track(cfg: TrackConfig, model: GenerativeShapeModel, catalog: str, sequence, out: Path) -> dict:
-    """Track ``sequence`` and write the run folder ``out``; returns the metrics. ``catalog``: the
-    model's training vehicles (Method IV renders them)."""
+def make_tracker(cfg: TrackConfig, model: GenerativeShapeModel, catalog: str, sequence) -> Tracker | BlobTracker:
+    """The tracker of ``cfg`` for ``sequence``: without a camera, view and identity on the normalised
+    blob (thesis 6.3). ``catalog``: the model's training vehicles (Method IV renders them)."""
     templates = training_templates(model, catalog) if cfg.tracker.filter.method == "IV" else None
-
-    # 2. Track: warm-up, initialisation and the particle filter over every frame; without a camera,
-    # view and identity on the normalised blob (thesis 6.3).
     options = dict(device=cfg.device, seed=cfg.seed, templates=templates)
     if sequence.camera is None:
         log.info("%s has no camera calibration: tracking view and identity on the blob, no 3D", sequence.name)
-        tracker = BlobTracker(model, cfg.tracker, **options)
-    else:
-        tracker = Tracker(model, sequence.camera, cfg.tracker, **options)
+        return BlobTracker(model, cfg.tracker, **options)
+    return Tracker(model, sequence.camera, cfg.tracker, **options)
+
+
+def _track(cfg: TrackConfig, model: GenerativeShapeModel, tracker: Tracker | BlobTracker, sequence, out: Path
+           ) -> dict:
+    """Track ``sequence`` with ``tracker`` and write the run folder ``out``; returns the metrics."""
+    # 2. Track: warm-up, initialisation and the particle filter over every frame.
     result = tracker.run(sequence, cfg.frames)
     metrics = run_summary(result, model, SETTLE_FRAMES)
 
@@ -105,10 +112,9 @@ def _track(cfg: TrackConfig, model: GenerativeShapeModel, catalog: str, sequence
 
     log.info("%s: %d frames at %.1f frames/s, %d lost", sequence.name, metrics["frames"],
              metrics["frames_per_second"], metrics["lost_frames"])
-    if metrics["horizontal_error_m"] is not None:
-        log.info("errors: horizontal %.2f m, range %.1f m, aspect %.2f rad; recognition %s; converged at frame %s",
-                 metrics["horizontal_error_m"], metrics["range_error_m"], metrics["aspect_error_rad"],
-                 metrics["recognition_accuracy"], metrics["frames_to_convergence"])
+    summary = truth_summary(metrics)
+    if summary:
+        log.info("%s", summary)
     if metrics["best_matches"]:
         overlap = metrics["overlap_ratio"]
         log.info("best matches: %s; overlap ratio %s", ", ".join(metrics["best_matches"]),
@@ -120,6 +126,19 @@ def _track(cfg: TrackConfig, model: GenerativeShapeModel, catalog: str, sequence
     written += [f"TensorBoard events (tensorboard --logdir {out.parent})"] * cfg.tensorboard
     log.info("wrote %s: %s", out, ", ".join(written))
     return metrics
+
+
+def truth_summary(metrics: dict) -> str:
+    """The summary's measures against the truth, those the sequence's truth allows ("" for none): a
+    sequence may know positions but no class, or a class alone."""
+    errors = ", ".join(f"{label} {metrics[key]:{spec}} {unit}" for label, key, spec, unit in ERRORS
+                       if metrics[key] is not None)
+    parts = [errors]
+    if metrics["recognition_accuracy"] is not None:
+        converged = metrics["frames_to_convergence"]
+        parts += [f"recognition {metrics['recognition_accuracy']}",
+                  "never converged" if converged is None else f"converged at frame {converged}"]
+    return "; ".join(part for part in parts if part)
 
 
 if __name__ == "__main__":

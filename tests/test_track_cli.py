@@ -79,9 +79,33 @@ def test_an_existing_run_is_kept_unless_overwrite(run, tmp_path):
     names = {p.name for p in copy.iterdir()}
     assert "overlay.mp4" not in names and not any(n.startswith("events.out") for n in names)
     assert json.loads((copy / "metrics.json").read_text())["frames"] == 2 and "frames.png" in names
+    # A run that fails, on a value the tracker refuses or on a sequence midway, leaves the earlier run as it was.
+    from torch_atr.data import open_sequence
+    from torch_atr.data.folder import save_sequence
+
+    unknown = save_sequence(open_sequence(SHORT), tmp_path / "no_truth", progress=False)
+    (unknown / "truth.csv").unlink()
+    earlier = {p.name: p.read_bytes() for p in copy.iterdir()}
+    with pytest.raises(ValueError, match="likelihood_px=7"):
+        track.main(["--sequence", SHORT, "--out", str(copy), "--overwrite", "tracker.filter.likelihood_px=7"])
+    with pytest.raises(ValueError, match="needs ground truth"):
+        track.main(["--sequence", str(unknown), "--init", "truth", "--out", str(copy), "--overwrite"])
+    assert {p.name: p.read_bytes() for p in copy.iterdir()} == earlier
     # An unusable folder is found before the frames are tracked.
     with pytest.raises(OSError, match=f"cannot write the tracking run into {foreign / 'notes.txt' / 'sub'}"):
         track.main(["--sequence", SHORT, "--out", str(foreign / "notes.txt" / "sub")])
+
+
+def test_the_summary_names_what_the_truth_allows():
+    full = {"horizontal_error_m": 0.371, "range_error_m": 28.46, "aspect_error_rad": 0.259,
+            "recognition_accuracy": 1.0, "frames_to_convergence": 1}
+    assert track.truth_summary(full) == ("horizontal 0.37 m, range 28.5 m, aspect 0.26 rad; recognition 1.0; "
+                                         "converged at frame 1")  # the README's quick start
+    positions = {**full, "aspect_error_rad": None, "recognition_accuracy": None, "frames_to_convergence": None}
+    assert track.truth_summary(positions) == "horizontal 0.37 m, range 28.5 m"  # truth.csv of x, y, z only
+    classes = dict.fromkeys(full) | {"recognition_accuracy": 0.5}
+    assert track.truth_summary(classes) == "recognition 0.5; never converged"
+    assert track.truth_summary(dict.fromkeys(full)) == ""
 
 
 @pytest.mark.parametrize("args, message", [
