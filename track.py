@@ -79,7 +79,7 @@ def main(argv: list[str] | None = None) -> dict:
     sequence = open_sequence(cfg.sequence)
     out = check_output_dir(cfg.out, args.overwrite, "metrics.json", is_track_run, "tracking run")
     tracker = make_tracker(cfg, model, trained_catalog(extra), sequence)
-    with claimed_output_dir(out, "tracking run", replaces=("metrics.json", "overlay.mp4")):
+    with claimed_output_dir(out, "tracking run", replaces=("metrics.json", "estimates.csv", "config.yaml", "*.png", "overlay.mp4")):
         return _track(cfg, model, tracker, sequence, out)
 
 

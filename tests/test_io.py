@@ -227,3 +227,12 @@ def test_files_a_killed_run_set_aside_go_at_the_next_claim(tmp_path):
     with claimed_output_dir(tmp_path, "run", replaces=("report.json",)):
         (tmp_path / "report.json").write_text("new")
     assert {p.name for p in tmp_path.iterdir()} == {RUN_CLAIM, "report.json"}
+
+
+def test_replaced_outputs_are_named_by_patterns(tmp_path):
+    for name in ("report.json", "a.png", "b.png", "notes.txt"):
+        (tmp_path / name).write_text(name)
+    with claimed_output_dir(tmp_path, "run", replaces=("report.json", "*.png")):
+        (tmp_path / "a.png").write_text("new")
+    assert {p.name: p.read_text() for p in tmp_path.iterdir() if p.name != RUN_CLAIM} == {"a.png": "new",
+                                                                                       "notes.txt": "notes.txt"}

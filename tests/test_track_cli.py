@@ -91,6 +91,9 @@ def test_an_existing_run_is_kept_unless_overwrite(run, tmp_path):
     with pytest.raises(ValueError, match="needs ground truth"):
         track.main(["--sequence", str(unknown), "--init", "truth", "--out", str(copy), "--overwrite"])
     assert {p.name: p.read_bytes() for p in copy.iterdir()} == earlier
+    # A run without truth draws no error figure: the replaced run's does not stay behind.
+    track.main(["--sequence", str(unknown), "--particles", "50", "--out", str(copy), "--overwrite", "--frames", "2"])
+    assert "errors_over_time.png" in earlier and "errors_over_time.png" not in {p.name for p in copy.iterdir()}
     # An unusable folder is found before the frames are tracked.
     with pytest.raises(OSError, match=f"cannot write the tracking run into {foreign / 'notes.txt' / 'sub'}"):
         track.main(["--sequence", SHORT, "--out", str(foreign / "notes.txt" / "sub")])

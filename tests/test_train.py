@@ -77,9 +77,12 @@ def test_reduced_training_writes_a_loadable_checkpoint_and_logs(tmp_path):
     with pytest.raises(OutputExistsError, match=rf"{notes} exists and is not a checkpoint; refusing .*even with "):
         _run(tmp_path, *TINY, f"checkpoint={notes}", "name=other", flags=["--overwrite"])
     assert notes.read_text() == "precious" and (ckpt.read_bytes(), report_path.read_text()) == before
+    stale = tmp_path / "runs/test/model.pt"  # the replaced run's checkpoint, where this run writes none
+    stale.write_bytes(ckpt.read_bytes())
     _, second = _run(tmp_path, *TINY, flags=["--overwrite"])
     assert json.loads(report_path.read_text())["views"] == second["views"] == 6 * 2
     assert not list((tmp_path / "runs/test").glob("events.out.tfevents.*"))  # the replaced run's logs went with it
+    assert not stale.exists()  # nor its model beside this run's report
     assert GenerativeShapeModel.from_checkpoint(ckpt).core.pixel_rank == 8
 
 

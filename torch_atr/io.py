@@ -198,10 +198,11 @@ def claimed_output_dir(folder: Path, what: str, replaces: tuple[str, ...] = ()) 
     it, creating it, before anything else, so that an unwritable folder is found before the work
     and a run killed midway leaves a folder that ``--overwrite`` may replace.
 
-    Of the run it replaces, the files named in ``replaces`` (its marker, so that the folder reads
-    as interrupted until this run finishes; outputs this run may not write again) and the
+    Of the run it replaces, the files ``replaces`` names (glob patterns: its marker, so that the
+    folder reads as interrupted until this run finishes, and every other output, since this run
+    may not write the same ones: a model.pt beside a report of another model misleads) and the
     TensorBoard event files (or TensorBoard shows two runs as one) are set aside (renamed
-    ``.NAME.replaced``) and deleted when the block ends. If the block raises before anything was
+    ``.NAME.replaced``) and deleted when the block ends; other files in the folder stay. If the block raises before anything was
     written (say a bad frame or value the work found), they come back and a claim it made (and a
     folder it created) goes: the earlier run is as it was. Files set aside by a killed run are deleted.
     """
@@ -212,7 +213,7 @@ def claimed_output_dir(folder: Path, what: str, replaces: tuple[str, ...] = ()) 
         raise OSError(exc.errno, f"cannot write the {what} into {folder}: {exc.strerror}") from None
     for left in folder.glob(f".*{_SET_ASIDE}"):
         left.unlink(missing_ok=True)
-    olds = [folder / name for name in replaces if (folder / name).exists()] + list(folder.glob("events.out.tfevents.*"))
+    olds = sorted({p for pattern in (*replaces, "events.out.tfevents.*") for p in folder.glob(pattern) if p.is_file()})
     before = _listing(folder, skip=olds)
     aside = [(old, old.with_name(f".{old.name}{_SET_ASIDE}")) for old in olds]
     for old, kept in aside:
