@@ -1,7 +1,12 @@
+import dataclasses
+from pathlib import Path
+
 import pytest
 
 from torch_atr.config import ConfigError, ModelConfig, TemplateConfig, load_config
 from torch_atr.training import TrainConfig, ViewGridConfig
+
+REPO = Path(__file__).resolve().parents[1]
 
 
 def test_yaml_then_overrides_then_types(tmp_path):
@@ -9,16 +14,28 @@ def test_yaml_then_overrides_then_types(tmp_path):
     path.write_text("name: a\ntemplate:\n  size_px: 32\nmodel:\n  pixel_rank: null\n")
     cfg = load_config(TrainConfig, path, ["template.window_m=10", "model.ridge=1e-3", "name=b"])
     assert cfg.name == "b" and cfg.template == TemplateConfig(size_px=32, window_m=10.0)
-    assert cfg.model == ModelConfig(pixel_rank=None, ridge=1e-3)
+    assert cfg.model == ModelConfig(pixel_rank=None, ridge=1e-3, width_steps=50)  # 50: the shipped default
     assert isinstance(cfg.template.window_m, float)
+
+
+def test_the_defaults_are_the_shipped_config(tmp_path):
+    """TrainConfig() is configs/default.yaml (the file is the reference), so a config file that
+    leaves keys out, whole sections or single keys of one, gets the shipped values for them."""
+    shipped = load_config(TrainConfig, REPO / "configs/default.yaml")
+    assert TrainConfig() == shipped
+    assert (shipped.model.width_steps, shipped.model.width_lr) == (50, 0.05)  # the keys once left at 0 and 0.02
+    path = tmp_path / "c.yaml"
+    path.write_text("name: onlyname\n")
+    assert load_config(TrainConfig, path) == dataclasses.replace(shipped, name="onlyname")
+    path.write_text("model:\n  ridge: 1.0e-3\n")
+    assert load_config(TrainConfig, path).model == dataclasses.replace(shipped.model, ridge=1e-3)
+    assert load_config(TrainConfig, None, ["model.ridge=1e-3"]).model == dataclasses.replace(shipped.model, ridge=1e-3)
 
 
 def test_a_section_keeps_its_own_defaults_for_the_keys_not_given(tmp_path):
     """The tracker's segmentation section defaults to the feedback segmentation, not to
     SegmentationConfig()'s frozen background: one key given, in an override or a YAML section,
     one or two levels down, must leave the section's other defaults as they were."""
-    import dataclasses
-
     from torch_atr.segmentation import SegmentationConfig
     from torch_atr.tracking import TrackerConfig
     from torch_atr.tracking.filter import tracker_segmentation

@@ -320,7 +320,9 @@ class ModelConfig:
 
     The RBF centres are the training views (Nc = V). ``ridge`` is λ of the regularised least
     squares of every Bᵏ (eq. 4.13) on templates in [−1, 1]; ``width_steps`` > 0 tunes the kernel
-    widths on held-out views with Adam at ``width_lr`` before the final fit.
+    widths on held-out views with Adam at ``width_lr`` before the final fit. The class defaults
+    tune nothing, as :meth:`GenerativeShapeModel.fit` has no held-out views unless given them;
+    ``TrainConfig.model`` defaults to the shipped model's 50 steps (configs/default.yaml).
     """
 
     pixel_rank: int | None = 128  # r of the truncated pixel basis, in [1, 512²]; null keeps all d pixels
@@ -328,7 +330,7 @@ class ModelConfig:
     init_width: float | None = None  # kernel width (chord) in [0.001, 4]; null: mean nearest-centre chord
     class_penalty: float | None = None  # a of eq. 4.8 in [0, 1e12]; null: (K + 1)·max D₀, keeps classes contiguous
     width_steps: int = 0  # Adam steps tuning the widths on validation views, at most 100000
-    width_lr: float = 0.02  # Adam learning rate on log(width), in (0, 10]
+    width_lr: float = 0.05  # Adam learning rate on log(width), in (0, 10]
 
     def __post_init__(self) -> None:
         if self.pixel_rank is not None and not 1 <= self.pixel_rank <= MAX_TEMPLATE_PX ** 2:
