@@ -7,8 +7,8 @@ from pathlib import Path
 
 import pytest
 
-from torch_atr.io import (RUN_CLAIM, OutputExistsError, atomic_path, atomic_write_text, check_output_dir,
-                          check_output_file, check_writable, claimed_output_dir)
+from torch_atr.io import (RUN_CLAIM, OutputExistsError, atomic_path, atomic_write_csv, atomic_write_text,
+                          check_output_dir, check_output_file, check_writable, claimed_output_dir)
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -236,3 +236,14 @@ def test_replaced_outputs_are_named_by_patterns(tmp_path):
         (tmp_path / "a.png").write_text("new")
     assert {p.name: p.read_text() for p in tmp_path.iterdir() if p.name != RUN_CLAIM} == {"a.png": "new",
                                                                                        "notes.txt": "notes.txt"}
+
+
+def test_csv_columns_keep_the_rows_order_when_the_first_row_has_fewer_keys(tmp_path):
+    lost = {"frame": 0, "time_s": 0.0, "lost": 1, "mask_area_px": 0, "step_ms": 2.5, "true_x": 1.0}
+    tracked = {"frame": 1, "time_s": 0.5, "lost": 0, "mask_area_px": 9, "x": 1.5, "overlap": 0.75, "step_ms": 3.0,
+               "true_x": 1.25}
+    atomic_write_csv([lost, tracked], tmp_path / "estimates.csv")
+    assert (tmp_path / "estimates.csv").read_text() == (
+        "frame,time_s,lost,mask_area_px,x,overlap,step_ms,true_x\n"
+        "0,0,1,0,,,2.5,1\n"
+        "1,0.5,0,9,1.5,0.75,3,1.25\n")

@@ -475,7 +475,9 @@ def test_bad_inputs_raise(model, btr):
         with pytest.raises(ValueError, match=r"Expected dt, the seconds since the previous frame, to be positive"):
             tracker.step(mask=np.zeros(size, dtype=bool), dt=dt)
     assert tracker._clock == 0.0 and tracker._frames == 1
-    assert tracker.step(mask=np.zeros(size, dtype=bool), dt=0.5)["lost"] == 1 and tracker._clock == 0.5
+    row = tracker.step(mask=np.zeros(size, dtype=bool), dt=0.5)
+    assert row["lost"] == 1 and row["time_s"] == 0.5  # a live loop's rows carry the time its dt values add up to
+    assert tracker.step(mask=np.zeros(size, dtype=bool), dt=0.25)["time_s"] == 0.75
     with pytest.raises(ValueError, match="device 'tpu' is not available"):
         Tracker(model, btr.camera, _config("filter.particles=10"), device="tpu")
     for frames in (0, -1, 3.5, True, "3"):  # 3.5 was tracked as 3 frames

@@ -119,10 +119,10 @@ def atomic_write_text(text: str, path: str | os.PathLike) -> None:
 
 
 def atomic_write_csv(rows: list[dict], path: str | os.PathLike, columns: list[str] | None = None) -> None:
-    """Write dict rows as CSV atomically: header = ``columns`` (default: every key, first-seen
-    order); missing values and NaN are empty cells; floats keep 6 significant digits."""
+    """Write dict rows as CSV atomically: header = ``columns`` (default: :func:`column_order`);
+    missing values and NaN are empty cells; floats keep 6 significant digits."""
     if columns is None:
-        columns = list(dict.fromkeys(key for row in rows for key in row))
+        columns = column_order(rows)
 
     def cell(value) -> str:
         if value is None or (isinstance(value, float) and math.isnan(value)):
@@ -134,6 +134,22 @@ def atomic_write_csv(rows: list[dict], path: str | os.PathLike, columns: list[st
     writer.writerow(columns)
     writer.writerows([cell(row.get(c)) for c in columns] for row in rows)
     atomic_write_text(buffer.getvalue(), path)
+
+
+def column_order(rows: list[dict]) -> list[str]:
+    """Every key of dict rows once, each after the key before it in the first row that has it: the
+    rows' own order, whichever row comes first (a first row with fewer keys, say a frame without an
+    estimate, does not push the later rows' keys to the end)."""
+    order: list[str] = []
+    for keys in dict.fromkeys(tuple(row) for row in rows):  # each distinct key sequence once
+        at = 0
+        for key in keys:
+            if key in order:
+                at = order.index(key) + 1
+            else:
+                order.insert(at, key)
+                at += 1
+    return order
 
 
 def check_output_file(path: str | os.PathLike, overwrite: bool, is_ours: Callable[[Path], bool], what: str) -> Path:

@@ -466,7 +466,7 @@ class Tracker:
                 self._unexplained += 1
                 if self._unexplained == _UNEXPLAINED_WARNING:
                     self._warn_unexplained(mask, float(log_lik.max()), floor, side)
-        row = {"frame": self._frames, "lost": int(lost), "mask_area_px": area}
+        row = {"frame": self._frames, "time_s": self._clock, "lost": int(lost), "mask_area_px": area}
         if self.initialised:
             row.update(self._estimate())
             if observed:
@@ -875,7 +875,6 @@ class Tracker:
             start = time.perf_counter()
             row = self.step(frame)
             seconds += time.perf_counter() - start
-            row = {"frame": row["frame"], "time_s": i * self.dt, **row}  # time beside the frame number
             truth = sequence.truth(i)
             if truth is not None:
                 row.update(truth_columns(truth))
