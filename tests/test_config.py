@@ -1,7 +1,9 @@
 import dataclasses
+import math
 from pathlib import Path
 
 import pytest
+import torch
 
 from torch_atr.config import ConfigError, ModelConfig, TemplateConfig, load_config
 from torch_atr.training import TrainConfig, ViewGridConfig
@@ -71,6 +73,8 @@ def test_a_section_keeps_its_own_defaults_for_the_keys_not_given(tmp_path):
     ("model:\n  ridge: 1e300\n", r"model.ridge must be in \[0, 1000\]; got 1e\+300"),
     ("model:\n  init_width: 100\n", r"model.init_width must be in \[0.001, 4\]"),
     ("views:\n  azimuth_step_deg: 1e-9\n", "give 360000000000 x 5 = 1800000000000 views; expected at most 10000"),
+    ("views:\n  azimuth_step_deg: 7\n", r"views.azimuth_step_deg=7 must divide 360 \(e.g. 6 or 8\): 360/7 = 51.43 "
+                                          r"azimuths would leave a step of 10° where they wrap"),
     ("seed: 1\nname: a\nseed: 2\n", r"key 'seed' repeated \(first on line 1\).*line 3"),
     ("template:\n  size_px: 32\n  size_px: 64\n", "key 'size_px' repeated"),
     ("name: ../../..\n", "name must be a plain folder name.*got '../../..'"),
@@ -180,6 +184,24 @@ def test_view_grid_matches_chapter_6_1():
     assert len(vt) == 300
     seen = {(round(float(a), 6), round(float(b), 6)) for a, b in zip(vt, vp)}
     assert not seen & {(round(float(a), 6), round(float(b), 6)) for a, b in zip(th, ph)}
+
+
+@pytest.mark.parametrize("step, suggested", [(13, "12 or 15"), (100, "90 or 120"), (170, "120 or 180"),
+                                             (0.7, "0.6 or 0.8")])
+def test_an_azimuth_step_must_divide_360(step, suggested):
+    """A step that does not divide 360 would leave an odd gap where the azimuths wrap; the message
+    names the key and value and the nearest steps either side that divide 360 (by hand)."""
+    with pytest.raises(ConfigError, match=rf"^override views.azimuth_step_deg={step}: views.azimuth_step_deg={step} "
+                                          rf"must divide 360 \(e.g. {suggested}\)"):
+        load_config(TrainConfig, None, [f"views.azimuth_step_deg={step}"])
+
+
+@pytest.mark.parametrize("step, azimuths", [(7.5, 48), (0.3, 1200), (360 / 7, 7), (180, 2)])
+def test_a_step_that_divides_360_gives_evenly_spaced_azimuths(step, azimuths):
+    theta, _ = ViewGridConfig(azimuth_step_deg=step, elevation_max_deg=0).grid()
+    assert len(theta) == azimuths
+    gaps = torch.diff(theta, append=theta[:1] + 2 * math.pi)  # the last one across the wrap
+    assert torch.allclose(gaps, torch.full_like(gaps, 2 * math.pi / azimuths))
 
 
 def test_a_text_key_takes_its_value_as_written():

@@ -30,9 +30,21 @@ REPORT_FORMAT = "torch_atr.train_report"  # the "format" of train.py's report.js
 _RUN_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]{0,99}")
 
 
+def _dividing_steps(step: float) -> tuple[float, float]:
+    """The steps in (0, 180] nearest ``step`` below and above it that divide 360 (degrees): whole
+    degrees, or for a step under 1° multiples of its leading decimal place (0.7 -> 0.6 or 0.8)."""
+    unit = min(1.0, 10.0 ** math.floor(math.log10(step)))
+    units = round(360.0 / unit)  # 360° in units
+    steps = [k * unit for k in range(1, units // 2 + 1) if units % k == 0]
+    return max(s for s in steps if s < step), min(s for s in steps if s > step)
+
+
 @dataclass(frozen=True)
 class ViewGridConfig:
-    """The training views: azimuths 0, s_θ, … < 360°, elevations 0, s_φ, … ≤ φ_max (degrees)."""
+    """The training views: azimuths 0, s_θ, … < 360°, elevations 0, s_φ, … ≤ φ_max (degrees).
+
+    s_θ must divide 360°, so the azimuths are evenly spaced across the wrap too.
+    """
 
     azimuth_step_deg: float = 12.0
     elevation_step_deg: float = 10.0
@@ -50,6 +62,13 @@ class ViewGridConfig:
             raise ConfigError(f"views: azimuth_step_deg={self.azimuth_step_deg:g} and elevation_step_deg="
                               f"{self.elevation_step_deg:g} give {n_theta} x {n_phi} = {n_theta * n_phi} views; "
                               f"expected at most {MAX_VIEWS}")
+        per_turn = 360.0 / self.azimuth_step_deg  # azimuths in 360°
+        if abs(per_turn - n_theta) > 1e-9 * per_turn:
+            below, above = _dividing_steps(self.azimuth_step_deg)
+            wrap = 360.0 - (n_theta - 1) * self.azimuth_step_deg
+            raise ConfigError(f"views.azimuth_step_deg={self.azimuth_step_deg:g} must divide 360 (e.g. {below:g} or "
+                              f"{above:g}): 360/{self.azimuth_step_deg:g} = {per_turn:.4g} azimuths would leave a step "
+                              f"of {wrap:.3g}° where they wrap")
 
     @property
     def counts(self) -> tuple[int, int]:
