@@ -176,6 +176,25 @@ def test_video_errors(tmp_path):
             VideoSequence(tmp_path / "junk.avi", fps=bad)
 
 
+def test_a_video_cut_short_gives_the_frames_it_holds(avi, tmp_path, caplog):
+    """A truncated file's header still claims every frame: the sequence is as long as what reads."""
+    cut = tmp_path / "cut.avi"
+    data = avi.read_bytes()
+    cut.write_bytes(data[: len(data) * 6 // 10])
+    cap = cv2.VideoCapture(str(cut))
+    assert int(cap.get(cv2.CAP_PROP_FRAME_COUNT)) == N  # the claim
+    held = 0
+    while cap.read()[0]:  # the reference: read from the start until a frame fails
+        held += 1
+    cap.release()
+    assert 0 < held < N
+    seq = VideoSequence(cut)
+    assert len(seq) == held and "claims 12 frames but only the first" in caplog.text
+    whole = VideoSequence(avi)
+    for i in (held - 1, 0, held - 1):
+        np.testing.assert_array_equal(seq.frame(i), whole.frame(i))
+
+
 def test_image_headers_are_checked_before_decoding(tmp_path):
     import struct
     import zlib

@@ -118,9 +118,10 @@ class VideoSequence(Sequence):
         except InputError:
             cap.release()
             raise
+        n = _readable_frames(cap, n, p)
         rate = cap.get(cv2.CAP_PROP_FPS)
         fourcc = int(cap.get(cv2.CAP_PROP_FOURCC))
-        self._cap, self._pos, self._n = cap, 0, n
+        self._cap, self._pos, self._n = cap, -1, n  # -1: the first read seeks to its frame
         self.name = p.stem
         self.fps = rate if 0 < rate < math.inf else math.nan
         self.meta = {"path": self.path, "kind": "video", "color": self.color, "video_fps": rate,
@@ -156,6 +157,29 @@ class VideoSequence(Sequence):
         if self._cap is not None:
             self._cap.release()
             self._cap = None
+
+
+def _readable_frames(cap: cv2.VideoCapture, count: int, path: Path) -> int:
+    """The frames of an opened video that can be read: ``count``, the header's claim, when its last
+    frame reads; else the frames before the first that does not (found by bisection, log₂ count
+    seeks), with a warning: a truncated file (a copy cut short, a recording stopped hard) claims
+    frames it no longer holds. The capture's position is left anywhere."""
+    def reads(i: int) -> bool:
+        cap.set(cv2.CAP_PROP_POS_FRAMES, i)
+        return cap.grab()
+
+    if reads(count - 1):
+        return count
+    if not reads(0):
+        cap.release()
+        raise InputError(f"{path}: cannot read its first frame (the video claims {count})")
+    good, bad = 0, count - 1
+    while bad - good > 1:
+        mid = (good + bad) // 2
+        good, bad = (mid, bad) if reads(mid) else (good, mid)
+    logger.warning("%s: the video claims %d frames but only the first %d can be read (cut short?); those are used",
+                   path, count, bad)
+    return bad
 
 
 _TRUE = ("1", "true", "yes", "on")
