@@ -25,6 +25,8 @@ pytorch-kinematics only supplies the link poses.
 from __future__ import annotations
 
 import dataclasses
+import io
+import logging
 import math
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass, field
@@ -37,6 +39,8 @@ import pytorch_kinematics as pk
 import torch
 import trimesh
 
+log = logging.getLogger(__name__)
+
 CLASS_NAMES = ("tank", "apc", "pickup", "suv", "car", "minivan")
 UNKNOWN = "unknown"  # class of a held-out vehicle outside CLASS_NAMES
 
@@ -47,6 +51,7 @@ _AXES = {
 _CYLINDER_SECTIONS = 16
 MIN_THICKNESS_M = 0.05  # load_vehicle's default: thinner protrusions are trimmed from mesh files
 _SLAB_M = 0.01  # slab thickness of thick_bounds
+_TEXT_MESHES = (".obj", ".off")  # text formats decoded here (_mesh_text), not by trimesh
 
 
 def body_rotation(up_axis: str, forward_axis: str) -> np.ndarray:
@@ -274,13 +279,40 @@ def _centring_offset(v: np.ndarray) -> np.ndarray:
     return np.array([-(lo[0] + hi[0]) / 2, -(lo[1] + hi[1]) / 2, -lo[2]])
 
 
-def _read_mesh(path: Path, process: bool) -> trimesh.Trimesh:
+def _mesh_text(path: Path) -> tuple[str, str]:
+    """A text mesh file's content, and a note for error messages.
+
+    UTF-8, else Latin-1 (every byte is a Latin-1 character; OBJ and OFF numbers and keywords are
+    ASCII in both, so only comments and names can come out garbled), with a warning. trimesh would
+    guess the encoding with charset_normalizer, which is not a dependency. The note is "" or says
+    the file was read as Latin-1.
+    """
+    data = path.read_bytes()
     try:
-        mesh = trimesh.load(path, force="mesh", process=process)
+        return data.decode("utf-8"), ""
+    except UnicodeDecodeError as exc:
+        log.warning("%s is not UTF-8 (byte 0x%02x at byte offset %d); reading it as Latin-1, in which its "
+                    "comments and names may come out garbled", path, data[exc.start], exc.start)
+        return data.decode("latin-1"), " (not UTF-8 text: read as Latin-1)"
+
+
+def _read_mesh(path: Path, process: bool) -> trimesh.Trimesh:
+    """The mesh a file holds, as one Trimesh; ValueError naming the file when it cannot be read or
+    holds no triangles. OBJ and OFF text is decoded by :func:`_mesh_text`."""
+    note = ""
+    try:
+        if path.suffix.lower() in _TEXT_MESHES:
+            text, note = _mesh_text(path)
+            mesh = trimesh.load(io.StringIO(text), file_type=path.suffix.lower()[1:], force="mesh", process=process,
+                                resolver=trimesh.resolvers.FilePathResolver(path))  # mtllib beside the file
+        else:
+            mesh = trimesh.load(path, force="mesh", process=process)
     except Exception as exc:  # trimesh raises many types for unreadable files
-        raise ValueError(f"could not read mesh {path}: {exc}") from exc
+        if isinstance(exc, ImportError) and exc.name == "charset_normalizer":  # trimesh's guess at a text's encoding
+            raise ValueError(f"could not read mesh {path}: its text is not UTF-8; save it as UTF-8") from exc
+        raise ValueError(f"could not read mesh {path}{note}: {exc}") from exc
     if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
-        raise ValueError(f"mesh file {path} holds no triangles")
+        raise ValueError(f"mesh file {path} holds no triangles{note}")
     if not np.isfinite(mesh.vertices).all():
         raise ValueError(f"mesh file {path} has non-finite vertices")
     return mesh
