@@ -1,6 +1,7 @@
 """Sequence abstraction, open_sequence and our folder format: round trips and malformed input."""
 
 import json
+import logging
 import math
 import os
 import re
@@ -457,7 +458,7 @@ def test_unknown_scheme_is_looked_up_as_a_module(monkeypatch):
     assert imported == ["torch_atr.data.plugged", "torch_atr.data.missing"]
 
 
-def test_load_camera_json_errors(tmp_path):
+def test_load_camera_json_errors(tmp_path, caplog):
     cam = _camera(40, 30)
     path = tmp_path / "cam.json"
     path.write_text(json.dumps(cam.to_dict()))
@@ -472,6 +473,17 @@ def test_load_camera_json_errors(tmp_path):
         load_camera_json(path)
     with pytest.raises(FileNotFoundError, match="nope.json"):
         load_camera_json(tmp_path / "nope.json")
+    # R is the tilt from the ground-levelled world, a rotation: a reflection is named with its file and key.
+    d = cam.to_dict()
+    d["R"] = [[1, 0, 0], [0, 1, 0], [0, 0, -1]]
+    path.write_text(json.dumps(d))
+    with pytest.raises(ValueError, match=re.escape(f"{path}, key 'R': det R = -1, a reflection")):
+        load_camera_json(path)
+    d["R"] = [[1, 0, 0], [0, -1, 0], [0, 0, -1]]  # det +1, but turned 180 degrees about x: looking back
+    path.write_text(json.dumps(d))
+    with caplog.at_level(logging.WARNING):
+        load_camera_json(path)
+    assert "optical axis 180 degrees away from the world's forward z" in caplog.text
 
 
 def test_camera_size_must_match_frames(tmp_path):

@@ -15,6 +15,7 @@ from scipy.optimize import fsolve
 
 from clips import Clip
 from references import bilinear
+from torch_atr.camera import Camera
 from torch_atr.config import ConfigError, load_config
 from torch_atr.data.synthetic import SceneConfig, SyntheticSequence
 from torch_atr.model import GenerativeShapeModel
@@ -490,6 +491,9 @@ def test_bad_inputs_raise(model, btr):
     for args, kwargs, message in [
             (("checkpoints/default.pt", btr.camera, config), {}, "Expected model to be a GenerativeShapeModel"),
             ((model, None, config), {}, r"Expected camera to be a Camera; got NoneType .*BlobTracker"),
+            ((model, Camera.from_opencv(np.diag([1e4, 1e4, 1.0]), np.zeros(5), np.zeros(3), np.zeros(3), 640, 512),
+              config), {},
+             r"sensor-like .* got det R = -1\.000"),  # found once the first blob was placed, after the warm-up
             ((model, btr.camera, {"filter": {"particles": 10}}), {}, "Expected config to be a TrackerConfig"),
             ((model, btr.camera, config), {"seed": "0"}, "Expected seed to be an integer; got '0'")]:
         with pytest.raises(ValueError, match=message):

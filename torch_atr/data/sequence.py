@@ -22,6 +22,7 @@ import abc
 import dataclasses
 import difflib
 import importlib
+import logging
 import math
 import numbers
 import operator
@@ -35,6 +36,8 @@ import numpy as np
 
 from torch_atr.camera import Camera
 from torch_atr.validate import InputError, read_json_object, show
+
+logger = logging.getLogger(__name__)
 
 TEXT_FIELDS: frozenset[str] = frozenset({"vehicle", "vehicle_class"})
 MAX_CAMERA_HEIGHT_M = 1e4  # a camera height above the ground (Sequence.camera_height_m) is in (0, this] metres
@@ -315,7 +318,24 @@ def parse_reader_spec(scheme: str, rest: str, extra: tuple[str, ...] = ()) -> tu
 
 
 def load_camera_json(path: str | Path) -> Camera:
-    """A :class:`Camera` from a ``Camera.to_dict()`` JSON file; errors name the file (and key)."""
+    """A sequence's :class:`Camera` from a ``Camera.to_dict()`` JSON file; errors name the file (and key).
+
+    Its world frame is the ground-levelled one the tracker works in (x right, y up, z forward;
+    README, "Conventions"), so R, the camera's tilt, must be a proper rotation (det +1): a
+    reflection is refused here rather than by the tracker after the warm-up. A camera whose optical
+    axis points away from the world's forward z (R[2][2] <= 0: looking back, or straight down) is
+    logged as a warning: its ranges come out negative.
+    """
     path = Path(path)
     d = read_json_object(path, f"Camera calibration file not found: {path}")
-    return Camera.from_dict(d, source=str(path))
+    camera = Camera.from_dict(d, source=str(path))
+    R = np.array(camera.R.tolist())
+    if np.linalg.det(R) < 0:
+        raise InputError(f"{path}, key 'R': det R = -1, a reflection; a sequence's R takes the ground-levelled world "
+                         f"(x right, y up, z forward) to the sensor frame, a rotation with det +1 (README, "
+                         f"\"Conventions\")")
+    if R[2, 2] <= 0:
+        logger.warning("%s: R turns the camera's optical axis %.0f degrees away from the world's forward z; R is "
+                       "the camera's tilt (README, \"Conventions\"), and ranges along a backward axis come out "
+                       "negative", path, math.degrees(math.acos(np.clip(R[2, 2], -1, 1))))
+    return camera

@@ -60,7 +60,7 @@ from torch_atr.camera import Camera
 from torch_atr.config import ConfigError
 from torch_atr.data.sequence import FrameTruth, Sequence
 from torch_atr.model import GenerativeShapeModel
-from torch_atr.pose import VehiclePose, camera_centre, view_of_pose
+from torch_atr.pose import VehiclePose, camera_centre, check_sensor_like, view_of_pose
 from torch_atr.segmentation import ForegroundSegmenter, SegmentationConfig, static_background_frames
 from torch_atr.tracking.appearance import METHODS, ShapeAppearance
 from torch_atr.tracking.estimates import (
@@ -327,6 +327,8 @@ class Tracker:
         if self.needs_camera and not isinstance(camera, Camera):
             raise ValueError(f"Expected camera to be a Camera; got {type(camera).__name__} (an uncalibrated sequence: "
                              f"track its blob with BlobTracker)")
+        if self.needs_camera:
+            check_sensor_like(camera)  # before any work: it was found only once the first blob was placed
         if config is not None and not isinstance(config, TrackerConfig):
             raise ValueError(f"Expected config to be a TrackerConfig (load_config(TrackerConfig, path, overrides)); "
                              f"got {type(config).__name__}")
