@@ -34,6 +34,15 @@ def test_success_returns_and_bugs_keep_their_traceback():
         run_main(buggy, [])
 
 
+def test_ctrl_c_is_one_line_and_status_130(capsys):
+    def main(argv):
+        raise KeyboardInterrupt
+
+    with pytest.raises(SystemExit) as info:
+        run_main(main, [], prog="train.py")
+    assert info.value.code == 130 and capsys.readouterr().err == "\ntrain.py: interrupted\n"
+
+
 def test_console_log_lines_stay_clear_of_progress_bars():
     """A record logged while a tqdm bar is drawn gets a line of its own (the bar is redrawn
     below it), where a plain stream handler appends it to the bar's text."""

@@ -208,7 +208,8 @@ def test_methods_snap_what_they_should(model, method):
 
 
 def test_method_iv_needs_templates_of_the_right_shape(model):
-    with pytest.raises(ValueError, match="Method IV needs the training templates"):
+    with pytest.raises(ValueError, match=r"Method IV needs the training templates .*: pass "
+                                         r"templates=torch_atr.training.training_templates\(model\)"):
         ShapeAppearance(model, "IV")
     with pytest.raises(ValueError, match=r"templates of shape"):
         ShapeAppearance(model, "IV", templates=torch.zeros(3, 4, 64, 64))

@@ -24,17 +24,21 @@ USER_ERRORS: tuple[type[BaseException], ...] = (ValueError, OSError)
 def run_main(main: Callable[[list[str] | None], object], argv: list[str] | None = None,
              prog: str | None = None) -> None:
     """Call ``main(argv)``; on a user error print ``PROG: error: MESSAGE`` (one line) to stderr and
-    exit with status 2. ``prog`` defaults to the script's file name.
+    exit with status 2; on Ctrl-C print ``PROG: interrupted`` and exit with status 130 (the
+    shell's for SIGINT), without a traceback. ``prog`` defaults to the script's file name.
 
     Use as ``if __name__ == "__main__": run_main(main)``; tests call ``main`` directly.
     """
+    prog = prog or Path(sys.argv[0]).name
     try:
         main(argv)
     except USER_ERRORS as exc:
-        prog = prog or Path(sys.argv[0]).name
         message = " ".join(str(exc).split()) or type(exc).__name__
         print(f"{prog}: error: {message}", file=sys.stderr)
         raise SystemExit(2) from None
+    except KeyboardInterrupt:
+        print(f"\n{prog}: interrupted", file=sys.stderr)
+        raise SystemExit(130) from None
 
 
 class _ConsoleHandler(logging.StreamHandler):

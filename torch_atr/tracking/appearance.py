@@ -78,7 +78,8 @@ class ShapeAppearance(nn.Module):
         self.register_buffer("gram", (basis.T @ basis).contiguous())  # (r, r) BᵀB, for ‖y‖² = cᵀ G c
         if method == "IV":
             if templates is None:
-                raise ValueError("Method IV needs the training templates (K, V, S, S); see training.render_set")
+                raise ValueError("Method IV needs the training templates (K, V, S, S): pass "
+                                 "templates=torch_atr.training.training_templates(model)")
             if tuple(templates.shape) != (K, V, S, S):
                 raise ValueError(f"Expected templates of shape {(K, V, S, S)} (vehicles, RBF-centre views, pixels); "
                                  f"got {tuple(templates.shape)}")
