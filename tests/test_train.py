@@ -2,6 +2,7 @@
 
 import json
 import math
+import re
 import shutil
 import subprocess
 import sys
@@ -122,7 +123,7 @@ def _own_catalog(folder: Path) -> None:
         "  - {file: camry_cm.obj, class: car, up: y, forward: -z, length: 4.88, name: camry}\n")
 
 
-def test_training_on_a_catalog_folder(tmp_path):
+def test_training_on_a_catalog_folder(tmp_path, caplog):
     folder = tmp_path / "mine"
     _own_catalog(folder)
     vehicles = load_catalog_folder(folder)
@@ -145,6 +146,16 @@ def test_training_on_a_catalog_folder(tmp_path):
     theta, phi = model.rbf.centres_theta, model.rbf.centres_phi
     truth = render_templates(load_catalog_vehicle("toyota_camry"), theta, phi, model.template)
     assert templates.shape[:2] == (4, len(theta)) and iou(templates[2] > 0, truth).min() > 0.98
+    assert "Method IV" not in caplog.text
+    # A catalog edited since training is named (Method IV would compare a 9 m Camry's templates).
+    manifest = folder / "catalog.yaml"
+    manifest.write_text(manifest.read_text().replace("length: 4.88", "length: 9.0"))
+    training_templates(model, trained_catalog(extra))
+    assert re.search(r"Method IV: has catalog .*mine changed since training\? Its camry \(0\.\d\d\) differ", caplog.text)
+    folder.rename(tmp_path / "moved")
+    with pytest.raises(FileNotFoundError, match="Method IV re-renders the training vehicles from the catalog the "
+                                                 f"checkpoint names: catalog manifest not found: {manifest}"):
+        training_templates(model, trained_catalog(extra))
 
 
 def test_catalog_manifest_errors_name_the_entry(tmp_path):
