@@ -151,7 +151,8 @@ def test_training_on_a_catalog_folder(tmp_path, caplog):
     manifest = folder / "catalog.yaml"
     manifest.write_text(manifest.read_text().replace("length: 4.88", "length: 9.0"))
     training_templates(model, trained_catalog(extra))
-    assert re.search(r"Method IV: has catalog .*mine changed since training\? Its camry \(0\.\d\d\) differ", caplog.text)
+    assert re.search(r"Method IV: has catalog .*mine changed since training\? Its camry \(0\.\d\d\) differ",
+                     caplog.text)
     folder.rename(tmp_path / "moved")
     with pytest.raises(FileNotFoundError, match="Method IV re-renders the training vehicles from the catalog the "
                                                  f"checkpoint names: catalog manifest not found: {manifest}"):
