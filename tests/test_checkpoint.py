@@ -2,6 +2,7 @@
 
 import logging
 import os
+import re
 import struct
 import zipfile
 
@@ -87,6 +88,15 @@ def test_checksum_survives_a_load_save_round_trip(model, saved, tmp_path):
     again = tmp_path / "again.pt"
     loaded.save(again, extra=extra)
     assert torch.load(again, weights_only=True)["sha256"] == torch.load(saved, weights_only=True)["sha256"]
+
+
+def test_a_model_that_would_not_load_is_not_saved(saved, tmp_path):
+    half = load_checkpoint(saved)[0].half()
+    path = tmp_path / "half.pt"
+    with pytest.raises(InputError, match=re.escape(f"{path} (not written, as it would not load): state_dict[") + ".*"
+                                         "float16; expected the model's one float dtype, float32 or float64"):
+        half.save(path)
+    assert not path.exists()
 
 
 def test_version_1_files_load_with_a_warning(model, saved, caplog):
