@@ -501,6 +501,21 @@ def test_bad_inputs_raise(model, btr):
             Tracker(*args, **kwargs)
 
 
+class _LateEntry(SyntheticSequence):
+    """The BTR-70 sequence whose first 4 frames hold no vehicle (the target-free background)."""
+
+    def frame(self, i: int) -> np.ndarray:
+        return next(self.warmup_frames(1)) if i < 4 else super().frame(i)
+
+
+def test_snapshots_go_to_the_frames_with_an_estimate(model):
+    seq = _LateEntry("btr_70", SceneConfig(frames=12))
+    result = Tracker(model, seq.camera, _config("filter.particles=100"), seed=0).run(seq, snapshots=4, progress=False)
+    assert [row["frame"] for row in result.rows if "alpha" in row][0] == 4  # blind, on the first blob
+    # One frame before the start shows the scene; three spread over frames 4-11: linspace(4, 11, 3) rounded.
+    assert [shot["frame"] for shot in result.snapshots] == [0, 4, 8, 11]
+
+
 def test_kernel_width_adaptation_moves_the_widths_towards_the_observation(btr):
     """adapt.every > 0: Adam steps on log(width) lower the squared error at the estimate."""
     model = GenerativeShapeModel.from_checkpoint(CKPT)  # its own copy: adaptation changes the widths

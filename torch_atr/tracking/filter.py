@@ -837,7 +837,8 @@ class Tracker:
         Args:
             sequence: an opened sequence with a camera (``data.open_sequence``).
             frames: track the first ``frames`` frames (default all).
-            snapshots: frames kept for figures, evenly spread.
+            snapshots: frames kept for figures, evenly spread over the frames from the first
+                estimate on (and the first frame, when the track starts later).
             progress: show a tqdm bar.
         Returns:
             A :class:`TrackResult` whose rows carry the truth (``true_*``) where the sequence has it.
@@ -870,13 +871,16 @@ class Tracker:
                 raise ValueError(f"{sequence.name}: init.mode=truth needs ground truth for frame 0; it has none "
                                  f"(use init.mode=blind)")
             self.initialise(first)
-        keep = set(np.linspace(0, n - 1, snapshots).round().astype(int).tolist()) if snapshots else set()
+        keep, started = _evenly(0, n - 1, snapshots), False
         rows, shots, seconds = [], [], 0.0
         for i in tqdm(range(n), desc=f"tracking {sequence.name}", unit="frame", disable=not progress, leave=False):
             frame = sequence.frame(i)
             start = time.perf_counter()
             row = self.step(frame)
             seconds += time.perf_counter() - start
+            if not started and "alpha" in row:  # the first estimate: the snapshots left go to the frames from here
+                started, shots = True, shots[:min(1, snapshots - 1)]  # a frame before a late start: the scene
+                keep = _evenly(i, n - 1, snapshots - len(shots))
             truth = sequence.truth(i)
             if truth is not None:
                 row.update(truth_columns(truth))
@@ -890,6 +894,11 @@ class Tracker:
         shape = self.last_mask.shape
         placed = self.silhouette_at(row, shape).cpu().numpy() if "alpha" in row else np.zeros(shape, dtype=bool)
         return {"frame": i, "image": self.segmenter.display(frame), "mask": self.last_mask, "silhouette": placed}
+
+
+def _evenly(first: int, last: int, count: int) -> set[int]:
+    """``count`` frames spread evenly over [first, last], both included where count >= 2."""
+    return set(np.linspace(first, last, count).round().astype(int).tolist()) if count > 0 else set()
 
 
 def column(rows: list[dict], name: str) -> np.ndarray:
