@@ -1,5 +1,6 @@
 import dataclasses
 import math
+import os
 from pathlib import Path
 
 import pytest
@@ -213,5 +214,19 @@ def test_a_text_key_takes_its_value_as_written():
     assert load_config(TrackConfig, None, ["out=2024"]).out == "2024"
     train = load_config(TrainConfig, None, ["name=2024", "checkpoint=null", "log_dir='my runs '"])
     assert (train.name, train.checkpoint, train.log_dir) == ("2024", None, "my runs ")  # quoted: YAML
-    assert load_config(TrainConfig, None, ["checkpoint=~/m.pt"]).checkpoint == "~/m.pt"
+    assert load_config(TrainConfig, None, ["checkpoint=~/m.pt"]).checkpoint == os.path.expanduser("~/m.pt")  # not null
     assert load_config(TrackConfig, None, ["seed=2024"]).seed == 2024  # other keys stay YAML
+
+
+def test_paths_from_config_files_expand_the_home_folder(tmp_path, monkeypatch):
+    """A config file's ~ is the user's home, as the shell makes it on the command line (not a folder named ~)."""
+    from torch_atr.tracking.job import TrackConfig
+    from torch_atr.training import TrainConfig
+
+    monkeypatch.setenv("HOME", str(tmp_path))
+    train = load_config(TrainConfig, None, ["checkpoint=~/m.pt", "log_dir=~/runs", "catalog=~/mine"])
+    home = tuple(str(tmp_path / p) for p in ("m.pt", "runs", "mine"))
+    assert (train.checkpoint, train.log_dir, train.catalog) == home
+    assert load_config(TrainConfig, None, []).catalog == "train"
+    track = load_config(TrackConfig, None, ["out=~/run", "checkpoint=~/m.pt"])
+    assert (track.out, track.checkpoint) == (str(tmp_path / "run"), str(tmp_path / "m.pt"))

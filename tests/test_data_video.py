@@ -139,6 +139,15 @@ def test_mixed_image_sizes(tmp_path):
         seq.frame(1)
 
 
+def test_home_in_a_spec_is_expanded(avi, tmp_path, monkeypatch):
+    """The shell does not expand a ~ after "video:" or "calib=": the reader does."""
+    monkeypatch.setenv("HOME", str(avi.parent))
+    (avi.parent / "cam.json").write_text(json.dumps(Camera(fx=100.0, fy=100.0, cx=32.0, cy=24.0, width=W,
+                                                           height=H).to_dict()))
+    seq = open_sequence(f"video:~/{avi.name},calib=~/cam.json")
+    assert len(seq) == N and seq.camera.fx == 100.0
+
+
 def test_calibration_option(avi, tmp_path):
     cam = Camera(600.0, 610.0, 31.5, 23.5, W, H, dist=[0.1, 0, 0, 0, 0])
     calib = tmp_path / "cam.json"

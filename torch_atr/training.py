@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import logging
 import math
+import os
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -135,6 +136,9 @@ class TrainConfig:
         for key, value in (("checkpoint", self.checkpoint), ("log_dir", self.log_dir)):
             if value is not None and (not value.strip() or "\0" in value):
                 raise ConfigError(f"{key} must be a path; got {show(value)}")
+        for key in ("checkpoint", "log_dir", "catalog"):  # ~ as a shell would, for paths from config files
+            if getattr(self, key) not in (None, "train"):
+                object.__setattr__(self, key, os.path.expanduser(getattr(self, key)))
 
     @property
     def run_dir(self) -> Path:

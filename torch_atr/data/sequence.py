@@ -233,7 +233,7 @@ def open_sequence(spec: str | os.PathLike) -> Sequence:
         raise InputError(f"Expected a sequence spec string; got {show(spec)}")
     m = _SPEC_RE.fullmatch(spec)
     if m is None:
-        scheme, rest = "folder", spec
+        scheme, rest = "folder", os.path.expanduser(spec)  # ~ as a shell would, for specs from config files
     else:
         scheme, rest = m.group(1).lower(), m.group(2)
     if scheme not in _SCHEMES:
@@ -310,8 +310,9 @@ def parse_reader_spec(scheme: str, rest: str, extra: tuple[str, ...] = ()) -> tu
     otherwise) and the ``extra`` options given, as strings. Errors name the spec.
     """
     target, options = parse_spec_options(rest, ("calib", "fps") + extra)
+    target = os.path.expanduser(target)  # ~ as a shell would: it does not expand one after "video:" or "calib="
     calib = options.pop("calib", None)
-    kwargs: dict = {"camera": None if calib is None else load_camera_json(calib)}
+    kwargs: dict = {"camera": None if calib is None else load_camera_json(os.path.expanduser(calib))}
     if "fps" in options:
         kwargs["fps"] = parse_fps(options.pop("fps"), f"{scheme}:{rest}")
     return target, kwargs, options

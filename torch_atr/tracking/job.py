@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -49,6 +50,8 @@ class TrackConfig:
             raise ConfigError(f"frames must be null or in [1, 1e7]; got {self.frames!r}")
         if not self.sequence.strip():
             raise ConfigError("sequence must be a sequence spec; got an empty string")
+        for key in ("checkpoint", "out"):  # ~ as a shell would, for paths from config files
+            object.__setattr__(self, key, os.path.expanduser(getattr(self, key)))
 
 
 def track_metrics(rows: list[dict], model, first: int = 0) -> dict:
