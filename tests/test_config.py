@@ -230,3 +230,13 @@ def test_paths_from_config_files_expand_the_home_folder(tmp_path, monkeypatch):
     assert load_config(TrainConfig, None, []).catalog == "train"
     track = load_config(TrackConfig, None, ["out=~/run", "checkpoint=~/m.pt"])
     assert (track.out, track.checkpoint) == (str(tmp_path / "run"), str(tmp_path / "m.pt"))
+
+
+def test_type_errors_say_what_was_expected_in_words():
+    from torch_atr.config import check_type
+
+    with pytest.raises(ConfigError, match=r"^name: expected text or null; got 2024 \(quote it for text\)$"):
+        check_type("name", 2024, str | None)  # a catalog's name: 2024 (YAML reads a number)
+    with pytest.raises(ConfigError, match=r"^length: expected a number or null; got '5'$"):
+        check_type("length", "5", float | None)  # quoted: text, as the README says
+    assert check_type("ridge", "1e-3", float) == 0.001 and check_type("x", "-2.5E+2", float) == -250.0  # YAML 1.1 text

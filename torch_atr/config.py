@@ -59,6 +59,17 @@ class TemplateConfig:
         return self.window_m / self.size_px
 
 
+_EXPONENT = re.compile(r"[-+]?(\d+\.?\d*|\.\d+)[eE][-+]?\d+")  # what YAML 1.1 leaves as text: 1e-3, 5E+2
+_KINDS = {bool: "true/false", int: "an integer", float: "a number", str: "text", type(None): "null"}
+
+
+def _describe(tp: Any) -> str:
+    """A config type in words, for errors: an integer, a number, text, null, a list, a mapping."""
+    if typing.get_origin(tp) in (list, tuple):
+        return "a list"
+    return "a mapping" if dataclasses.is_dataclass(tp) else _KINDS.get(tp, str(tp))
+
+
 def check_type(key: str, value: Any, tp: Any) -> Any:
     """Return ``value`` converted to ``tp`` where that is lossless, else raise ConfigError."""
     origin = typing.get_origin(tp)
@@ -68,7 +79,9 @@ def check_type(key: str, value: Any, tp: Any) -> Any:
                 return check_type(key, value, arm)
             except ConfigError:
                 continue
-        raise ConfigError(f"{key}: {show(value)} matches none of {tp}")
+        arms = typing.get_args(tp)
+        quote = " (quote it for text)" if str in arms and isinstance(value, (int, float)) else ""
+        raise ConfigError(f"{key}: expected {' or '.join(_describe(arm) for arm in arms)}; got {show(value)}{quote}")
     if tp is type(None):
         if value is None:
             return None
@@ -103,11 +116,8 @@ def check_type(key: str, value: Any, tp: Any) -> Any:
                 number = float(value)
             except OverflowError:  # an integer beyond float's range
                 number = math.inf
-        elif isinstance(value, str):  # YAML 1.1 reads 1e-3 (no dot) as a string
-            try:
-                number = float(value)
-            except ValueError:
-                pass
+        elif isinstance(value, str) and _EXPONENT.fullmatch(value.strip()):  # YAML 1.1 reads 1e-3 (no dot) as text;
+            number = float(value)  # any other text, a quoted '5' too, is not a number
         if number is None:
             raise ConfigError(f"{key}: expected a number; got {show(value)}")
         if not math.isfinite(number):
