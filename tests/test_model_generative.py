@@ -329,6 +329,13 @@ def test_fit_rejects_bad_inputs(data):
                                  ["car", "tank"], TEMPLATE)
     with pytest.raises(ValueError, match="out of range"):
         GenerativeShapeModel.fit(data["templates"], data["theta"], data["phi"], NAMES, CLASSES, ["car"], TEMPLATE)
+    with pytest.raises(ValueError, match=r"vehicle_classes as indices into class_names; got names \['car'"):
+        GenerativeShapeModel.fit(data["templates"], data["theta"], data["phi"], NAMES, ["car", "tank"] * 3,
+                                 ["car", "tank"], TEMPLATE)
+    bad = data["templates"].clone()
+    bad[1, 2, 3, 4] = math.nan
+    with pytest.raises(ValueError, match=r"Expected finite templates; 1 value\(s\) are NaN or infinite"):
+        GenerativeShapeModel.fit(bad, data["theta"], data["phi"], NAMES, CLASSES, ["car", "tank"], TEMPLATE)
 
 
 def test_model_config_from_yaml_and_overrides(tmp_path):

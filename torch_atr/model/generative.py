@@ -141,6 +141,12 @@ class GenerativeShapeModel(nn.Module):
             raise ValueError(f"Expected at least 2 vehicles for an identity manifold; got {K}")
         if not templates.is_floating_point():
             raise ValueError(f"Expected signed-distance templates (floating); got dtype {templates.dtype}")
+        if not bool(templates.isfinite().all()):
+            raise ValueError(f"Expected finite templates; {int((~templates.isfinite()).sum())} value(s) are NaN or "
+                             f"infinite")
+        if isinstance(vehicle_classes, (list, tuple)) and any(isinstance(c, str) for c in vehicle_classes):
+            raise ValueError(f"Expected vehicle_classes as indices into class_names; got names "
+                             f"{list(vehicle_classes)[:3]}... (e.g. [class_names.index(c) for c in classes])")
         labels = torch.as_tensor(vehicle_classes, dtype=torch.long, device=templates.device)
         check_shape("vehicle_classes", labels, (K,))
         if not 0 <= labels.min() <= labels.max() < len(class_names):
