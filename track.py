@@ -32,6 +32,7 @@ from torch_atr.training import trained_catalog, training_templates
 log = logging.getLogger("track")
 REPO = Path(__file__).resolve().parent
 SETTLE_FRAMES = 60  # metrics.json's "settled" block: the frames after a blind start's first 2 s
+OUTPUTS = ("metrics.json", "estimates.csv", "config.yaml", "*.png", "overlay.mp4")  # a run's files, all replaced
 # The summary line's errors: label, metrics.json key, format, unit.
 ERRORS = (("horizontal", "horizontal_error_m", ".2f", "m"), ("range", "range_error_m", ".1f", "m"),
           ("aspect", "aspect_error_rad", ".2f", "rad"))
@@ -84,7 +85,7 @@ def main(argv: list[str] | None = None) -> dict:
     sequence = open_sequence(cfg.sequence)
     out = check_output_dir(cfg.out, args.overwrite, "metrics.json", is_track_run, "tracking run")
     tracker = make_tracker(cfg, model, trained_catalog(extra), sequence)
-    with claimed_output_dir(out, "tracking run", replaces=("metrics.json", "estimates.csv", "config.yaml", "*.png", "overlay.mp4")):
+    with claimed_output_dir(out, "tracking run", replaces=OUTPUTS):
         return _track(cfg, model, tracker, sequence, out)
 
 

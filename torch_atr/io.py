@@ -28,6 +28,7 @@ import torch
 log = logging.getLogger(__name__)
 
 _TEMP_CHARS = "[a-z0-9_]{8}"  # tempfile's random part
+_SET_ASIDE = ".replaced"  # claimed_output_dir: the suffix of a replaced run's files until the new run ends
 _TEMP_SUFFIX = r"(\.[A-Za-z0-9]{1,8})?"  # an extension after .tmp, for writers that go by it (.mp4)
 _ANY_TEMP = re.compile(rf"\..+\.{_TEMP_CHARS}\.tmp{_TEMP_SUFFIX}")
 RUN_CLAIM = ".torch_atr_run"  # written into a run folder as a run starts: an interrupted run's folder stays ours
@@ -218,9 +219,10 @@ def claimed_output_dir(folder: Path, what: str, replaces: tuple[str, ...] = ()) 
     folder reads as interrupted until this run finishes, and every other output, since this run
     may not write the same ones: a model.pt beside a report of another model misleads) and the
     TensorBoard event files (or TensorBoard shows two runs as one) are set aside (renamed
-    ``.NAME.replaced``) and deleted when the block ends; other files in the folder stay. If the block raises before anything was
-    written (say a bad frame or value the work found), they come back and a claim it made (and a
-    folder it created) goes: the earlier run is as it was. Files set aside by a killed run are deleted.
+    ``.NAME.replaced``) and deleted when the block ends; other files in the folder stay. If the
+    block raises before anything was written (say a bad frame or value the work found), they come
+    back and a claim it made (and a folder it created) goes: the earlier run is as it was. Files
+    set aside by a killed run are deleted.
     """
     created, claimed = not folder.exists(), (folder / RUN_CLAIM).exists()
     try:
@@ -250,9 +252,6 @@ def claimed_output_dir(folder: Path, what: str, replaces: tuple[str, ...] = ()) 
     finally:
         for _, kept in aside:
             kept.unlink(missing_ok=True)
-
-
-_SET_ASIDE = ".replaced"  # claimed_output_dir: the suffix of a replaced run's files until the new run ends
 
 
 def _listing(folder: Path, skip: list[Path]) -> dict[str, tuple[int, int]]:
