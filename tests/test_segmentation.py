@@ -402,3 +402,24 @@ def test_segmenter_finds_the_faint_barrel_only_with_thin_parts():
     assert (masks[0.0] == hull).all()
     assert (masks[9.0] >= hull | barrel).all()
     assert not (masks[9.0] & ~hull & ~barrel & ~_near(hull, (14, 30))).any()
+
+
+def test_nan_pixels_are_no_data_not_foreground():
+    """A NaN patch of a float frame takes the background's value: the target stays the blob."""
+    seg, texture, rng = _warmed("float32")
+    target = _rect(100, 40, 20, 10)
+    frame = _frame("float32", texture, [target], rng)
+    frame[70:100, 10:40] = np.nan  # 900 px of no data, bigger than the 200 px target
+    frame[5] = np.nan  # and a whole row
+    mask = seg(frame)
+    assert _iou(mask, target) > 0.8 and not mask[70:100, 10:40].any() and not mask[5].any()
+    assert seg.contrast(frame, target) > 0  # measured on the target's finite pixels
+    assert not seg(np.full((H, W), np.nan, np.float32)).any()  # a frame of no data has no target
+
+
+def test_colour_frames_are_rgb_like_the_sequences():
+    """Sequences give RGB: a colour frame segments like its grey (RGB weights), not with R and B swapped."""
+    rgb = np.zeros((H, W, 3), np.uint8)
+    rgb[..., 0] = 200  # pure red
+    assert to_grey("f", rgb, (np.uint8,), "RGB")[0, 0] == round(0.299 * 200)  # ITU-R BT.601 weights
+    assert to_grey("f", rgb, (np.uint8,))[0, 0] == round(0.114 * 200)  # OpenCV's images are BGR

@@ -62,17 +62,19 @@ def as_float_tensor(name: str, x, like: torch.Tensor | None = None) -> torch.Ten
     return torch.as_tensor(arr, dtype=dtype, device=device)
 
 
-def to_grey(name: str, image, dtypes: Sequence[type | np.dtype]) -> np.ndarray:
+def to_grey(name: str, image, dtypes: Sequence[type | np.dtype], order: str = "BGR") -> np.ndarray:
     """Check a numpy image and return it grey, keeping its dtype.
 
     Args:
         name: the argument's name, for error messages.
-        image: (H, W) grey, returned as it is, or (H, W, 3) BGR, converted with OpenCV's
-            weights (float64 via float32).
+        image: (H, W) grey, returned as it is, or (H, W, 3) in channel ``order``, converted with
+            OpenCV's weights (float64 via float32).
         dtypes: the accepted dtypes, among uint8, uint16, float32 and float64.
+        order: "BGR" (OpenCV's images) or "RGB" (this package's sequences).
     Returns:
         (H, W) of ``image``'s dtype.
     """
+    code = {"BGR": cv2.COLOR_BGR2GRAY, "RGB": cv2.COLOR_RGB2GRAY}[order]
     if not isinstance(image, np.ndarray):
         raise ValueError(f"Expected {name} to be a numpy array; got {type(image).__name__}")
     if image.dtype not in dtypes:
@@ -82,6 +84,6 @@ def to_grey(name: str, image, dtypes: Sequence[type | np.dtype]) -> np.ndarray:
         return image
     if image.ndim == 3 and image.shape[2] == 3:
         if image.dtype == np.float64:
-            return cv2.cvtColor(image.astype(np.float32), cv2.COLOR_BGR2GRAY).astype(np.float64)
-        return cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
+            return cv2.cvtColor(image.astype(np.float32), code).astype(np.float64)
+        return cv2.cvtColor(image, code)
     raise ValueError(f"Expected {name} to have shape (H, W) or (H, W, 3); got {image.shape}")

@@ -33,7 +33,9 @@ frames, so the map does not change from frame to frame and MOG2's statistics sta
 robust range [lo, hi] between two percentiles of the warm-up pixels is widened by ``headroom``
 times its width on each side (room for targets warmer or colder than any background) and mapped
 to [0, 255]; values outside are clipped. uint8 grey frames are used as they are; colour frames
-(H, W, 3, BGR) are converted to grey first.
+(H, W, 3, RGB, as the sequences give them) are converted to grey first. A pixel that is NaN or
+infinite in a float frame has no data: it takes the background's value, so it is never
+foreground (and is left out of the gain fit).
 """
 
 from __future__ import annotations
@@ -216,6 +218,13 @@ _THIN_REACH_PX = 2.0  # ... and how far beyond it a part must reach (3 x 3 chamf
 _THIN_SEARCH_PX = 32  # ... and the margin round the blob in which its thin parts are looked for first
 
 
+def _described(frame) -> str:
+    """A frame's shape and dtype, or its type if it is not an array, for errors."""
+    if isinstance(frame, np.ndarray):
+        return f"shape {frame.shape}, dtype {frame.dtype}"
+    return f"a {type(frame).__name__}"
+
+
 def _box_mask(shape: tuple[int, int], box: Box | None) -> np.ndarray:
     """(H, W) bool: True inside the box (clipped to the image); all False for None or an empty box."""
     out = np.zeros(shape, dtype=bool)
@@ -323,7 +332,7 @@ def _grey_frames(frames: Iterable[np.ndarray], what: str, limit: int | None = No
     for i, frame in enumerate(frames):
         if i == limit:
             break
-        grey = to_grey(f"warm-up frame {i}", frame, _DTYPES)
+        grey = to_grey(f"warm-up frame {i}", frame, _DTYPES, "RGB")
         if greys and (grey.shape, grey.dtype) != (greys[0].shape, greys[0].dtype):
             raise ValueError(f"warm-up frame {i}: shape {frame.shape}, dtype {frame.dtype} differs from "
                              f"frame 0's size {greys[0].shape}, dtype {greys[0].dtype}")
@@ -344,12 +353,11 @@ def static_background_frames(frames: Iterable[np.ndarray]) -> list[np.ndarray]:
     pixel in fewer than half the frames is replaced by what it hides, with the background's own
     noise (the median itself in its place would shrink the variance MOG2 learns there). Spread
     the frames over the sequence so a moving target covers each pixel in few of them. A pixel
-    that is NaN in some frame is left as it is in every frame (the segmenter reads NaN as 0); an
-    infinite one counts as moving.
+    that is NaN in some frame is left as it is in every frame; an infinite one counts as moving.
 
     Args:
         frames: K frames (an iterable, read once: each is kept only as grey), (H, W) or (H, W, 3)
-            BGR, all the same size and dtype (uint8, uint16, float32 or float64).
+            RGB, all the same size and dtype (uint8, uint16, float32 or float64).
     Returns:
         K grey (H, W) frames of that dtype, for :meth:`ForegroundSegmenter.warm_up`.
     """
@@ -412,16 +420,26 @@ class ForegroundSegmenter:
         self._background: np.ndarray | None = None  # MOG2's background image, refreshed when it learns
         self._frames = 0
 
-    def _grey(self, frame) -> np.ndarray:
-        """(H, W) or (H, W, 3) frame -> (H, W) grey of its dtype, checked against the warm-up frames;
-        float frames get their non-finite pixels set to 0."""
-        grey = to_grey("frame", frame, _DTYPES)
-        if (grey.shape, grey.dtype) != self._kind:
+    def check_frame(self, frame) -> None:
+        """Raise ValueError unless ``frame`` can be segmented: warmed up, and a numpy (H, W) or
+        (H, W, 3) array of the warm-up frames' size and dtype. (A tracker checks before it moves.)"""
+        if self._kind is None:
+            raise RuntimeError("ForegroundSegmenter: call warm_up(frames) before segmenting frames")
+        if not (isinstance(frame, np.ndarray) and frame.shape[:2] == self._kind[0] and frame.dtype == self._kind[1]
+                and (frame.ndim == 2 or frame.ndim == 3 and frame.shape[2] == 3)):
             raise ValueError(f"Expected a frame of size {self._kind[0]} and dtype {self._kind[1]} like the "
-                             f"warm-up frames; got shape {frame.shape}, dtype {frame.dtype}")
-        if grey.dtype.kind == "f" and not np.isfinite(grey).all():
-            grey = np.nan_to_num(grey, nan=0.0, posinf=0.0, neginf=0.0)
-        return grey
+                             f"warm-up frames; got {_described(frame)}")
+
+    def _grey(self, frame) -> tuple[np.ndarray, np.ndarray | None]:
+        """(H, W) or (H, W, 3) frame -> (H, W) grey of its dtype, checked against the warm-up frames,
+        with its non-finite pixels (float frames) set to 0, and the (H, W) bool mask of those
+        pixels (None: none)."""
+        self.check_frame(frame)
+        grey = to_grey("frame", frame, _DTYPES, "RGB")
+        if grey.dtype.kind != "f" or np.isfinite(grey).all():
+            return grey, None
+        missing = ~np.isfinite(grey)
+        return np.where(missing, 0, grey).astype(grey.dtype), missing
 
     def _to_uint8_scale(self, a: float = 1.0, b: float = 0.0) -> tuple[float, float]:
         """(k, c) with uint8 value = k·grey + c: the IR levels' map, then the gain (x − b) / a undone."""
@@ -433,7 +451,12 @@ class ForegroundSegmenter:
         levels, before gain compensation)."""
         if self._kind is None:
             raise RuntimeError("ForegroundSegmenter: call warm_up(frames) first")
-        return _affine_uint8(self._grey(frame), *self._to_uint8_scale())
+        return _affine_uint8(self._grey(frame)[0], *self._to_uint8_scale())
+
+    @property
+    def frame_size(self) -> tuple[int, int] | None:
+        """(H, W) of the warm-up frames, which every frame must have; None before :meth:`warm_up`."""
+        return None if self._kind is None else self._kind[0]
 
     @property
     def ready(self) -> bool:
@@ -453,7 +476,12 @@ class ForegroundSegmenter:
         if mask.shape != self._kind[0] or not mask.any():
             raise ValueError(f"Expected a non-empty mask of the frames' size {self._kind[0]}; got shape {mask.shape}, "
                              f"{int(mask.sum())} pixels")
-        image = _affine_uint8(self._grey(frame), *self._to_uint8_scale(*self.gain))
+        grey, missing = self._grey(frame)
+        image = _affine_uint8(grey, *self._to_uint8_scale(*self.gain))
+        if missing is not None:
+            mask = mask & ~missing
+            if not mask.any():
+                raise ValueError("The mask's pixels are all NaN or infinite in the frame: no contrast to measure")
         return float(np.median(np.abs(image[mask].astype(np.float64) - self._background[mask])))
 
     def warm_up(self, frames: Iterable[np.ndarray]) -> None:
@@ -501,15 +529,19 @@ class ForegroundSegmenter:
         if self._mog is None:
             raise RuntimeError("ForegroundSegmenter: call warm_up(frames) before segmenting frames")
         cfg = self.cfg
-        grey = self._grey(frame)
+        grey, missing = self._grey(frame)
         k, c = self._to_uint8_scale()
         if cfg.compensate_gain:  # on a fixed grid of pixels outside the target box
             rows, cols = self._samples
             keep = ~_box_mask(grey.shape, exclude)[self._samples]
+            if missing is not None:
+                keep &= ~missing[self._samples]
             x = self._background[self._samples][keep]
             self.gain = fit_gain(grey[rows, cols][keep] * k + c, x, np.ones(x.shape, dtype=bool))
             k, c = self._to_uint8_scale(*self.gain)
         image = _affine_uint8(grey, k, c)
+        if missing is not None:  # no data: the background, never foreground
+            image[missing] = self._background[missing]
         # A positive rate learns only in the selective update below; −1 is OpenCV's automatic
         # rate on every whole frame.
         learn = cfg.learning_rate > 0 and self._frames % cfg.learning_interval == 0
