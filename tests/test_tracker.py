@@ -501,6 +501,47 @@ def test_bad_inputs_raise(model, btr):
             Tracker(*args, **kwargs)
 
 
+def test_a_refused_step_leaves_the_filter_as_it_was(model, btr):
+    """Bad inputs are found before the prediction moves the particles or the clock."""
+    tracker = Tracker(model, btr.camera, _config("filter.particles=50", "init.mode=truth"), seed=0)
+    tracker.warm_up(btr.warmup_frames(10))
+    tracker.initialise(btr.truth(0))
+    tracker.step(btr.frame(0))
+    before = (tracker.particles.clone(), tracker._clock, tracker.generator.get_state())
+    for args, message in [((btr.frame(1).astype(np.float32),), "dtype uint16 like the warm-up frames"),
+                          ((btr.frame(1)[::2, ::2],), r"size \(512, 640\)"), ((None,), "step needs a frame or a mask")]:
+        with pytest.raises(ValueError, match=message):
+            tracker.step(*args)
+    with pytest.raises(ValueError, match="Expected dt"):
+        tracker.step(btr.frame(1), dt=True)  # a bool is not a time
+    assert torch.equal(tracker.particles, before[0]) and tracker._clock == before[1]
+    assert torch.equal(tracker.generator.get_state(), before[2])
+
+
+def test_frames_must_have_the_cameras_size(model, btr):
+    tracker = Tracker(model, btr.camera, _config("filter.particles=50"), seed=0)
+    with pytest.raises(ValueError, match=r"frames of the camera's image size \(512, 640\) \(H, W\); got \(256, 320\)"):
+        tracker.warm_up(f[::2, ::2] for f in btr.warmup_frames(5))
+    assert not tracker.segmenter.ready  # the refused warm-up left nothing behind
+
+
+def test_run_starts_afresh_and_uses_the_sequences_camera(model, btr):
+    """A second run() of a Tracker equals a new Tracker's run (it carried on from the first), and a
+    sequence whose camera is not the tracker's is refused (its windows would be placed wrongly)."""
+    cfg = _config("filter.particles=60")
+    other = SyntheticSequence("isuzu_rodeo", SceneConfig(frames=5, seed=2))
+    tracker = Tracker(model, btr.camera, cfg, seed=3)
+    tracker.run(other, progress=False)
+    again = tracker.run(btr, frames=6, progress=False)
+    fresh = Tracker(model, btr.camera, cfg, seed=3).run(btr, frames=6, progress=False)
+    strip = [{k: v for k, v in row.items() if k != "step_ms"} for row in again.rows]
+    assert strip == [{k: v for k, v in row.items() if k != "step_ms"} for row in fresh.rows]
+    assert again.rows[0]["frame"] == 0 and again.rows[0]["time_s"] == 0.0
+    narrow = SyntheticSequence("btr_70", SceneConfig(frames=5, focal_px=7000.0))
+    with pytest.raises(ValueError, match=r"its camera differs from the tracker's in fx, fy; build the Tracker with"):
+        tracker.run(narrow, progress=False)
+
+
 class _LateEntry(SyntheticSequence):
     """The BTR-70 sequence whose first 4 frames hold no vehicle (the target-free background)."""
 

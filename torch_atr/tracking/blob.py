@@ -67,6 +67,9 @@ class BlobTracker(Tracker):
         super().__init__(model, None, config, **kwargs)
         if self.cfg.adapt.every:
             raise ValueError("adapt.every > 0 (kernel-width adaptation) needs a calibrated camera")
+
+    def _begin(self) -> None:
+        super()._begin()
         self._blob_box: torch.Tensor | None = None  # the last blob's box (4,), image pixels
 
     def initialise(self, truth: FrameTruth) -> None:

@@ -346,14 +346,24 @@ class Tracker:
                               f"(e.g. {', '.join(map(str, fits))})")
         self.appearance = ShapeAppearance(self.model, fc.method, fc.likelihood_px, templates).to(self.device)
         self.segmenter = ForegroundSegmenter(self.cfg.segmentation)
-        self.generator = torch.Generator(self.device).manual_seed(seed)
+        self.seed = int(seed)
+        self.generator = torch.Generator(self.device)
         self.dtype = self.model.alphas.dtype
-        self.particles: torch.Tensor | None = None  # (N, 6)
-        self.log_weights: torch.Tensor | None = None  # (N,), normalised
         self.dt = 1.0 / fc.fps
-        self.last_mask: np.ndarray | None = None  # the segmented target mask of the last frame
         height = self.cfg.init.camera_height_m
         self.camera_height_m = math.nan if height is None else height  # above the ground (blind start)
+        self._half_heights: torch.Tensor | None = None  # H(α)/2 on a grid of α (ground contact)
+        self._begin()
+        self._optimiser = (torch.optim.Adam([self.model.rbf.log_width], lr=self.cfg.adapt.lr)
+                           if self.cfg.adapt.every else None)
+        self._grid = HypothesisGrid(self.model, self.cfg.init, _GRID_TOLERANCE)  # blind start, re-detection
+
+    def _begin(self) -> None:
+        """A track's state before its first frame: no particles, frame 0 at 0 s, the generator seeded."""
+        self.generator.manual_seed(self.seed)
+        self.particles: torch.Tensor | None = None  # (N, 6)
+        self.log_weights: torch.Tensor | None = None  # (N,), normalised
+        self.last_mask: np.ndarray | None = None  # the segmented target mask of the last frame
         self._frames = 0
         self._start = 0  # the frame the track started at (reset); re-detection counts from it
         self._searching = True  # whether re-detection follows the current start
@@ -362,19 +372,22 @@ class Tracker:
         # current start's track while its speeds are unknown (None: known)
         self._recent: deque[tuple[int, float, float]] = deque(maxlen=max(self.cfg.init.speed_frames, 1))
         self._track: list[tuple[int, float, float]] | None = None
-        self._half_heights: torch.Tensor | None = None  # H(α)/2 on a grid of α (ground contact)
         self._fresh = False  # the particles describe the coming frame (just initialised): no prediction
         self._cut_frames = 0  # frames the blind start has waited on a blob cut by the image's edge
         self._missed = 0  # lost frames in a row whose blob no predicted window reaches (redetect.restart)
         self._unexplained = 0  # frames in a row whose blob no particle explains (every likelihood underflows)
-        self._optimiser = (torch.optim.Adam([self.model.rbf.log_width], lr=self.cfg.adapt.lr)
-                           if self.cfg.adapt.every else None)
-        self._grid = HypothesisGrid(self.model, self.cfg.init, _GRID_TOLERANCE)  # blind start, re-detection
 
     # --- set-up -----------------------------------------------------------------------------
     def warm_up(self, frames) -> None:
-        """Learn the background from target-free frames (thesis 3.1): an iterable of frames."""
-        self.segmenter.warm_up(frames)
+        """Learn the background from target-free frames (thesis 3.1): an iterable of frames of the
+        camera's image size."""
+        segmenter = ForegroundSegmenter(self.cfg.segmentation)
+        segmenter.warm_up(frames)
+        if self.camera is not None and segmenter.frame_size != (self.camera.height, self.camera.width):
+            raise ValueError(f"Expected frames of the camera's image size {(self.camera.height, self.camera.width)} "
+                             f"(H, W); got {segmenter.frame_size}: a resized or cropped frame is read in the wrong "
+                             f"pixels")
+        self.segmenter = segmenter
 
     def initialise(self, truth: FrameTruth) -> None:
         """The thesis's initialisation from one frame's truth (``InitConfig``, mode "truth").
@@ -426,9 +439,16 @@ class Tracker:
         """
         start = time.perf_counter()
         dt = self.dt if dt is None else dt
-        if not (isinstance(dt, numbers.Real) and math.isfinite(dt) and dt > 0):  # checked before anything moves
+        # The inputs are checked before anything moves: a refused step leaves the filter as it was.
+        if isinstance(dt, bool) or not (isinstance(dt, numbers.Real) and math.isfinite(dt) and dt > 0):
             raise ValueError("Expected dt, the seconds since the previous frame, to be positive and finite; "
                              f"got {dt!r}")
+        if mask is not None:
+            mask = self._check_mask(mask)
+        elif frame is None:
+            raise ValueError("step needs a frame or a mask")
+        else:
+            self.segmenter.check_frame(frame)
         if self._frames:
             self._clock += dt
         if self.initialised and not self._fresh:
@@ -436,11 +456,7 @@ class Tracker:
         self._fresh = False
         near, box, side = self._predicted_region() if self.initialised else (None, None, math.inf)
         if mask is None:
-            if frame is None:
-                raise ValueError("step needs a frame or a mask")
             mask = self.segmenter(frame, near=near, exclude=box)
-        else:
-            mask = self._check_mask(mask)
         self.last_mask = mask
         area = int(mask.sum())
         observed = 0 < area <= self.cfg.filter.max_foreground * mask.size
@@ -827,7 +843,11 @@ class Tracker:
     @torch.no_grad()
     def run(self, sequence: Sequence, frames: int | None = None, snapshots: int = 6, progress: bool = True
             ) -> TrackResult:
-        """Track a sequence: warm up the background, initialise (``cfg.init.mode``), step every frame.
+        """Track a sequence afresh: warm up the background, initialise (``cfg.init.mode``), step every
+        frame. Each call starts a new track, as a new Tracker with the same seed would: what earlier
+        steps or runs left (particles, frame count, clock) is dropped; kernel widths that
+        ``adapt`` changed stay changed. (To start from your own particles, :meth:`reset` and
+        :meth:`step`.)
 
         The background is learned from the sequence's target-free ``warmup_frames`` where it has
         them (the simulator), else from frames spread evenly over the frames tracked, with what
@@ -852,6 +872,13 @@ class Tracker:
         n = len(sequence) if frames is None else min(int(frames), len(sequence))
         if n < 1:
             raise ValueError(f"{sequence.name}: nothing to track ({n} frames)")
+        if self.camera is not None and sequence.camera is not None:
+            mine, theirs = self.camera.to_dict(), sequence.camera.to_dict()
+            differ = [key for key in mine if not np.allclose(mine[key], theirs[key], rtol=1e-9, atol=1e-12)]
+            if differ:
+                raise ValueError(f"{sequence.name}: its camera differs from the tracker's in {', '.join(differ)}; "
+                                 f"build the Tracker with sequence.camera (or open the sequence without one)")
+        self._begin()
         if math.isfinite(sequence.fps) and sequence.fps > 0:
             self.dt = 1.0 / sequence.fps
         if self.cfg.init.camera_height_m is None:
