@@ -90,6 +90,11 @@ def test_tracking_errors_by_hand():
     assert got["aspect_error_rad"] == pytest.approx((wrap + wrap + 0.5) / 3)
     none = tracking_errors({k: np.full(2, np.nan) for k in est}, {k: np.full(2, np.nan) for k in truth})
     assert none == {"horizontal_error_m": None, "range_error_m": None, "aspect_error_rad": None}
+    assert tracking_errors({k: list(v) for k, v in est.items()}, truth) == got  # lists are arrays
+    with pytest.raises(ValueError, match=r"arrays of one shape \(T,\); got est\['x'\] \(1,\), est\['z'\] \(4,\)"):
+        tracking_errors({**est, "x": est["x"][:1]}, truth)  # broadcast to 4 frames, it gave an error of 4 m
+    with pytest.raises(ValueError, match=r"Expected truth\['theta'\], a \(T,\) array; truth has keys \['x', 'z'\]"):
+        tracking_errors(est, {"x": truth["x"], "z": truth["z"]})
 
 
 def test_recognition_best_matches_and_convergence(model):

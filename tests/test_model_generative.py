@@ -135,8 +135,11 @@ def test_reconstruct_vehicle_uses_identity_vector(model, data):
         for k in (0, 3):
             torch.testing.assert_close(model.reconstruct_vehicle(k, data["theta"], data["phi"]),
                                        data["templates"][k], atol=1e-3, rtol=0)
-    with pytest.raises(ValueError, match="vehicle index"):
-        model.reconstruct_vehicle(6, data["theta"], data["phi"])
+    for bad in (6, 1.5, True):  # 1.5 indexed the identity vectors and failed in torch
+        with pytest.raises(ValueError, match="Expected a whole vehicle index in"):
+            model.reconstruct_vehicle(bad, data["theta"], data["phi"])
+    torch.testing.assert_close(model.reconstruct_vehicle(np.int64(1), data["theta"], data["phi"]),
+                               model.reconstruct_vehicle(1, data["theta"], data["phi"]))
 
 
 def test_forward_rejects_mismatched_queries(model):
@@ -158,6 +161,8 @@ def test_queries_must_be_finite_and_submodules_take_any_float(model):
     assert torch.equal(model.identity.classify(model.alphas.double()), model.identity.labels)
     with pytest.raises(ValueError, match="whole k"):
         model.nearest_vehicles(model.alphas[:2], k=2.5)
+    two = model.alphas[:2]
+    assert torch.equal(model.nearest_vehicles(two, k=np.int64(2)), model.nearest_vehicles(two))  # numpy's integers
     size = model.template.size_px
     torch.testing.assert_close(model.project(np.zeros((size, size)).tolist()), model.project(torch.zeros(size, size)))
 

@@ -485,6 +485,9 @@ def test_bad_inputs_raise(model, btr):
     for frames in (0, -1, 3.5, True, "3"):  # 3.5 was tracked as 3 frames
         with pytest.raises(ValueError, match=r"Expected frames to be a whole number >= 1, or None for all; got "):
             tracker.run(btr, frames, progress=False)
+    for snapshots in (2.5, -1, True):  # 2.5 failed inside numpy, -1 kept none without a word
+        with pytest.raises(ValueError, match=r"Expected snapshots to be a whole number >= 0; got "):
+            tracker.run(btr, 2, snapshots=snapshots, progress=False)
     with pytest.raises(ValueError, match=r"Expected a Sequence \(torch_atr.data.open_sequence\(spec\)\); got list"):
         tracker.run([btr.frame(0)], progress=False)
     # Constructor arguments of the wrong kind are named (they raised AttributeErrors deep inside).

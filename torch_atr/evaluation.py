@@ -10,6 +10,7 @@ recognised (Table 6.1), the two best-matching training vehicles (Fig. 6.10); the
 
 from __future__ import annotations
 
+import logging
 import math
 
 import numpy as np
@@ -18,6 +19,8 @@ import torch
 from torch_atr._checks import check_shape
 from torch_atr.model.rbf import ridge_hat
 from torch_atr.shape import iou
+
+log = logging.getLogger(__name__)
 
 
 def _views(model, templates: torch.Tensor, theta, phi, view_dim: int) -> tuple[torch.Tensor, torch.Tensor]:
@@ -187,21 +190,36 @@ def tracking_errors(est: dict[str, np.ndarray], truth: dict[str, np.ndarray]) ->
     view azimuth, radians). Returns ``horizontal_error_m``, ``range_error_m`` and
     ``aspect_error_rad`` (wrapped), None where no frame has both.
     """
-    return {"horizontal_error_m": _mean_finite(np.abs(est["x"] - truth["x"])),
-            "range_error_m": _mean_finite(np.abs(est["z"] - truth["z"])),
-            "aspect_error_rad": _mean_finite(wrapped_abs(est["theta"] - truth["theta"]))}
+    columns = {}
+    for name, given in (("est", est), ("truth", truth)):
+        for key in ("x", "z", "theta"):
+            if key not in given:
+                raise ValueError(f"Expected {name}[{key!r}], a (T,) array; {name} has keys {sorted(given)}")
+            columns[name, key] = np.asarray(given[key], dtype=np.float64)
+    shapes = {a.shape for a in columns.values()}
+    if len(shapes) != 1 or len(shapes.pop()) != 1:
+        got = ", ".join(f"{name}[{key!r}] {a.shape}" for (name, key), a in columns.items())
+        raise ValueError(f"Expected est and truth arrays of one shape (T,); got {got}")
+    error = {key: columns["est", key] - columns["truth", key] for key in ("x", "z", "theta")}
+    return {"horizontal_error_m": _mean_finite(np.abs(error["x"])), "range_error_m": _mean_finite(np.abs(error["z"])),
+            "aspect_error_rad": _mean_finite(wrapped_abs(error["theta"]))}
 
 
 def recognition_accuracy(model, alpha: np.ndarray, true_class: list[str]) -> float | None:
     """Fraction of frames whose α lies in the true class's arc (Table 6.1).
 
     alpha: (T,) estimated α (NaN where there is no estimate: counted as wrong); true_class: T class
-    names ("" where unknown: left out). None when no frame has a class the model knows.
+    names. Frames whose true class is not one of ``model.class_names`` ("" where unknown, a vehicle
+    of a class the model was not trained on, a misspelt or differently cased name) are left out,
+    and logged at debug level. None when no frame has a class the model knows.
     """
     alpha = np.asarray(alpha, dtype=np.float64)
     known = np.array([c in model.class_names for c in true_class], dtype=bool)
     if len(true_class) != alpha.shape[0]:
         raise ValueError(f"Expected one true class per frame ({alpha.shape[0]}); got {len(true_class)}")
+    others = sorted({c for c, k in zip(true_class, known) if not k and c})
+    if others:
+        log.debug("recognition accuracy leaves out frames of classes the model does not know: %s", others)
     if not known.any():
         return None
     finite = np.isfinite(alpha)

@@ -5,6 +5,7 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import logging
+import numbers
 import os
 import pickle
 import warnings
@@ -237,8 +238,9 @@ class GenerativeShapeModel(nn.Module):
 
         k: vehicle index; theta, phi: (N,) radians. Returns (N, H, W).
         """
-        if not 0 <= k < self.core.num_vehicles:
-            raise ValueError(f"Expected a vehicle index in [0, {self.core.num_vehicles}); got {k}")
+        if isinstance(k, bool) or not isinstance(k, numbers.Integral) or not 0 <= k < self.core.num_vehicles:
+            raise ValueError(f"Expected a whole vehicle index in [0, {self.core.num_vehicles}); got {k!r}")
+        k = int(k)
         theta, phi = self._queries(theta=theta, phi=phi)
         identity = self.core.identity_vectors[k].expand(theta.shape[0], -1)  # (N, K)
         y = self.core.reconstruct(identity, self.rbf(theta, phi))

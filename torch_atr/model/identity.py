@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import itertools
 import math
+import numbers
 
 import numpy as np
 import torch
@@ -277,8 +278,9 @@ class IdentityManifold(nn.Module):
 
     def nearest_vehicles(self, alpha: torch.Tensor, k: int = 2) -> torch.Tensor:
         """The k vehicles with αₖ nearest to alpha: (N,) on the circle. Returns (N, k) int64, nearest first."""
-        if isinstance(k, bool) or not isinstance(k, int) or not 1 <= k <= self.num_vehicles:
+        if isinstance(k, bool) or not isinstance(k, numbers.Integral) or not 1 <= k <= self.num_vehicles:
             raise ValueError(f"Expected a whole k in [1, {self.num_vehicles}]; got {k!r}")
+        k = int(k)  # numpy's integers too
         return self.circular_distances(alpha).argsort(dim=-1, stable=True)[:, :k]
 
     def classify(self, alpha: torch.Tensor) -> torch.Tensor:

@@ -869,6 +869,8 @@ class Tracker:
             raise ValueError(f"Expected a Sequence (torch_atr.data.open_sequence(spec)); got {type(sequence).__name__}")
         if frames is not None and (isinstance(frames, bool) or not isinstance(frames, numbers.Integral) or frames < 1):
             raise ValueError(f"Expected frames to be a whole number >= 1, or None for all; got {frames!r}")
+        if isinstance(snapshots, bool) or not isinstance(snapshots, numbers.Integral) or snapshots < 0:
+            raise ValueError(f"Expected snapshots to be a whole number >= 0; got {snapshots!r}")
         n = len(sequence) if frames is None else min(int(frames), len(sequence))
         if n < 1:
             raise ValueError(f"{sequence.name}: nothing to track ({n} frames)")
