@@ -200,7 +200,9 @@ class GenerativeShapeModel(nn.Module):
     def forward(self, alpha: torch.Tensor, theta: torch.Tensor, phi: torch.Tensor) -> torch.Tensor:
         """Signed-distance reconstruction y(α, Θ) (eq. 4.18).
 
-        alpha: (N,) identity angles; theta, phi: (N,) view, radians. Returns (N, H, W), positive inside.
+        alpha: (N,) identity angles; theta, phi: (N,) view, radians, any float dtype. Returns
+        (N, H, W), positive inside, in the model's dtype and on its device; differentiable in the
+        queries and the kernel widths (a parameter), so under ``torch.no_grad()`` for plain values.
         """
         alpha, theta, phi = self._queries(alpha=alpha, theta=theta, phi=phi)
         y = self.core.reconstruct(self.identity(alpha), self.rbf(theta, phi))  # (N, d)
