@@ -142,7 +142,7 @@ def truth_summary(metrics: dict) -> str:
     parts = [errors]
     if metrics["recognition_accuracy"] is not None:
         converged = metrics["frames_to_convergence"]
-        parts += [f"recognition {metrics['recognition_accuracy']}",
+        parts += [f"recognition {round(metrics['recognition_accuracy'], 3)}",
                   "never converged" if converged is None else f"converged at frame {converged}"]
     return "; ".join(part for part in parts if part)
 

@@ -106,8 +106,8 @@ def test_the_summary_names_what_the_truth_allows():
                                          "converged at frame 1")  # the README's quick start
     positions = {**full, "aspect_error_rad": None, "recognition_accuracy": None, "frames_to_convergence": None}
     assert track.truth_summary(positions) == "horizontal 0.37 m, range 28.5 m"  # truth.csv of x, y, z only
-    classes = dict.fromkeys(full) | {"recognition_accuracy": 0.5}
-    assert track.truth_summary(classes) == "recognition 0.5; never converged"
+    classes = dict.fromkeys(full) | {"recognition_accuracy": 142 / 150}
+    assert track.truth_summary(classes) == "recognition 0.947; never converged"  # not 0.9466666666666667
     assert track.truth_summary(dict.fromkeys(full)) == ""
 
 
