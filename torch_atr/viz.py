@@ -43,7 +43,8 @@ def overlay_pairs(truth: torch.Tensor, recon: torch.Tensor) -> torch.Tensor:
 
 def identity_circle_figure(alphas: Sequence[float], vehicle_names: Sequence[str], vehicle_classes: Sequence[int],
                            class_names: Sequence[str], arcs: Sequence[tuple[int, float, float]]):
-    """The identity manifold as a circle: class arcs as coloured bands, each vehicle at its αₖ.
+    """The identity manifold as a circle: class arcs as coloured bands, each vehicle at its αₖ,
+    α ticks every π/4 (labelled every π/2) with α = 0 marked, α growing counter-clockwise.
 
     alphas: (K,) radians; vehicle_classes: (K,) indices into ``class_names``;
     arcs: (class index, start, end) radians, counter-clockwise from start to end.
@@ -63,6 +64,22 @@ def identity_circle_figure(alphas: Sequence[float], vehicle_names: Sequence[str]
         ax.add_patch(Wedge((0, 0), 1.08, math.degrees(start), math.degrees(end), width=0.16,
                            color=colours(c % 10), alpha=0.55))
     ax.add_patch(plt.Circle((0, 0), 1.0, fill=False, lw=1.0, color="0.3"))
+
+    def at(r: float, a: float) -> tuple[float, float]:
+        return r * math.cos(a), r * math.sin(a)
+
+    # α ticks every π/4, labelled every π/2, and α = 0 marked across the bands: the tracking
+    # figures plot α in radians, and these say where each value lies on the circle.
+    for i in range(8):
+        ax.plot(*zip(at(0.9 if i % 2 else 0.84, i * math.pi / 4), at(1.0, i * math.pi / 4)), lw=1.0, color="0.2")
+    for i, label in enumerate(("π/2", "π", "3π/2"), start=1):
+        ax.text(*at(0.68, i * math.pi / 2), f"{label}\n({i * math.pi / 2:.2f} rad)", fontsize=8, ha="center",
+                va="center")
+    ax.plot(*zip(at(0.84, 0.0), at(1.1, 0.0)), lw=2.5, color="k", zorder=3)
+    ax.text(*at(0.68, 0.0), "α = 0", fontsize=8, ha="center", va="center")
+    ax.annotate("", xy=at(0.56, 0.75), xytext=at(0.56, 0.2),
+                arrowprops={"arrowstyle": "->", "color": "0.3", "connectionstyle": "arc3,rad=0.2"})
+    ax.text(*at(0.4, 0.45), "α grows", fontsize=7, color="0.3", ha="center", va="center")
     for c, name in enumerate(class_names):
         ax.plot([], [], lw=8, color=colours(c % 10), alpha=0.55, label=name)
     for a, name, c in zip(alphas, vehicle_names, vehicle_classes):

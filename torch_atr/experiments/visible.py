@@ -352,7 +352,8 @@ def write_visible_report(out: Path, cfg: VisibleConfig, calibration: dict, drawn
     for r in results:
         rows = _rows(r, shown)
         figures[f"view_{r['role']}"] = view_figure(rows, f"{_title(r)}, Method {shown}")
-        figures[f"identity_{r['role']}"] = alpha_figure(rows, model, f"{_title(r)}, Method {shown}")
+        # Two lines: in one, the title and its "(true class: ...)" ran past the figure's left edge.
+        figures[f"identity_{r['role']}"] = alpha_figure(rows, model, f"{_title(r)}\nMethod {shown}")
     save_figures(figures, out)
     e, cal = calibration["errors"], calibration["calibrated"]
     true = calibration["true"]
