@@ -213,3 +213,29 @@ def test_all_quick_runs_every_experiment_into_one_report(tmp_path):
     for name in ("sensiac-like", "unseen", "visible", "studies"):
         assert (tmp_path / "all" / name / "results.json").is_file()
     assert "](sensiac-like/errors_by_range.png)" in text and text.count("\n## ") >= 4
+
+
+def test_study_labels_name_the_particles_and_ranges_each_run_ran(tmp_path):
+    """A quick run's rows said "16 000 particles" for a run of 800: the labels come from the configs."""
+    from torch_atr.experiments.report import MEASURES
+    from torch_atr.experiments.studies import study_configs, study_label, write_studies_report
+
+    full, quick = study_configs(), study_configs(quick=True)
+    assert study_label("particles_16000", full["particles_16000"]) == "16000 particles"
+    assert study_label("range_4000_5000", full["range_4000_5000"]) == "4000-5000 m"
+    assert study_label("range_4000_5000", quick["range_4000_5000"]) == "4000 m"
+    for name, cfg in quick.items():
+        if name == "baseline" or name.startswith("particles"):
+            assert study_label(name, cfg).split(", ")[-1] == f"{cfg.particles} particles", name
+    assert [cfg.particles for cfg in quick.values()][:4] == [200, 100, 400, 800]  # not the full run's counts
+    # The report's rows and results.json carry the same labels (made-up results: nothing is tracked).
+    metrics = {"recognition_accuracy": 0.5, "frames_per_second": 10.0, **{k: 1.0 for k, _ in MEASURES}}
+    results = {name: [{"range_m": cfg.ranges_m[0], "methods": {"I": {"metrics": metrics}}}]
+               for name, cfg in quick.items()}
+    rows = write_studies_report(tmp_path, quick, results, wall_s=1.0)
+    assert [r["change"] for r in rows] == [study_label(n, cfg) for n, cfg in quick.items()]
+    assert [r["change"] for r in json.loads((tmp_path / "results.json").read_text())["rows"]] == [
+        r["change"] for r in rows]
+    report = (tmp_path / "report.md").read_text()
+    assert "| night, 200 particles | 1000 |" in report and "| 800 particles | 1000 |" in report
+    assert "| 4000 m | 4000 |" in report and "16000" not in report and "250 particles" not in report

@@ -9,6 +9,9 @@ particles, blind start, 150 frames), tracked with Method I. Each study changes o
 - occlusion: a 12 m wide, 1 m high berm 20 m in front of the middle of the drive;
 - turret: every turret sweeping ±60° every 8 s.
 
+The quick run (``QUICK``: the T-72 at 1000 m, 12 frames) takes fewer particles (``QUICK_PARTICLES``)
+and 4000 m alone for the range study; the report's rows name the particles and ranges each setting ran.
+
 Each setting is a grid of its own in ``OUT/<setting>/`` (resumable, through
 :func:`~torch_atr.experiments.sensiac_like.run_all`); ``OUT/report.md`` and ``OUT/results.json``
 hold one row per setting and range: recognition, mean errors and frames per second.
@@ -29,13 +32,14 @@ from torch_atr.io import atomic_write_text
 
 STUDIES_FORMAT = "torch_atr.studies_report"
 BASELINE = {"methods": ("I",), "ranges_m": (1000.0, 2500.0)}
-# name -> (what changes, SensiacLikeConfig fields on top of BASELINE)
+# name -> (what changes, {particles} and {ranges} filled in by study_label from the config run;
+# SensiacLikeConfig fields on top of BASELINE). The names, and the folders, keep the full run's numbers.
 SETTINGS = {
-    "baseline": ("night, 1000 particles", {}),
-    "particles_250": ("250 particles", {"particles": 250}),
-    "particles_4000": ("4000 particles", {"particles": 4000}),
-    "particles_16000": ("16 000 particles", {"particles": 16000}),
-    "range_4000_5000": ("4000-5000 m", {"ranges_m": (4000.0, 4500.0, 5000.0)}),
+    "baseline": ("night, {particles} particles", {}),
+    "particles_250": ("{particles} particles", {"particles": 250}),
+    "particles_4000": ("{particles} particles", {"particles": 4000}),
+    "particles_16000": ("{particles} particles", {"particles": 16000}),
+    "range_4000_5000": ("{ranges} m", {"ranges_m": (4000.0, 4500.0, 5000.0)}),
     "day": ("day scene (low contrast)", {"scene": ("night=false",)}),
     "occlusion": ("12 m x 1 m berm in front", {"scene": ("occluder_width_m=12", "occluder_height_m=1.0")}),
     "turret": ("turrets sweeping ±60°", {"scene": ("turret_sweep_deg=60",)}),
@@ -57,21 +61,29 @@ def study_configs(quick: bool = False, **given) -> dict[str, SensiacLikeConfig]:
     return configs
 
 
+def study_label(name: str, cfg: SensiacLikeConfig) -> str:
+    """What setting ``name`` changes, as the report's rows say it, with the particles and ranges
+    ``cfg`` runs (a quick run's are not the full run's): "night, 200 particles", "4000-5000 m"."""
+    ranges = "-".join(f"{r:g}" for r in sorted({min(cfg.ranges_m), max(cfg.ranges_m)}))
+    return SETTINGS[name][0].format(particles=cfg.particles, ranges=ranges)
+
+
 def run_studies(out: Path, configs: dict[str, SensiacLikeConfig], workers: int = 0,
                 ray_address: str | None = None) -> dict[str, list[dict]]:
     """Run every setting's grid in ``out/<setting>`` (resumable); its results by setting."""
     return {name: run_all(cfg, out / name, workers, ray_address=ray_address) for name, cfg in configs.items()}
 
 
-def study_rows(results: dict[str, list[dict]]) -> list[dict]:
-    """One row per setting and range: {"setting", "change", "range_m", "sequences",
+def study_rows(configs: dict[str, SensiacLikeConfig], results: dict[str, list[dict]]) -> list[dict]:
+    """One row per setting and range: {"setting", "change" (:func:`study_label`), "range_m", "sequences",
     "recognition_pct" (mean over the vehicles of % of frames on the true class), the MEASURES'
     means, "frames_per_second"}."""
     rows = []
     for name, seqs in results.items():
         for range_m in sorted({r["range_m"] for r in seqs}):
             metrics = [r["methods"]["I"]["metrics"] for r in seqs if r["range_m"] == range_m]
-            row = {"setting": name, "change": SETTINGS[name][0], "range_m": range_m, "sequences": len(metrics),
+            row = {"setting": name, "change": study_label(name, configs[name]), "range_m": range_m,
+                   "sequences": len(metrics),
                    "recognition_pct": 100 * float(np.mean([m["recognition_accuracy"] or 0 for m in metrics]))}
             row.update({k: mean_or_none([m[k] for m in metrics]) for k, _ in MEASURES})
             row["frames_per_second"] = float(np.mean([m["frames_per_second"] for m in metrics]))
@@ -82,7 +94,7 @@ def study_rows(results: dict[str, list[dict]]) -> list[dict]:
 def write_studies_report(out: Path, configs: dict[str, SensiacLikeConfig], results: dict[str, list[dict]],
                          wall_s: float) -> list[dict]:
     """``results.json`` and ``report.md`` in ``out``, atomically; returns the rows."""
-    rows = study_rows(results)
+    rows = study_rows(configs, results)
     summary = {"format": STUDIES_FORMAT, "torch_atr_version": torch_atr.__version__, "wall_s": wall_s,
                "configs": {n: dataclasses.asdict(c) for n, c in configs.items()}, "rows": rows}
     atomic_write_text(json.dumps(summary, indent=1) + "\n", out / "results.json")
