@@ -9,78 +9,112 @@ is held to). Every run is what ``python track.py`` does with the same settings.
 
     python benchmarks/bench_tracking.py [--vehicles t_72 isuzu_rodeo] [--ranges 1000] [--methods I II III IV]
         [--inits truth blind] [--frames 300] [--particles 1000] [--seed 0] [--device cpu] [--set key=value ...]
-        [--json OUT]
+        [--json OUT] [--overwrite]
+
+Every vehicle, method, start and setting is checked before the first run; ``--json`` refuses an
+existing file unless it is an earlier output of this benchmark and ``--overwrite`` is given.
 """
 
 from __future__ import annotations
 
 import argparse
-import json
 import logging
 import time
+from pathlib import Path
 
 import torch
 
-from torch_atr.config import load_config
+from torch_atr.cli import run_main
+from torch_atr.config import ConfigError, load_config
 from torch_atr.data.synthetic import SceneConfig, SyntheticSequence
-from torch_atr.io import atomic_write_text
 from torch_atr.model.generative import load_checkpoint
 from torch_atr.tracking import Tracker, TrackerConfig
 from torch_atr.tracking.job import run_summary
 from torch_atr.training import trained_catalog, training_templates
 
+from benchlib import SHIPPED, check_at_least, json_output, write_json
+
 log = logging.getLogger("bench_tracking")
+NAME = Path(__file__).stem
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--vehicles", nargs="+", default=["t_72", "isuzu_rodeo"])
-    parser.add_argument("--ranges", nargs="+", type=float, default=[1000.0])
-    parser.add_argument("--methods", nargs="+", default=["I", "II", "III", "IV"])
-    parser.add_argument("--inits", nargs="+", default=["truth", "blind"])
-    parser.add_argument("--frames", type=int, default=300)
-    parser.add_argument("--particles", type=int, default=1000)
+def main(argv: list[str] | None = None) -> list[dict]:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--vehicles", nargs="+", default=["t_72", "isuzu_rodeo"], metavar="NAME",
+                        help="catalog names (either split) or URDF / mesh files")
+    parser.add_argument("--ranges", nargs="+", type=float, default=[1000.0], metavar="M",
+                        help="distances of the circle's centre, metres")
+    parser.add_argument("--methods", nargs="+", default=["I", "II", "III", "IV"], metavar="METHOD",
+                        help="filter.method values: I, II, III, IV")
+    parser.add_argument("--inits", nargs="+", default=["truth", "blind"], metavar="MODE",
+                        help="init.mode values: truth (the thesis's start) or blind")
+    parser.add_argument("--frames", type=int, default=300, help="frames per run")
+    parser.add_argument("--particles", type=int, default=1000, help="particles per run")
     parser.add_argument("--settle", type=int, default=60, help="frames left out of the settled errors")
     parser.add_argument("--seed", type=int, default=0, help="the scene's and the tracker's seed")
-    parser.add_argument("--checkpoint", default="checkpoints/default.pt")
+    parser.add_argument("--checkpoint", default=str(SHIPPED), help="the trained model (default: the shipped one)")
     parser.add_argument("--device", default="cpu", help="where the particles live (segmentation stays on the CPU)")
     parser.add_argument("--set", nargs="*", default=[], metavar="KEY=VALUE", help="tracker config overrides")
     parser.add_argument("--json", help="also write every number here")
-    args = parser.parse_args()
-    if not 0 <= args.settle < args.frames:
-        parser.error(f"--settle ({args.settle}) must be at least 0 and below --frames ({args.frames})")
-    logging.basicConfig(level=logging.INFO, format="%(message)s")
+    parser.add_argument("--overwrite", action="store_true", help="replace an earlier --json of this benchmark")
+    args = parser.parse_args(argv)
+    check_at_least("frames", args.frames, 1)
+    check_at_least("particles", args.particles, 1)
+    check_at_least("settle", args.settle, 0)
+    if args.settle >= args.frames:
+        raise ConfigError(f"--settle {args.settle} leaves none of the --frames {args.frames} for the settled errors; "
+                          f"lower it, e.g. --settle {args.frames // 5}")
 
-    model, extra = load_checkpoint(args.checkpoint)
+    # Everything a run could refuse, before the first run: the model and device, the settings of
+    # each method and start, each vehicle at each range, the output; then the trackers themselves.
+    model, extra = load_checkpoint(args.checkpoint, map_location=args.device)
+    for flag, key, values in (("methods", "filter.method", args.methods), ("inits", "init.mode", args.inits)):
+        for value in values:
+            try:
+                load_config(TrackerConfig, None, [f"{key}={value}"])
+            except ConfigError as exc:
+                raise ConfigError(f"--{flag} {value}: {exc}") from None
+    configs = {(init, method): load_config(TrackerConfig, None, [  # ConfigError names a bad --set override
+        f"filter.particles={args.particles}", f"filter.method={method}", f"init.mode={init}", *args.set])
+        for init in args.inits for method in args.methods}
+    sequences = {(vehicle, range_m): sequence(vehicle, range_m, args)
+                 for vehicle in args.vehicles for range_m in args.ranges}
+    out = json_output(args.json, args.overwrite, NAME)
+    logging.basicConfig(level=logging.INFO, format="%(message)s")
     templates = training_templates(model, trained_catalog(extra)) if "IV" in args.methods else None
+    runs = [(vehicle, range_m, init, method, seq,
+             Tracker(model, seq.camera, cfg, device=args.device, seed=args.seed,
+                     templates=templates if method == "IV" else None))
+            for (vehicle, range_m), seq in sequences.items() for (init, method), cfg in configs.items()]
+
+    settled = [f"{name}{args.settle}" for name in ("horiz", "asp", "rec")]
+    log.info("%-12s %5s %-6s %-4s | %7s %7s %7s %6s | %8s %8s %7s | %5s %6s", "vehicle", "range", "start", "meth",
+             "horiz m", "range m", "asp rad", "recog", *settled, "conv", "frm/s")
     results = []
-    log.info("%-12s %5s %-6s %-4s | %7s %7s %7s %6s | %7s %7s %6s | %5s %6s", "vehicle", "range", "start", "meth",
-             "horiz m", "range m", "asp rad", "recog", "horiz60", "asp60", "rec60", "conv", "frm/s")
-    for vehicle in args.vehicles:
-        for range_m in args.ranges:
-            seq = SyntheticSequence(vehicle, SceneConfig(range_m=range_m, frames=args.frames, seed=args.seed))
-            for init in args.inits:
-                for method in args.methods:
-                    cfg = load_config(TrackerConfig, None, [f"filter.particles={args.particles}",
-                                                            f"filter.method={method}", f"init.mode={init}",
-                                                            *args.set])
-                    tracker = Tracker(model, seq.camera, cfg, device=args.device, seed=args.seed,
-                                      templates=templates if method == "IV" else None)
-                    start = time.perf_counter()
-                    result = tracker.run(seq, progress=False, snapshots=0)
-                    m = run_summary(result, model, args.settle)
-                    s = m["settled"]
-                    results.append({"vehicle": vehicle, "range_m": range_m, "init": init, "method": method,
-                                    "wall_s": time.perf_counter() - start, **m})
-                    log.info("%-12s %5.0f %-6s %-4s | %7.2f %7.1f %7.2f %6.2f | %7.2f %7.2f %6.2f | %5s %6.1f",
-                             vehicle, range_m, init, method, m["horizontal_error_m"], m["range_error_m"],
-                             m["aspect_error_rad"], m["recognition_accuracy"], s["horizontal_error_m"],
-                             s["aspect_error_rad"], s["recognition_accuracy"], m["frames_to_convergence"],
-                             m["frames_per_second"])
-    if args.json:
-        atomic_write_text(json.dumps({"args": vars(args), "runs": results, "threads": torch.get_num_threads()},
-                                     indent=2), args.json)
+    for vehicle, range_m, init, method, seq, tracker in runs:
+        start = time.perf_counter()
+        result = tracker.run(seq, progress=False, snapshots=0)
+        m = run_summary(result, model, args.settle)
+        s = m["settled"]
+        results.append({"vehicle": vehicle, "range_m": range_m, "init": init, "method": method,
+                        "wall_s": time.perf_counter() - start, **m})
+        log.info("%-12s %5.0f %-6s %-4s | %7.2f %7.1f %7.2f %6.2f | %8.2f %8.2f %7.2f | %5s %6.1f",
+                 vehicle, range_m, init, method, m["horizontal_error_m"], m["range_error_m"],
+                 m["aspect_error_rad"], m["recognition_accuracy"], s["horizontal_error_m"],
+                 s["aspect_error_rad"], s["recognition_accuracy"], m["frames_to_convergence"],
+                 m["frames_per_second"])
+    if out is not None:
+        write_json({"args": vars(args), "runs": results, "threads": torch.get_num_threads()}, out, NAME)
+    return results
+
+
+def sequence(vehicle: str, range_m: float, args: argparse.Namespace) -> SyntheticSequence:
+    """The simulated sequence of ``vehicle`` at ``range_m``; ConfigError names a bad vehicle or range."""
+    try:
+        return SyntheticSequence(vehicle, SceneConfig(range_m=range_m, frames=args.frames, seed=args.seed))
+    except ValueError as exc:
+        raise ConfigError(f"--vehicles {vehicle} --ranges {range_m:g}: {exc}") from None
 
 
 if __name__ == "__main__":
-    main()
+    run_main(main)
