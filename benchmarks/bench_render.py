@@ -19,9 +19,13 @@ import numpy as np
 import torch
 import trimesh
 
-from torch_atr.config import TemplateConfig
+from torch_atr.cli import run_main
+from torch_atr.config import ConfigError, TemplateConfig
 from torch_atr.render import render_templates
 from torch_atr.shape import signed_distance
+from torch_atr.vehicles import load_catalog, load_vehicle
+
+from benchlib import check_at_least
 
 logger = logging.getLogger("bench_render")
 
@@ -45,12 +49,13 @@ def vehicle_mesh(rng: np.random.Generator, sections: int) -> trimesh.Trimesh:
 
 
 def loaded_mesh(path: str) -> trimesh.Trimesh:
-    mesh = trimesh.load(path, force="mesh")
+    """The mesh of a URDF or mesh file (every part kept), scaled to a 7 m length."""
+    mesh = load_vehicle(path, min_thickness=0.0).mesh
     mesh.apply_scale(7.0 / float(np.max(mesh.extents)))
     return mesh
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--vehicles", type=int, default=36, help="K meshes to build (without --mesh / --catalog)")
     parser.add_argument("--sections", type=int, default=64, help="cylinder sections (64: ~2,900 triangles)")
@@ -58,19 +63,26 @@ def main() -> None:
     parser.add_argument("--elevations", type=int, default=5, help="views: 10° elevation steps from 0°")
     parser.add_argument("--size", type=int, default=64, help="template size in pixels")
     parser.add_argument("--window", type=float, default=12.0, help="template window in metres")
-    parser.add_argument("--mesh", nargs="*", default=[], help="mesh files to render instead")
-    parser.add_argument("--catalog", choices=("train", "test"), help="render torch_atr.vehicles' catalog instead")
-    parser.add_argument("--seed", type=int, default=0)
+    source = parser.add_mutually_exclusive_group()
+    source.add_argument("--mesh", nargs="+", default=[], metavar="FILE", help="URDF or mesh files to render instead")
+    source.add_argument("--catalog", choices=("train", "test"), help="render torch_atr.vehicles' catalog instead")
+    parser.add_argument("--seed", type=int, default=0, help="seed of the built meshes' sizes")
     parser.add_argument("--threads", type=int, default=None, help="torch intra-op threads (default: torch's)")
-    args = parser.parse_args()
+    args = parser.parse_args(argv)
+    for flag, low in (("vehicles", 1), ("sections", 3), ("azimuths", 1), ("elevations", 1)):
+        check_at_least(flag, getattr(args, flag), low)
+    if args.threads is not None:
+        check_at_least("threads", args.threads, 1)
+    try:
+        cfg = TemplateConfig(size_px=args.size, window_m=args.window)
+    except ConfigError as exc:
+        raise ConfigError(f"--size {args.size} --window {args.window:g}: {exc}") from None
     logging.basicConfig(level=logging.INFO, format="%(message)s")
     if args.threads is not None:
         torch.set_num_threads(args.threads)
 
     rng = np.random.default_rng(args.seed)
     if args.catalog:
-        from torch_atr.vehicles import load_catalog
-
         meshes = [vehicle.mesh for vehicle in load_catalog(args.catalog)]
     elif args.mesh:
         meshes = [loaded_mesh(p) for p in args.mesh]
@@ -79,7 +91,6 @@ def main() -> None:
     theta = torch.arange(args.azimuths, dtype=torch.float64) * (2 * math.pi / args.azimuths)
     phi = torch.arange(args.elevations, dtype=torch.float64) * math.radians(10.0)
     theta, phi = (g.reshape(-1) for g in torch.meshgrid(theta, phi, indexing="ij"))
-    cfg = TemplateConfig(size_px=args.size, window_m=args.window)
     render_templates(meshes[0], theta[:2], phi[:2], cfg)  # warm-up
 
     start = time.perf_counter()
@@ -102,4 +113,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    run_main(main)
