@@ -5,38 +5,41 @@ For every vehicle and range, a ForegroundSegmenter (MOG2, thesis 3.1) learns the
 frames spread evenly over the run; the IoU of its mask with the simulator's visible mask
 (torch_atr.shape.iou: 1 when both are empty) is averaged per (vehicle, range). Also timed:
 frames per second of the simulator (target frames; warm-up frames are cheaper) and of the
-segmenter (warm-up excluded). The table goes to the log; ``--json`` writes everything.
+segmenter (warm-up excluded). The table goes to the log; ``--json`` writes everything (an
+earlier file of this benchmark is replaced only with ``--overwrite``).
 
     python benchmarks/bench_segmentation.py [--vehicles t_72 btr_70] [--ranges 1000 3500] [--json out.json]
-        [--set night=false noise_k=0.2] [--seg var_threshold=36 warmup_frames=50]
+        [--overwrite] [--set night=false noise_k=0.2] [--seg var_threshold=36 warmup_frames=50]
 """
 
 from __future__ import annotations
 
 import argparse
 import dataclasses
-import json
 import logging
+from pathlib import Path
 import time
 
 import numpy as np
 import torch
 
-from torch_atr.config import load_config
+from torch_atr.cli import run_main
+from torch_atr.config import ConfigError, load_config
 from torch_atr.data.synthetic import SceneConfig, SyntheticSequence
-from torch_atr.io import atomic_write_text
 from torch_atr.segmentation import ForegroundSegmenter, SegmentationConfig
 from torch_atr.shape import iou
 from torch_atr.vehicles.specs import SPLITS
 
+from benchlib import check_at_least, json_output, write_json
+
 log = logging.getLogger("bench_segmentation")
+NAME = Path(__file__).stem
 
 RANGES = (1000.0, 1500.0, 2000.0, 2500.0, 3000.0, 3500.0)
 
 
-def run(vehicle: str, scene: SceneConfig, seg_cfg: SegmentationConfig, frames: int) -> dict:
-    """IoU per frame and timings for one vehicle and scene."""
-    seq = SyntheticSequence(vehicle, scene)
+def run(seq: SyntheticSequence, seg_cfg: SegmentationConfig, frames: int) -> dict:
+    """IoU per frame and timings for one simulated sequence."""
     start = time.perf_counter()
     warm = list(seq.warmup_frames(seg_cfg.warmup_frames))
     warm_s = time.perf_counter() - start
@@ -54,7 +57,7 @@ def run(vehicle: str, scene: SceneConfig, seg_cfg: SegmentationConfig, frames: i
     return {"iou": ious, "sim_s": sim_s, "warmup_s": warm_s, "seg_s": seg_s}
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--vehicles", nargs="+", default=[s.name for s in SPLITS["test"]],
                         help="catalog names or URDF / mesh paths (default: the test split)")
@@ -64,20 +67,25 @@ def main() -> None:
     parser.add_argument("--seg", nargs="*", default=[], metavar="KEY=VALUE", help="SegmentationConfig overrides")
     parser.add_argument("--threads", type=int, default=None, help="torch intra-op threads (default: torch's)")
     parser.add_argument("--json", help="write the results to this JSON file")
-    args = parser.parse_args()
+    parser.add_argument("--overwrite", action="store_true", help="replace an earlier --json of this benchmark")
+    args = parser.parse_args(argv)
+    check_at_least("frames", args.frames, 1)
+    if args.threads is not None:
+        check_at_least("threads", args.threads, 1)
+    scene = load_config(SceneConfig, overrides=args.set)
+    seg_cfg = load_config(SegmentationConfig, overrides=args.seg)
+    sequences = {v: {r: sequence(v, scene, r) for r in args.ranges} for v in args.vehicles}  # every name and range
+    out = json_output(args.json, args.overwrite, NAME)
     logging.basicConfig(level=logging.INFO, format="%(message)s")
     if args.threads is not None:
         torch.set_num_threads(args.threads)
-    scene = load_config(SceneConfig, overrides=args.set)
-    seg_cfg = load_config(SegmentationConfig, overrides=args.seg)
 
-    results = {v: {r: run(v, dataclasses.replace(scene, range_m=r), seg_cfg, args.frames)
-                   for r in args.ranges} for v in args.vehicles}
+    results = {v: {r: run(seq, seg_cfg, args.frames) for r, seq in row.items()} for v, row in sequences.items()}
 
-    width = max(len(v) for v in args.vehicles + ["mean"])
+    width = max(len(v) for v in args.vehicles + ["vehicle / range (m)"])
     log.info("IoU of the segmented mask with the visible mask (%d frames per cell, %s)", args.frames,
              "night" if scene.night else "day")
-    log.info("%s %s", "vehicle".ljust(width), " ".join(f"{r:>7.0f}" for r in args.ranges))
+    log.info("%s %s", "vehicle / range (m)".ljust(width), " ".join(f"{r:>7.0f}" for r in args.ranges))
     for v, row in results.items():
         log.info("%s %s", v.ljust(width), " ".join(f"{np.mean(row[r]['iou']):7.3f}" for r in args.ranges))
     means = {r: float(np.mean([np.mean(results[v][r]["iou"]) for v in args.vehicles])) for r in args.ranges}
@@ -90,8 +98,8 @@ def main() -> None:
     log.info("simulator: %.1f frames/s (%d x %d), %.0f warm-up frames/s; segmenter: %.1f frames/s; "
              "torch %s, %d threads", sim_fps, scene.width, scene.height, warm_fps, seg_fps, torch.__version__,
              torch.get_num_threads())
-    if args.json:
-        out = {"scene": dataclasses.asdict(scene), "segmentation": dataclasses.asdict(seg_cfg), "frames": args.frames,
+    if out is not None:
+        data = {"scene": dataclasses.asdict(scene), "segmentation": dataclasses.asdict(seg_cfg), "frames": args.frames,
                "iou": {v: {f"{r:g}": float(np.mean(row[r]["iou"])) for r in args.ranges}
                        for v, row in results.items()},
                "iou_min": {v: {f"{r:g}": float(np.min(row[r]["iou"])) for r in args.ranges}
@@ -99,9 +107,16 @@ def main() -> None:
                "iou_mean_by_range": {f"{r:g}": m for r, m in means.items()},
                "simulator_fps": sim_fps, "warmup_fps": warm_fps, "segmenter_fps": seg_fps,
                "torch": torch.__version__, "threads": torch.get_num_threads()}
-        atomic_write_text(json.dumps(out, indent=1), args.json)
-        log.info("wrote %s", args.json)
+        write_json(data, out, NAME)
+
+
+def sequence(vehicle: str, scene: SceneConfig, range_m: float) -> SyntheticSequence:
+    """The simulated sequence of ``vehicle`` at ``range_m``; ConfigError names a bad vehicle or range."""
+    try:
+        return SyntheticSequence(vehicle, dataclasses.replace(scene, range_m=range_m))
+    except ValueError as exc:
+        raise ConfigError(f"--vehicles {vehicle} --ranges {range_m:g}: {exc}") from None
 
 
 if __name__ == "__main__":
-    main()
+    run_main(main)
