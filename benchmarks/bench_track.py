@@ -21,14 +21,16 @@ not see it.
 
     python benchmarks/bench_track.py [--particles 250 500 1000 2000 4000 8000 16000] [--frames 60]
         [--device cpu] [--checkpoint checkpoints/default.pt] [--set filter.likelihood_px=16]
-        [--segmentation-gaps 1 3 12 33] [--json OUT]
+        [--segmentation-gaps 1 3 12 33] [--json OUT] [--overwrite]
+
+Every option is checked before the frames are made; ``--json`` refuses an existing file unless
+it is an earlier output of this benchmark and ``--overwrite`` is given.
 """
 
 from __future__ import annotations
 
 import argparse
 import cProfile
-import json
 import logging
 import math
 import pstats
@@ -39,9 +41,9 @@ from pathlib import Path
 import torch
 import torch.nn.functional as F
 
-from torch_atr.config import load_config
+from torch_atr.cli import run_main
+from torch_atr.config import ConfigError, load_config
 from torch_atr.data.synthetic import SceneConfig, SyntheticSequence
-from torch_atr.io import atomic_write_text
 from torch_atr.model import GenerativeShapeModel
 from torch_atr.pose import VehiclePose, view_of_pose
 from torch_atr.segmentation import ForegroundSegmenter
@@ -49,15 +51,18 @@ from torch_atr.shape import signed_distance_px
 from torch_atr.tracking import Tracker, TrackerConfig
 from torch_atr.tracking.motion import MotionConfig
 
+from benchlib import SHIPPED, check_at_least, json_output, write_json
+
 log = logging.getLogger("bench_track")
-SHIPPED = Path(__file__).resolve().parents[1] / "checkpoints" / "default.pt"
+NAME = Path(__file__).stem
 PROFILE_WARMUP = 5  # frames stepped before the profiler starts
 
 # Functions whose cumulative time makes the profile (name in the cProfile table -> stage).
 STAGES = {"__call__": "segmentation (MOG2, gain, blob)", "frame_distance": "frame distance (EDT near the blob)",
           "_predict": "prediction (eq. 5.1, 5.3)", "_predicted_region": "predicted region",
           "_log_likelihood": "likelihoods (eq. 5.2), of which:", "_views": "  views Θ of the particles",
-          "observe_windows": "  windows and their samples", "squared_errors": "  predicted shapes and errors (Method I)",
+          "observe_windows": "  windows and their samples",
+          "squared_errors": "  predicted shapes and errors (Method I)",
           "_estimate": "estimates", "_overlap": "overlap (placed silhouette)", "resample": "resampling",
           "_redetect": "re-detection (its share of every frame)"}
 
@@ -155,7 +160,8 @@ def reference_fps(model, seq, frames, n: int, tracker_cfg: TrackerConfig) -> flo
     seg = warmed_segmenter(seq, tracker_cfg)
     t = seq.truth(0)
     g = torch.Generator().manual_seed(0)
-    particles = [[t.x + r[0], t.y + r[1], t.z + r[2], t.heading, 1.0, 0.5] for r in torch.randn(n, 3, generator=g).tolist()]
+    particles = [[t.x + r[0], t.y + r[1], t.z + r[2], t.heading, 1.0, 0.5]
+                 for r in torch.randn(n, 3, generator=g).tolist()]
     times = []
     for frame in frames:
         start = time.perf_counter()
@@ -213,32 +219,45 @@ def profile(model, seq, frames, n: int, device: str, overrides: list[str]) -> di
     return out
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--particles", type=int, nargs="+", default=[250, 500, 1000, 2000, 4000, 8000, 16000])
-    parser.add_argument("--frames", type=int, default=60, help="frames per run (the simulator makes them first)")
-    parser.add_argument("--skip", type=int, default=5, help="frames not counted at the start of each run")
-    parser.add_argument("--reference-frames", type=int, default=3, help="frames of the per-particle reference")
-    parser.add_argument("--reference-particles", type=int, default=1000)
-    parser.add_argument("--device", default="cpu")
-    parser.add_argument("--checkpoint", default=str(SHIPPED))
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--particles", type=int, nargs="+", default=[250, 500, 1000, 2000, 4000, 8000, 16000],
+                        metavar="N", help="the particle counts of the batched filter's runs")
+    parser.add_argument("--frames", type=int, default=60, metavar="N",
+                        help="frames per run (the simulator makes them first)")
+    parser.add_argument("--skip", type=int, default=5, metavar="N", help="frames not counted at the start of each run")
+    parser.add_argument("--reference-frames", type=int, default=3, metavar="N",
+                        help="frames of the per-particle reference")
+    parser.add_argument("--reference-particles", type=int, default=1000, metavar="N",
+                        help="particles of the reference, the speed-up and the profile")
+    parser.add_argument("--device", default="cpu", help="where the batched filter's particles live: cpu, cuda, ...")
+    parser.add_argument("--checkpoint", default=str(SHIPPED), metavar="PATH",
+                        help="the trained model (default: the shipped one)")
     parser.add_argument("--set", nargs="*", default=[], metavar="KEY=VALUE",
                         help="tracker config overrides, e.g. filter.likelihood_px=16")
     parser.add_argument("--segmentation-gaps", type=float, nargs="*", default=[], metavar="MS",
                         help="also time the segmentation alone with this much busy waiting (ms) between its calls")
-    parser.add_argument("--json", help="also write the numbers here")
-    args = parser.parse_args()
-    if any(not 0 <= gap <= 1e3 for gap in args.segmentation_gaps):
-        parser.error(f"--segmentation-gaps must be in [0, 1000] ms; got {args.segmentation_gaps}")
-    if min(args.particles + [args.reference_particles, args.reference_frames]) < 1:
-        parser.error("--particles, --reference-particles and --reference-frames must be at least 1")
-    if args.skip < 0 or args.frames < max(args.skip + 1, PROFILE_WARMUP + 1):
-        parser.error(f"--frames ({args.frames}) must exceed --skip ({args.skip}, at least 0) and {PROFILE_WARMUP}, "
-                     "the profile's unprofiled frames")
-    logging.basicConfig(level=logging.INFO, format="%(message)s")
+    parser.add_argument("--json", metavar="OUT", help="also write the numbers here")
+    parser.add_argument("--overwrite", action="store_true", help="replace an earlier --json of this benchmark")
+    args = parser.parse_args(argv)
+    check_at_least("segmentation-gaps", args.segmentation_gaps, 0)
+    if any(gap > 1e3 for gap in args.segmentation_gaps):
+        raise ConfigError(f"--segmentation-gaps must be at most 1000 ms; got {max(args.segmentation_gaps):g}")
+    for flag in ("particles", "reference_particles", "reference_frames"):
+        check_at_least(flag.replace("_", "-"), getattr(args, flag), 1)
+    check_at_least("skip", args.skip, 0)
+    if args.frames <= max(args.skip, PROFILE_WARMUP):
+        raise ConfigError(f"--frames {args.frames} must exceed --skip ({args.skip}) and {PROFILE_WARMUP} (the "
+                          f"profile's unprofiled frames); give --frames {max(args.skip, PROFILE_WARMUP) + 1} or more")
 
-    model = GenerativeShapeModel.from_checkpoint(args.checkpoint)
+    # Everything a run could refuse before the frames are made: the model and device, the output,
+    # and the trackers' settings (the --set overrides; filter.likelihood_px against the model).
+    model = GenerativeShapeModel.from_checkpoint(args.checkpoint, map_location=args.device)
     seq = SyntheticSequence("t_72", SceneConfig(frames=max(args.frames, args.reference_frames)))
+    for n in dict.fromkeys(args.particles + [args.reference_particles]):
+        Tracker(model, seq.camera, tracker_config(n, args.set), device=args.device)
+    out = json_output(args.json, args.overwrite, NAME)
+    logging.basicConfig(level=logging.INFO, format="%(message)s")
     frames = [seq.frame(i) for i in range(args.frames)]
     log.info("T-72 at 1000 m, %d frames of %dx%d, device %s, %d torch threads, overrides %s", args.frames,
              seq.cfg.width, seq.cfg.height, args.device, torch.get_num_threads(), args.set or "none")
@@ -277,16 +296,13 @@ def main() -> None:
     log.info("where the time goes at N = %d (ms per frame, cumulative):", n_ref)
     for name, ms in sorted(stages.items(), key=lambda kv: -kv[1]):
         log.info("  %-38s %6.2f", name, ms)
-    if args.json:
-        atomic_write_text(json.dumps({"runs": rows, "reference": {"particles": n_ref, "frames_per_second": ref,
-                                                                   "speed_up": batched / ref},
-                                      "segmentation_ms": seg_ms, "segmentation_live_ms": live_ms,
-                                      "segmentation_busy_gap_ms": gap_ms,
-                                      "segmentation_in_step_ms": in_step_ms,
-                                      "profile_ms": stages,
-                                      "threads": torch.get_num_threads()}, indent=2),
-                          args.json)
+    if out is not None:
+        write_json({"runs": rows,
+                    "reference": {"particles": n_ref, "frames_per_second": ref, "speed_up": batched / ref},
+                    "segmentation_ms": seg_ms, "segmentation_live_ms": live_ms, "segmentation_busy_gap_ms": gap_ms,
+                    "segmentation_in_step_ms": in_step_ms, "profile_ms": stages, "threads": torch.get_num_threads()},
+                   out, NAME)
 
 
 if __name__ == "__main__":
-    main()
+    run_main(main)
