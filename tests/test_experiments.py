@@ -239,3 +239,27 @@ def test_study_labels_name_the_particles_and_ranges_each_run_ran(tmp_path):
     report = (tmp_path / "report.md").read_text()
     assert "| night, 200 particles | 1000 |" in report and "| 800 particles | 1000 |" in report
     assert "| 4000 m | 4000 |" in report and "16000" not in report and "250 particles" not in report
+
+
+def test_the_default_checkpoint_is_found_from_any_folder_and_a_missing_one_makes_no_folder(tmp_path, monkeypatch):
+    """From another folder, "checkpoints/default.pt" failed, once OUT/sequences/ had been made."""
+    from torch_atr.experiments.sensiac_like import REPO, resolve_checkpoint
+
+    monkeypatch.chdir(tmp_path)
+    assert resolve_checkpoint("checkpoints/default.pt") == REPO / "checkpoints" / "default.pt"
+    SensiacLikeConfig(vehicles=("t_72",))  # the default checkpoint passes the config's check from here
+    (tmp_path / "checkpoints").mkdir()
+    (tmp_path / "checkpoints" / "default.pt").write_bytes(b"mine")
+    mine = (tmp_path / "checkpoints" / "default.pt").resolve()
+    assert resolve_checkpoint("checkpoints/default.pt").resolve() == mine  # as given wins, as track.py's
+    with pytest.raises(FileNotFoundError, match=r"checkpoint not found: nope.pt \(neither from ") as missing:
+        resolve_checkpoint("nope.pt")
+    assert f"from {os.getcwd()} nor from {REPO})" in str(missing.value)
+    for experiment in ("sensiac-like", "unseen", "studies", "visible", "all"):
+        with pytest.raises(FileNotFoundError, match="checkpoint not found: nope.pt"):
+            main([experiment, "--quick", "--checkpoint", "nope.pt", "--out", "out"])
+    with pytest.raises(ValueError, match="vehicles: Unknown vehicle 'nope'"):
+        main(["sensiac-like", "--quick", "--vehicles", "nope", "--out", "out"])
+    with pytest.raises(ValueError, match="not in the held-out manifest"):
+        main(["unseen", "--quick", "--vehicles", "heldout:tank/nope.obj", "--out", "out"])
+    assert sorted(os.listdir(tmp_path)) == ["checkpoints"]  # no run folder

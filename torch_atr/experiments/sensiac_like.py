@@ -24,6 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
+import torch_atr
 from torch_atr.config import ConfigError, load_config
 from torch_atr.data.sequence import Sequence
 from torch_atr.io import atomic_write_text
@@ -39,6 +40,7 @@ GROUPS = ("tank", "apc", "suv", "pickup")  # Table 6.1's columns (SENSIAC has no
 RESULT_FORMAT = "torch_atr.sensiac_like_sequence"
 GRID_SCENE_KEYS = ("range_m", "circle_diameter_m", "frames", "seed")  # set by the grid, not by scene overrides
 HELDOUT_PREFIX = "heldout:"  # a vehicle name for a held-out mesh: heldout:PATH, PATH as in the manifest
+REPO = Path(torch_atr.__file__).resolve().parents[1]  # a source checkout's root, which holds checkpoints/
 
 
 @dataclass(frozen=True)
@@ -78,6 +80,9 @@ class SensiacLikeConfig:
         load_config(SceneConfig, None, list(self.scene), what="--scene")  # fails here, naming the key, not in a worker
         for method in self.methods:  # so do the tracker's: a bad key failed once every worker had built its scene
             load_config(TrackerConfig, None, self.tracker_overrides(method))
+        for vehicle in self.vehicles:  # and the inputs, before a run folder is made
+            check_vehicle(vehicle)
+        resolve_checkpoint(self.checkpoint)
 
     def tracker_overrides(self, method: str) -> list[str]:
         return [f"filter.particles={self.particles}", f"filter.method={method}", f"init.mode={self.init}",
@@ -108,19 +113,52 @@ def heldout_names() -> tuple[str, ...]:
     return tuple(HELDOUT_PREFIX + e.path for e in read_manifest())
 
 
+def _heldout_entries(name: str) -> list:
+    """The manifest entry of ``heldout:PATH``, in a list; ``ConfigError`` where the manifest lacks it."""
+    from torch_atr.vehicles.catalog import read_manifest
+
+    entries = [e for e in read_manifest() if HELDOUT_PREFIX + e.path == name]
+    if not entries:
+        raise ConfigError(f"vehicles: {name!r} is not in the held-out manifest; expected one of "
+                          f"{', '.join(heldout_names())}")
+    return entries
+
+
 def load_experiment_vehicle(name: str):
     """The vehicle of an experiment name: ``heldout:PATH`` loads that manifest entry (its class,
     axes and scale from the manifest); anything else is left to the simulator (a catalog name)."""
     if not name.startswith(HELDOUT_PREFIX):
         return name
-    from torch_atr.vehicles.catalog import load_heldout_meshes, read_manifest
+    from torch_atr.vehicles.catalog import load_heldout_meshes
 
-    path = name[len(HELDOUT_PREFIX):]
-    entries = [e for e in read_manifest() if e.path == path]
-    if not entries:
-        raise ConfigError(f"vehicles: {name!r} is not in the held-out manifest; expected one of "
-                          f"{', '.join(heldout_names())}")
-    return load_heldout_meshes(entries=entries)[0]
+    return load_heldout_meshes(entries=_heldout_entries(name))[0]
+
+
+def check_vehicle(name: str) -> None:
+    """``ConfigError`` unless the simulator can load the experiment vehicle ``name``: a
+    ``heldout:PATH`` of the manifest (not loaded), a catalog name or a vehicle file."""
+    if name.startswith(HELDOUT_PREFIX):
+        _heldout_entries(name)
+        return
+    from torch_atr.data.synthetic import resolve_vehicle
+
+    try:
+        resolve_vehicle(name)
+    except ValueError as exc:
+        raise ConfigError(f"vehicles: {exc}") from exc
+
+
+def resolve_checkpoint(checkpoint: str) -> Path:
+    """The checkpoint file: a relative path as given if it exists from here, else from the
+    repository root (so the default, ``checkpoints/default.pt``, is found from any folder), as
+    ``track.py`` resolves it. ``FileNotFoundError`` where neither place holds the file."""
+    path = Path(checkpoint)
+    if not path.is_absolute() and not path.exists() and (REPO / path).exists():
+        path = REPO / path
+    if not path.is_file():
+        where = "" if Path(checkpoint).is_absolute() else f" (neither from {Path.cwd()} nor from {REPO})"
+        raise FileNotFoundError(f"checkpoint not found: {checkpoint}{where}")
+    return path
 
 
 _WORKER: dict = {}  # per worker process: the model and Method IV's templates, loaded once
@@ -132,7 +170,7 @@ def worker_model(checkpoint: str):
 
     if _WORKER.get("checkpoint") != checkpoint:
         _WORKER.clear()
-        model, extra = load_checkpoint(checkpoint)
+        model, extra = load_checkpoint(resolve_checkpoint(checkpoint))
         _WORKER.update(checkpoint=checkpoint, model=model, extra=extra)
     return _WORKER["model"]
 

@@ -47,7 +47,8 @@ import numpy as np
 
 import torch_atr
 from torch_atr.config import ConfigError, load_config
-from torch_atr.experiments.sensiac_like import HELDOUT_PREFIX, FrameCache, worker_model, json_number, worker_templates, in_processes
+from torch_atr.experiments.sensiac_like import (HELDOUT_PREFIX, FrameCache, check_vehicle, in_processes, json_number,
+                                                resolve_checkpoint, worker_model, worker_templates)
 from torch_atr.io import atomic_write_text
 from torch_atr.tracking import METHODS, TrackerConfig
 
@@ -102,7 +103,9 @@ class VisibleConfig:
                               f"{self.image_scale}, {self.boards}, {self.start_deg}")
         for role in ROLES:
             scene(role, self)  # fails here, naming the field, not in a worker
-        for method in self.methods:  # as do the tracker's overrides
+            check_vehicle(getattr(self, role))  # as do the vehicles and the checkpoint, before a run folder is made
+        resolve_checkpoint(self.checkpoint)
+        for method in self.methods:  # and the tracker's overrides
             load_config(TrackerConfig, None, self.tracker_overrides(method))
 
     def tracker_overrides(self, method: str) -> list[str]:
