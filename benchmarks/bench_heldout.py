@@ -1,7 +1,7 @@
 """Recognition of real vehicles the model never saw: a static α search on the held-out meshes.
 
     python benchmarks/bench_heldout.py [--checkpoint checkpoints/default.pt] [--grid 720] [--json OUT]
-        [--figure docs/recognition_failures.png] [--catalog-dir DIR] [--min-thickness 0.05]
+        [--figure docs/recognition_failures.png --overwrite] [--catalog-dir DIR] [--min-thickness 0.05]
 
 Each held-out mesh (``torch_atr/vehicles/heldout.yaml``, files under ``shared/data/meshes``) is
 rendered at 30 azimuths every 12° at 5° elevation, in the model's template window. For 720
@@ -19,12 +19,14 @@ IoU >= 0.98 (the manifest lists one Quaternius tank twice, as a GLB and as an OB
 
 ``--figure`` draws the meshes that are wrong in most single views beside the training
 vehicles nearest their best α and nearest their best α within the true class (templates of
-the catalog under ``--catalog-dir``). The state before issue 10 (docs/recognition_before.png)::
+the catalog under ``--catalog-dir``). An existing ``--json`` or ``--figure`` is replaced only with
+``--overwrite`` (the shipped figures in docs/ too), and only if this benchmark wrote it (a JSON) or
+matplotlib did (a PNG). The state before issue 10 (docs/recognition_before.png)::
 
     mkdir -p /tmp/old && git show 82d7482:checkpoints/default.pt > /tmp/old/default_82d7482.pt
     git archive 82d7482 torch_atr/vehicles/catalog | tar -x -C /tmp/old
     python benchmarks/bench_heldout.py --checkpoint /tmp/old/default_82d7482.pt --min-thickness 0 \
-        --catalog-dir /tmp/old/torch_atr/vehicles/catalog/train --figure docs/recognition_before.png
+        --catalog-dir /tmp/old/torch_atr/vehicles/catalog/train --figure docs/recognition_before.png --overwrite
 
 Prints the per-mesh rows, then the per-class table (meshes on their true class, single views
 on their true class, mean best IoU), the total over distinct geometries ("all 25") and over
@@ -34,7 +36,6 @@ every manifest entry as issue 10 counted them ("all entries 26").
 from __future__ import annotations
 
 import argparse
-import json
 import logging
 import math
 from pathlib import Path
@@ -42,8 +43,9 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from torch_atr.cli import run_main
+from torch_atr.config import ConfigError
 from torch_atr.evaluation import alpha_grid_iou
-from torch_atr.io import atomic_write_text
 from torch_atr.model import GenerativeShapeModel
 from torch_atr.render import render_templates
 from torch_atr.shape import iou
@@ -52,9 +54,10 @@ from torch_atr.vehicles.catalog import CATALOG_DIR, read_manifest
 from torch_atr.vehicles.loader import MIN_THICKNESS_M
 from torch_atr.viz import save_figures
 
-log = logging.getLogger("bench_heldout")
+from benchlib import REPO, SHIPPED, check_at_least, json_output, png_output, write_json
 
-REPO = Path(__file__).resolve().parents[1]
+log = logging.getLogger("bench_heldout")
+NAME = Path(__file__).stem
 AZIMUTH_STEP_DEG, ELEVATION_DEG = 12.0, 5.0
 SAME_GEOMETRY_IOU = 0.98
 
@@ -171,9 +174,9 @@ def summary(rows: list[dict]) -> dict[str, dict]:
             for name, sel in groups.items() if sel}
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--checkpoint", default=str(REPO / "checkpoints/default.pt"))
+    parser.add_argument("--checkpoint", default=str(SHIPPED), help="the trained model (default: the shipped one)")
     parser.add_argument("--meshes", default=None, help="held-out meshes folder (default: shared/data/meshes)")
     parser.add_argument("--grid", type=int, default=720, help="number of α values searched")
     parser.add_argument("--json", type=Path, default=None, help="also write the rows and the summary here")
@@ -182,9 +185,20 @@ def main() -> None:
                         help="the checkpoint's training vehicles, <dir>/<name>/<name>.urdf (for --figure)")
     parser.add_argument("--min-thickness", type=float, default=MIN_THICKNESS_M,
                         help="thinner protrusions are trimmed from the meshes (0: keep them, as before issue 10)")
-    args = parser.parse_args()
-    logging.basicConfig(level=logging.INFO, format="%(message)s")
+    parser.add_argument("--overwrite", action="store_true",
+                        help="replace an earlier --json of this benchmark or a matplotlib --figure")
+    args = parser.parse_args(argv)
+    check_at_least("grid", args.grid, 1)
+    check_at_least("min-thickness", args.min_thickness, 0)
     model = GenerativeShapeModel.from_checkpoint(args.checkpoint)
+    if args.figure is not None:
+        missing = [n for n in model.vehicle_names if not (args.catalog_dir / n / f"{n}.urdf").is_file()]
+        if missing:
+            raise ConfigError(f"--catalog-dir {args.catalog_dir} lacks {len(missing)} of the checkpoint's training "
+                              f"vehicles, e.g. {missing[0]}/{missing[0]}.urdf (--figure draws them)")
+    json_out = json_output(args.json, args.overwrite, NAME)
+    figure = png_output(args.figure, args.overwrite, "figure")
+    logging.basicConfig(level=logging.INFO, format="%(message)s")
     entries = read_manifest()
     meshes = load_heldout_meshes(args.meshes, entries, args.min_thickness)
     rows = evaluate(model, meshes, [e.path for e in entries], args.grid)
@@ -206,17 +220,17 @@ def main() -> None:
         label, bold = (f"{name} {s['meshes']}", "**") if name.startswith("all") else (name, "")
         log.info("| %s%s%s | %s%d/%d%s | %s%.3f%s | %.3f |", bold, label, bold, bold, s["correct"], s["meshes"], bold,
                  bold, s["views_correct"], bold, s["best_mean_iou"])
-    if args.figure is not None:
+    if figure is not None:
         path = Path(args.checkpoint).resolve()
         shown_path = path.relative_to(REPO) if path.is_relative_to(REPO) else path.name
         fig = failure_figure(rows, meshes, args.catalog_dir, model,
                              f"Held-out real meshes wrong in most single views (static α search, {shown_path}): "
                              f"overlaid 64 x 64 templates, central 7.5 m, 5° elevation")
-        save_figures({args.figure.stem: fig}, args.figure.parent)
-    if args.json is not None:
-        atomic_write_text(json.dumps({"checkpoint": str(args.checkpoint), "rows": rows, "summary": table}, indent=1),
-                          args.json)
+        save_figures({figure.stem: fig}, figure.parent)
+        log.info("wrote %s", figure)
+    if json_out is not None:
+        write_json({"checkpoint": str(args.checkpoint), "rows": rows, "summary": table}, json_out, NAME)
 
 
 if __name__ == "__main__":
-    main()
+    run_main(main)

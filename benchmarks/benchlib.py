@@ -45,7 +45,7 @@ def png_output(path: str | Path | None, overwrite: bool, flag: str) -> Path | No
     """The PNG path of ``--flag`` checked before the run (None when not asked for): see the module docstring."""
     if path is None:
         return None
-    if Path(path).suffix.lower() != ".png":
+    if Path(path).suffix != ".png":
         raise ConfigError(f"--{flag} must be a .png file; got {path}")
     return _checked(check_output_file(path, overwrite, _is_matplotlib_png, "matplotlib PNG"))
 
