@@ -3,9 +3,10 @@
 Two models reconstruct N random (α, θ, φ) queries each: the shipped checkpoint (``--checkpoint``)
 and a model with random contents of the requested sizes (K vehicles, Nc = V centres on the
 training-view grid, H = W pixels, pixel rank r). The shipped model's trained kernel widths make
-most of Ψ(Θ) tiny, which a random model does not show (the denormal pitfall of METHOD.md). The naive reference evaluates
-𝒜 ×₃ i(α) ×₂ Ψ(Θ) one query at a time on the full d × P × K core (no pixel basis) for a subset of
-queries, scaled to N. Rates are reported against a dense float32 matmul measured in the same run.
+most of Ψ(Θ) tiny, which a random model does not show (the denormal pitfall of METHOD.md). The
+naive reference evaluates 𝒜 ×₃ i(α) ×₂ Ψ(Θ) one query at a time on the full d × P × K core (no
+pixel basis) for a subset of queries, scaled to N. Rates are reported against a dense float32
+matmul measured in the same run.
 
     python benchmarks/bench_reconstruct.py --vehicles 36 --size 64 --rank 128 --batch 4096
 """
@@ -16,15 +17,16 @@ import argparse
 import logging
 import math
 import time
-from pathlib import Path
 
 import torch
 
-from torch_atr.config import TemplateConfig
+from torch_atr.cli import run_main
+from torch_atr.config import ConfigError, TemplateConfig
 from torch_atr.model import GenerativeShapeModel, IdentityManifold, RBFViewMapping, TensorCore, mode_product
 
+from benchlib import SHIPPED, check_at_least
+
 log = logging.getLogger("bench_reconstruct")
-SHIPPED = Path(__file__).resolve().parents[1] / "checkpoints" / "default.pt"
 
 
 def timed(fn, repeats: int) -> float:
@@ -41,7 +43,8 @@ def timed(fn, repeats: int) -> float:
     return min(times)
 
 
-def random_model(K: int, azimuths: int, elevations: int, size: int, rank: int, g: torch.Generator) -> GenerativeShapeModel:
+def random_model(K: int, azimuths: int, elevations: int, size: int, rank: int, g: torch.Generator
+                 ) -> GenerativeShapeModel:
     """A model of the requested sizes with a random core, orthonormal bases and a random class per vehicle."""
     theta = torch.arange(azimuths).repeat(elevations) * (2 * math.pi / azimuths)
     phi = torch.arange(elevations).repeat_interleave(azimuths) * math.radians(10.0)
@@ -99,8 +102,8 @@ def bench(model: GenerativeShapeModel, label: str, N: int, n_naive: int, repeats
     log.info("max |naive - batched| over %d queries: %.2e", n, error)
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--checkpoint", default=str(SHIPPED), help="a trained model to time (default: the shipped one)")
     parser.add_argument("--vehicles", type=int, default=36, help="K of the random model")
     parser.add_argument("--azimuths", type=int, default=30, help="training azimuths (12° steps)")
@@ -109,9 +112,22 @@ def main() -> None:
     parser.add_argument("--rank", type=int, default=128, help="r of the pixel basis")
     parser.add_argument("--batch", type=int, default=4096, help="N queries")
     parser.add_argument("--naive", type=int, default=64, help="queries in the naive per-query loop")
-    parser.add_argument("--repeats", type=int, default=5)
-    parser.add_argument("--seed", type=int, default=0)
-    args = parser.parse_args()
+    parser.add_argument("--repeats", type=int, default=5, help="timed runs of each stage (the best counts)")
+    parser.add_argument("--seed", type=int, default=0, help="seed of the random model and the queries")
+    args = parser.parse_args(argv)
+    check_at_least("vehicles", args.vehicles, 2)  # a closed identity manifold
+    for flag in ("azimuths", "elevations", "batch", "naive", "repeats"):
+        check_at_least(flag, getattr(args, flag), 1)
+    if args.azimuths * args.elevations < 2:
+        raise ConfigError(f"--azimuths x --elevations must be at least 2 views (the RBF centres); got "
+                          f"{args.azimuths} x {args.elevations}")
+    try:
+        TemplateConfig(size_px=args.size)
+    except ConfigError as exc:
+        raise ConfigError(f"--size {args.size}: {exc}") from None
+    if not 1 <= args.rank <= args.size ** 2:
+        raise ConfigError(f"--rank must be in [1, --size squared = {args.size ** 2}]; got {args.rank}")
+    shipped = GenerativeShapeModel.from_checkpoint(args.checkpoint)
     logging.basicConfig(level=logging.INFO, format="%(message)s")
 
     g = torch.Generator().manual_seed(args.seed)
@@ -119,11 +135,10 @@ def main() -> None:
     t_matmul = timed(lambda: a @ a, 2 * args.repeats)
     matmul_rate = 2 * 2048 ** 3 / t_matmul / 1e9
     log.info("dense 2048x2048 float32 matmul: %.1f ms, %.1f GFLOP/s", 1e3 * t_matmul, matmul_rate)
-    shipped = GenerativeShapeModel.from_checkpoint(args.checkpoint)
     bench(shipped, f"checkpoint {args.checkpoint}", args.batch, args.naive, args.repeats, matmul_rate, g)
     random = random_model(args.vehicles, args.azimuths, args.elevations, args.size, args.rank, g)
     bench(random, "random model", args.batch, args.naive, args.repeats, matmul_rate, g)
 
 
 if __name__ == "__main__":
-    main()
+    run_main(main)
