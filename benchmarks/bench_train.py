@@ -4,7 +4,10 @@
 
 Runs ``train.py`` in a child process (so the peak RSS is that process's alone) into a temporary
 folder and prints the figures the README quotes; targets from issue 3: < 2 minutes, < 1.5 GB.
+A config or override that train.py refuses is reported as its one-line error.
 """
+
+from __future__ import annotations
 
 import argparse
 import json
@@ -16,21 +19,33 @@ import tempfile
 import time
 from pathlib import Path
 
-REPO = Path(__file__).resolve().parents[1]
+from torch_atr.cli import run_main
+from torch_atr.config import ConfigError
+
+from benchlib import REPO
+
+TRAIN_ERROR = "train.py: error: "  # how train.py's run_main reports a user error, on its last line
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--config", default=str(REPO / "configs/default.yaml"))
-    parser.add_argument("overrides", nargs="*")
-    args = parser.parse_args()
+    parser.add_argument("--config", default=str(REPO / "configs/default.yaml"),
+                        help="train.py's YAML config (default: the repository's configs/default.yaml)")
+    parser.add_argument("overrides", nargs="*", help="key=value overrides for train.py (model.ridge=1e-3)")
+    args = parser.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(message)s")
     with tempfile.TemporaryDirectory() as tmp:
-        cmd = [sys.executable, str(REPO / "train.py"), "--config", args.config, f"checkpoint={tmp}/model.pt",
-               f"log_dir={tmp}/runs", "name=bench", *args.overrides]
+        cmd = [sys.executable, str(REPO / "train.py"), "--config", str(Path(args.config).resolve()),
+               f"checkpoint={tmp}/model.pt", f"log_dir={tmp}/runs", "name=bench", *args.overrides]
         start = time.perf_counter()
-        subprocess.run(cmd, check=True, cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        child = subprocess.run(cmd, cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
         wall = time.perf_counter() - start
+        if child.returncode:
+            last = (child.stderr.splitlines() or [""])[-1]
+            if last.startswith(TRAIN_ERROR):
+                raise ConfigError(f"train.py: {last[len(TRAIN_ERROR):]}")
+            sys.stderr.write(child.stderr)
+            raise SystemExit(f"train.py failed with exit status {child.returncode}; its output is above")
         peak_mb = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024
         report = json.loads((Path(tmp) / "runs/bench/report.json").read_text())
     logging.info("train.py end to end: %.1f s wall, peak RSS %.0f MB (targets: < 120 s, < 1500 MB)", wall, peak_mb)
@@ -40,4 +55,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    run_main(main)
