@@ -87,3 +87,10 @@ def to_grey(name: str, image, dtypes: Sequence[type | np.dtype], order: str = "B
             return cv2.cvtColor(image.astype(np.float32), code).astype(np.float64)
         return cv2.cvtColor(image, code)
     raise ValueError(f"Expected {name} to have shape (H, W) or (H, W, 3); got {image.shape}")
+
+
+def describe_array(value) -> str:
+    """An array's shape and dtype, or the type of anything else, for error messages."""
+    if isinstance(value, np.ndarray):
+        return f"shape {value.shape}, dtype {value.dtype}"
+    return f"a {type(value).__name__}"

@@ -49,7 +49,7 @@ import cv2
 import numpy as np
 from scipy.stats import median_abs_deviation
 
-from torch_atr._checks import to_grey
+from torch_atr._checks import describe_array, to_grey
 from torch_atr.config import ConfigError
 
 logger = logging.getLogger(__name__)
@@ -216,13 +216,6 @@ _FOREGROUND_MARGIN_PX = 7  # the detected foreground is grown by this before a s
 _THIN_RING_PX = 1  # thin parts: the ring round the blob that a blur halo fills ...
 _THIN_REACH_PX = 2.0  # ... and how far beyond it a part must reach (3 x 3 chamfer: 3 px straight, 2 diagonally)
 _THIN_SEARCH_PX = 32  # ... and the margin round the blob in which its thin parts are looked for first
-
-
-def _described(frame) -> str:
-    """A frame's shape and dtype, or its type if it is not an array, for errors."""
-    if isinstance(frame, np.ndarray):
-        return f"shape {frame.shape}, dtype {frame.dtype}"
-    return f"a {type(frame).__name__}"
 
 
 def _box_mask(shape: tuple[int, int], box: Box | None) -> np.ndarray:
@@ -428,7 +421,7 @@ class ForegroundSegmenter:
         if not (isinstance(frame, np.ndarray) and frame.shape[:2] == self._kind[0] and frame.dtype == self._kind[1]
                 and (frame.ndim == 2 or frame.ndim == 3 and frame.shape[2] == 3)):
             raise ValueError(f"Expected a frame of size {self._kind[0]} and dtype {self._kind[1]} like the "
-                             f"warm-up frames; got {_described(frame)}")
+                             f"warm-up frames; got {describe_array(frame)}")
 
     def _grey(self, frame) -> tuple[np.ndarray, np.ndarray | None]:
         """(H, W) or (H, W, 3) frame -> (H, W) grey of its dtype, checked against the warm-up frames,
