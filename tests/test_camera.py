@@ -167,3 +167,22 @@ def test_the_constructor_checks_what_from_dict_checks(args, kwargs, message):
         Camera(*args, **kwargs)
     cam = Camera(np.float64(500.0), torch.tensor(500.0), 320, 240.0, np.int64(640), 480.0)  # any real scalars
     assert (cam.fx, cam.width, cam.height) == (500.0, 640, 480)
+
+
+def test_from_opencv_refuses_distortion_terms_it_cannot_keep():
+    """8 rational or 12 thin-prism coefficients were cut to 5 silently: 215 px off cv2.projectPoints."""
+    pts = _points_in_front(50, seed=4)
+    for count in (8, 12, 14):
+        extra = np.zeros(count - 5)
+        extra[0] = 0.05
+        with pytest.raises(ValueError, match=rf"k3.*got {count} coefficients with nonzero {{'dist\[5\]': 0.05}}"):
+            Camera.from_opencv(K_CV, np.concatenate([DIST_CV, extra]), RVEC, TVEC, 640, 512)
+        # zeros beyond k3 are the 5-term model: kept, and projecting as OpenCV does with all of them
+        dist = np.concatenate([DIST_CV, np.zeros(count - 5)])
+        cam = Camera.from_opencv(K_CV, dist, RVEC, TVEC, 640, 512)
+        ref, _ = cv2.projectPoints(pts, RVEC, TVEC, K_CV, dist)
+        np.testing.assert_allclose(cam.project(torch.from_numpy(pts))[0].numpy(), ref.reshape(-1, 2), atol=1e-6)
+    for dist in (DIST_CV[:4], DIST_CV[:5], np.zeros(0)):  # 4 or 5 coefficients, or none: padded with zeros
+        cam = Camera.from_opencv(K_CV, dist, RVEC, TVEC, 640, 512)
+        ref, _ = cv2.projectPoints(pts, RVEC, TVEC, K_CV, dist if dist.size else None)
+        np.testing.assert_allclose(cam.project(torch.from_numpy(pts))[0].numpy(), ref.reshape(-1, 2), atol=1e-6)

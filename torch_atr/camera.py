@@ -137,15 +137,25 @@ class Camera(nn.Module):
 
     @classmethod
     def from_opencv(cls, K, dist, rvec, tvec, width: int, height: int) -> "Camera":
-        """Build from OpenCV calibration results (K (3, 3), dist, rvec (3,), tvec (3,))."""
+        """Build from OpenCV calibration results (K (3, 3), dist, rvec (3,), tvec (3,)).
+
+        ``dist`` holds OpenCV's coefficients in its order (k1, k2, p1, p2, k3, k4, ...); fewer than
+        5 are padded with zeros. This camera has k1, k2, p1, p2, k3 only, so more than 5 are taken
+        only when every one beyond the 5th is zero; otherwise ValueError, since dropping them would
+        move the projected pixels.
+        """
         import cv2
 
         R_cv, _ = cv2.Rodrigues(np.asarray(rvec, dtype=np.float64).reshape(3, 1))
         t_cv = np.asarray(tvec, dtype=np.float64).reshape(3)
         K = np.asarray(K, dtype=np.float64)
+        dist = np.asarray(dist, dtype=np.float64).ravel()
+        extra = {f"dist[{i}]": float(v) for i, v in enumerate(dist[5:], start=5) if v != 0}
+        if extra:
+            raise ValueError(f"Expected at most 5 distortion coefficients (k1, k2, p1, p2, k3: all this camera "
+                             f"model has), or zeros beyond them; got {dist.size} coefficients with nonzero {extra}")
         d = np.zeros(5)
-        dist = np.asarray(dist, dtype=np.float64).ravel()[:5]
-        d[: dist.size] = dist
+        d[: min(dist.size, 5)] = dist[:5]
         return cls(K[0, 0], K[1, 1], K[0, 2], K[1, 2], width, height, dist=d,
                    R=_FLIP_Y @ R_cv, t=_FLIP_Y @ t_cv)
 
