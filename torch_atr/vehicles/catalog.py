@@ -16,7 +16,8 @@ from dataclasses import dataclass, fields
 from pathlib import Path
 
 from torch_atr.config import ConfigError, check_type, read_yaml
-from torch_atr.vehicles.loader import CLASS_NAMES, MIN_THICKNESS_M, Vehicle, body_rotation, load_vehicle
+from torch_atr.vehicles.loader import (CLASS_NAMES, MIN_THICKNESS_M, Vehicle, body_rotation, forward_extent,
+                                      load_vehicle)
 from torch_atr.vehicles.specs import SPLITS
 
 PACKAGE_DIR = Path(__file__).resolve().parent
@@ -135,7 +136,9 @@ def load_catalog_folder(folder: str | Path) -> list[Vehicle]:
     """The vehicles of a catalog folder (:func:`read_catalog_manifest`) in the body frame, by
     class (CLASS_NAMES order), then name, as :func:`load_catalog` orders the shipped split.
 
-    An entry with ``length`` is scaled so that its extent along ``forward`` is that length.
+    An entry with ``length`` is scaled so that its untrimmed extent along ``forward`` is that
+    length (:func:`~torch_atr.vehicles.loader.forward_extent`); a part thinner than 5 cm at its
+    front is then trimmed like any other.
     Errors name the manifest entry as well as the file.
     """
     folder = Path(folder)
@@ -149,11 +152,10 @@ def load_catalog_folder(folder: str | Path) -> list[Vehicle]:
 
 
 def _load_entry(folder: Path, e: CatalogEntry) -> Vehicle:
-    def load(scale: float) -> Vehicle:
-        return load_vehicle(folder / e.file, up_axis=e.up, forward_axis=e.forward, scale=scale, cls=e.cls, name=e.name)
-
-    vehicle = load(e.scale or 1.0)
-    return load(e.length / float(vehicle.mesh.extents[0])) if e.length is not None else vehicle
+    # length is measured on the untrimmed file, so thin-part trimming runs once, in metres
+    scale = e.scale if e.length is None else e.length / forward_extent(folder / e.file, up_axis=e.up,
+                                                                       forward_axis=e.forward)
+    return load_vehicle(folder / e.file, up_axis=e.up, forward_axis=e.forward, scale=scale, cls=e.cls, name=e.name)
 
 
 @dataclass(frozen=True)

@@ -216,6 +216,28 @@ def load_vehicle(
     return Vehicle(name, cls, trimesh.Trimesh(v, faces, process=False), path)
 
 
+def forward_extent(path: str | Path, *, up_axis: str = "z", forward_axis: str = "x") -> float:
+    """A vehicle file's extent along ``forward_axis``, file units, untrimmed (a URDF in its rest pose).
+
+    :func:`load_vehicle` with ``scale = L / forward_extent(...)`` makes the vehicle L metres long
+    (less any thin protrusion at its front, which is trimmed in metres). ValueError naming the file
+    for a zero extent.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"vehicle file not found: {path}")
+    rotation = body_rotation(up_axis, forward_axis)
+    if path.suffix.lower() == ".urdf":
+        rig = _load_urdf(path, rotation)
+        forward = rig.mesh(_rest_pose(rig.limits)).vertices[:, 0]
+    else:
+        forward = _read_mesh(path, process=False).vertices @ rotation[0]
+    extent = float(np.ptp(forward))
+    if not extent > 0:
+        raise ValueError(f"{path}: extent along forward_axis {forward_axis!r} is {extent}; expected a positive length")
+    return extent
+
+
 def thick_bounds(vertices: np.ndarray, faces: np.ndarray, min_thickness: float, slab: float = _SLAB_M) -> np.ndarray:
     """The bounding box of the part of a mesh that is at least ``min_thickness`` across.
 
