@@ -5,13 +5,16 @@ References are independent of the code under test: the trimesh primitives built 
 
 from __future__ import annotations
 
+import re
+import time
 from pathlib import Path
 
 import numpy as np
 import pytest
 import trimesh
 
-from torch_atr.vehicles import load_catalog_folder
+from torch_atr.vehicles import load_catalog_folder, load_vehicle
+from torch_atr.vehicles.loader import MAX_EXTENT_M
 
 HULL = (7.0, 3.5, 2.2)  # metres
 GUN = (5.0, 0.15, 0.15)  # metres; 0.015 file units thick once the tank is normalised to 1 unit
@@ -38,3 +41,31 @@ def test_length_is_measured_before_trimming(tmp_path):
     tank = {v.name: v for v in load_catalog_folder(tmp_path)}["tank_unit"]
     # scale 10 / 1.0 unit: the primitives come back at their size in metres, gun kept (0.15 m > 5 cm)
     np.testing.assert_allclose(tank.mesh.extents, [true_length, HULL[1], HULL[2] + GUN[2] / 2], atol=1e-9)
+
+
+@pytest.mark.parametrize("extent, scale", [(1e6, 1.0), (4.5, 1e12), (MAX_EXTENT_M * 1.01, 1.0)])
+def test_mis_scaled_mesh_fails_fast_naming_file_and_size(tmp_path, extent, scale):
+    path = tmp_path / "huge.obj"
+    trimesh.creation.box(extents=[extent, extent / 2, extent / 4]).export(path)
+    start = time.perf_counter()
+    expected = rf"huge\.obj: {re.escape(f'{extent * scale:.3g}')} × .* m at scale {re.escape(f'{scale:g}')} is too big"
+    with pytest.raises(ValueError, match=expected):
+        load_vehicle(path, scale=scale)
+    assert time.perf_counter() - start < 0.5
+
+
+def test_largest_plausible_vehicle_loads(tmp_path):
+    path = tmp_path / "big.obj"
+    trimesh.creation.box(extents=[MAX_EXTENT_M, 5.0, 4.0]).export(path)
+    np.testing.assert_allclose(load_vehicle(path).mesh.extents, [MAX_EXTENT_M, 5.0, 4.0], atol=1e-9)
+
+
+def test_length_on_a_millimetre_file_never_trims_it_unscaled(tmp_path):
+    for name, size in (("car_mm", [4500.0, 1800.0, 1500.0]), ("suv", [5.0, 1.9, 1.7])):
+        trimesh.creation.box(extents=size).export(tmp_path / f"{name}.obj")
+    (tmp_path / "catalog.yaml").write_text("vehicles:\n  - {file: car_mm.obj, class: car, length: 4.5}\n"
+                                           "  - {file: suv.obj, class: suv, length: 5.0}\n")
+    start = time.perf_counter()
+    car = {v.name: v for v in load_catalog_folder(tmp_path)}["car_mm"]
+    assert time.perf_counter() - start < 1.0
+    np.testing.assert_allclose(car.mesh.extents, [4.5, 1.8, 1.5], atol=1e-9)

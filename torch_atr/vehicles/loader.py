@@ -51,6 +51,7 @@ _AXES = {
 _CYLINDER_SECTIONS = 16
 MIN_THICKNESS_M = 0.05  # load_vehicle's default: thinner protrusions are trimmed from mesh files
 _SLAB_M = 0.01  # slab thickness of thick_bounds
+MAX_EXTENT_M = 100.0  # a vehicle larger along any axis is mis-scaled (centimetres or millimetres read as metres)
 _TEXT_MESHES = (".obj", ".off")  # text formats decoded here (_mesh_text), not by trimesh
 
 
@@ -185,7 +186,8 @@ def load_vehicle(
     Raises:
         FileNotFoundError: the file, or a mesh a URDF references, is missing (message names it).
         ValueError: broken XML, a missing or non-positive geometry size, unreadable or empty
-            mesh, unknown class, bad axes, joints or joint limits.
+            mesh, unknown class, bad axes, joints or joint limits, a size above
+            ``MAX_EXTENT_M`` (100 m) along an axis once scaled (checked before any trimming).
     """
     path = Path(path)
     cls = UNKNOWN if cls is None else cls
@@ -204,12 +206,14 @@ def load_vehicle(
     if path.suffix.lower() == ".urdf":
         rig = _load_urdf(path, rotation)
         values = _rest_pose(rig.limits)
+        _check_size(path, rig.mesh(values).vertices, scale)
         values.update(_check_joints(rig, joints or {}, path))
         return Vehicle(name, cls, rig.mesh(values), path, MappingProxyType(values), rig)
     if joints:
         raise ValueError(f"{path} is a plain mesh and has no joints; got {sorted(joints)}")
     mesh = _read_mesh(path, process=True)
     v, faces = mesh.vertices @ rotation.T, np.asarray(mesh.faces)
+    _check_size(path, v, scale)  # before thick_bounds, whose cost grows with the extent
     if min_thickness > 0:
         v, faces = _clip_to_box(v, faces, thick_bounds(v, faces, min_thickness))
     v = v + _centring_offset(v)
@@ -288,6 +292,15 @@ def _clip_to_box(vertices: np.ndarray, faces: np.ndarray, box: np.ndarray) -> tu
     if len(faces) == 0:
         raise ValueError("trimming thin protrusions left no faces")
     return vertices, faces
+
+
+def _check_size(path: Path, vertices: np.ndarray, scale: float) -> None:
+    """ValueError naming the file and its size when body-frame ``vertices`` (M, 3), metres, are mis-scaled."""
+    extents = np.ptp(vertices, axis=0)
+    if extents.max() > MAX_EXTENT_M:
+        size = " × ".join(f"{e:.3g}" for e in extents)
+        raise ValueError(f"{path}: {size} m at scale {scale:g} is too big for a vehicle (at most {MAX_EXTENT_M:g} m "
+                         f"along each axis); check its scale or length (millimetres or centimetres read as metres?)")
 
 
 def _rest_pose(limits: Mapping[str, tuple[float, float]]) -> dict[str, float]:
