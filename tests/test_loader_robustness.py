@@ -69,3 +69,21 @@ def test_length_on_a_millimetre_file_never_trims_it_unscaled(tmp_path):
     car = {v.name: v for v in load_catalog_folder(tmp_path)}["car_mm"]
     assert time.perf_counter() - start < 1.0
     np.testing.assert_allclose(car.mesh.extents, [4.5, 1.8, 1.5], atol=1e-9)
+
+
+@pytest.mark.parametrize("suffix, bad", [("stl", 4), ("ply", 1), ("obj", 1)])  # STL repeats a vertex per face
+def test_non_finite_vertex_is_an_error_not_dropped_faces(tmp_path, suffix, bad):
+    box = trimesh.creation.box(extents=[4.5, 1.8, 1.5])
+    vertices = box.vertices.copy()
+    vertices[0] = np.nan  # a corner of 4 of the box's 12 triangles (trimesh would drop them)
+    path = tmp_path / f"nan_box.{suffix}"
+    trimesh.Trimesh(vertices, box.faces, process=False).export(path)
+    with pytest.raises(ValueError, match=rf"nan_box\.{suffix} has {bad} non-finite \(NaN or infinite\) vertices"):
+        load_vehicle(path)
+
+
+def test_single_nan_triangle_obj_names_the_cause(tmp_path):
+    path = tmp_path / "nan.obj"
+    path.write_text("v 0 0 0\nv 1 0 0\nv nan 1 0\nf 1 2 3\n")
+    with pytest.raises(ValueError, match=r"nan\.obj has 1 non-finite \(NaN or infinite\) vertices of 3"):
+        load_vehicle(path)

@@ -332,25 +332,28 @@ def _mesh_text(path: Path) -> tuple[str, str]:
 
 
 def _read_mesh(path: Path, process: bool) -> trimesh.Trimesh:
-    """The mesh a file holds, as one Trimesh; ValueError naming the file when it cannot be read or
-    holds no triangles. OBJ and OFF text is decoded by :func:`_mesh_text`."""
+    """The mesh a file holds, as one Trimesh (merged and cleaned by trimesh when ``process``);
+    ValueError naming the file when it cannot be read, holds no triangles or has non-finite
+    vertices. The file is read unprocessed first: trimesh's processing drops the faces of a NaN
+    vertex without a word. OBJ and OFF text is decoded by :func:`_mesh_text`."""
     note = ""
     try:
         if path.suffix.lower() in _TEXT_MESHES:
             text, note = _mesh_text(path)
-            mesh = trimesh.load(io.StringIO(text), file_type=path.suffix.lower()[1:], force="mesh", process=process,
+            mesh = trimesh.load(io.StringIO(text), file_type=path.suffix.lower()[1:], force="mesh", process=False,
                                 resolver=trimesh.resolvers.FilePathResolver(path))  # mtllib beside the file
         else:
-            mesh = trimesh.load(path, force="mesh", process=process)
+            mesh = trimesh.load(path, force="mesh", process=False)
     except Exception as exc:  # trimesh raises many types for unreadable files
         if isinstance(exc, ImportError) and exc.name == "charset_normalizer":  # trimesh's guess at a text's encoding
             raise ValueError(f"could not read mesh {path}: its text is not UTF-8; save it as UTF-8") from exc
         raise ValueError(f"could not read mesh {path}{note}: {exc}") from exc
     if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
         raise ValueError(f"mesh file {path} holds no triangles{note}")
-    if not np.isfinite(mesh.vertices).all():
-        raise ValueError(f"mesh file {path} has non-finite vertices")
-    return mesh
+    bad = int((~np.isfinite(mesh.vertices).all(axis=1)).sum())
+    if bad:
+        raise ValueError(f"mesh file {path} has {bad} non-finite (NaN or infinite) vertices of {len(mesh.vertices)}")
+    return mesh.process() if process else mesh
 
 
 def _floats(text: str | None, n: int, default: tuple[float, ...] | None, where: str) -> np.ndarray:
