@@ -87,3 +87,35 @@ def test_single_nan_triangle_obj_names_the_cause(tmp_path):
     path.write_text("v 0 0 0\nv 1 0 0\nv nan 1 0\nf 1 2 3\n")
     with pytest.raises(ValueError, match=r"nan\.obj has 1 non-finite \(NaN or infinite\) vertices of 3"):
         load_vehicle(path)
+
+
+@pytest.fixture
+def car(tmp_path) -> Path:
+    path = tmp_path / "car.obj"
+    trimesh.creation.box(extents=[4.5, 1.8, 1.5]).export(path)
+    return path
+
+
+@pytest.mark.parametrize("kwargs, message", [
+    (dict(up_axis="z", forward_axis="-z"), "up_axis 'z' and forward_axis '-z' must be perpendicular"),
+    (dict(up_axis="Y"), "up_axis must be one of"),
+    (dict(scale="0.01"), "scale must be a positive number; got '0.01'"),
+    (dict(scale=True), "scale must be a positive number; got True"),
+    (dict(min_thickness="0.05"), "min_thickness must be a number >= 0; got '0.05'"),
+    (dict(name=""), "name must be a non-empty string .*; got ''"),
+    (dict(name="  "), "name must be a non-empty string .*; got '  '"),
+])
+def test_bad_argument_names_file_and_value(car, kwargs, message):
+    with pytest.raises(ValueError, match=rf"car\.obj: {message}"):
+        load_vehicle(car, **kwargs)
+
+
+def test_numpy_scale_is_a_number(car):
+    np.testing.assert_allclose(load_vehicle(car, scale=np.float32(2.0)).mesh.extents, [9.0, 3.6, 3.0], atol=1e-6)
+
+
+def test_zero_extent_mesh_names_file_and_size(tmp_path):
+    path = tmp_path / "point.obj"
+    path.write_text("v 1 2 3\nv 1 2 3\nv 1 2 3\nf 1 2 3\n")
+    with pytest.raises(ValueError, match=r"point\.obj: size 0 × 0 × 0 m: all its vertices coincide"):
+        load_vehicle(path)

@@ -28,6 +28,7 @@ import dataclasses
 import io
 import logging
 import math
+import numbers
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -187,7 +188,8 @@ def load_vehicle(
         FileNotFoundError: the file, or a mesh a URDF references, is missing (message names it).
         ValueError: broken XML, a missing or non-positive geometry size, unreadable or empty
             mesh, unknown class, bad axes, joints or joint limits, a size above
-            ``MAX_EXTENT_M`` (100 m) along an axis once scaled (checked before any trimming).
+            ``MAX_EXTENT_M`` (100 m) along an axis once scaled (checked before any trimming) or of
+            zero, a scale or min_thickness that is not a number, an empty name.
     """
     path = Path(path)
     cls = UNKNOWN if cls is None else cls
@@ -197,11 +199,13 @@ def load_vehicle(
         raise ValueError(f"{path}: is a folder; expected a URDF or mesh file")
     if not path.is_file():
         raise FileNotFoundError(f"vehicle file not found: {path}")
-    if not (math.isfinite(scale) and scale > 0):
-        raise ValueError(f"{path}: scale must be a positive number; got {scale}")
-    if not (math.isfinite(min_thickness) and min_thickness >= 0):
-        raise ValueError(f"{path}: min_thickness must be a number >= 0; got {min_thickness}")
-    rotation = body_rotation(up_axis, forward_axis) * scale
+    if not (_is_real(scale) and math.isfinite(scale) and scale > 0):
+        raise ValueError(f"{path}: scale must be a positive number; got {scale!r}")
+    if not (_is_real(min_thickness) and math.isfinite(min_thickness) and min_thickness >= 0):
+        raise ValueError(f"{path}: min_thickness must be a number >= 0; got {min_thickness!r}")
+    if name is not None and not (isinstance(name, str) and name.strip()):
+        raise ValueError(f"{path}: name must be a non-empty string (None: the file's stem); got {name!r}")
+    rotation = _file_rotation(path, up_axis, forward_axis) * scale
     name = path.stem if name is None else name
     if path.suffix.lower() == ".urdf":
         rig = _load_urdf(path, rotation)
@@ -230,7 +234,7 @@ def forward_extent(path: str | Path, *, up_axis: str = "z", forward_axis: str = 
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"vehicle file not found: {path}")
-    rotation = body_rotation(up_axis, forward_axis)
+    rotation = _file_rotation(path, up_axis, forward_axis)
     if path.suffix.lower() == ".urdf":
         rig = _load_urdf(path, rotation)
         forward = rig.mesh(_rest_pose(rig.limits)).vertices[:, 0]
@@ -294,11 +298,26 @@ def _clip_to_box(vertices: np.ndarray, faces: np.ndarray, box: np.ndarray) -> tu
     return vertices, faces
 
 
+def _is_real(x) -> bool:
+    return isinstance(x, numbers.Real) and not isinstance(x, bool)
+
+
+def _file_rotation(path: Path, up_axis: str, forward_axis: str) -> np.ndarray:
+    """:func:`body_rotation`, its ValueError naming the file."""
+    try:
+        return body_rotation(up_axis, forward_axis)
+    except ValueError as exc:
+        raise ValueError(f"{path}: {exc}") from None
+
+
 def _check_size(path: Path, vertices: np.ndarray, scale: float) -> None:
-    """ValueError naming the file and its size when body-frame ``vertices`` (M, 3), metres, are mis-scaled."""
+    """ValueError naming the file and its size when body-frame ``vertices`` (M, 3), metres, are mis-scaled
+    or all coincide."""
     extents = np.ptp(vertices, axis=0)
+    size = " × ".join(f"{e:.3g}" for e in extents)
+    if not extents.max() > 0:
+        raise ValueError(f"{path}: size {size} m: all its vertices coincide")
     if extents.max() > MAX_EXTENT_M:
-        size = " × ".join(f"{e:.3g}" for e in extents)
         raise ValueError(f"{path}: {size} m at scale {scale:g} is too big for a vehicle (at most {MAX_EXTENT_M:g} m "
                          f"along each axis); check its scale or length (millimetres or centimetres read as metres?)")
 
