@@ -44,19 +44,24 @@ def check_shape(name: str, x: torch.Tensor, shape: Sequence[int | str | None]) -
 
 
 def as_float_tensor(name: str, x, like: torch.Tensor | None = None) -> torch.Tensor:
-    """Convert a tensor, array, list or scalar to a floating tensor.
+    """Convert a tensor, array, list or scalar of numbers to a floating tensor.
 
     Keeps a floating tensor's dtype and device; other inputs become ``like``'s dtype and
-    device when given, else float32 on the CPU.
+    device when given, else float32 on the CPU. Text ("0.7") and booleans are not numbers.
     """
     if isinstance(x, torch.Tensor):
         if x.is_floating_point():
             return x
+        if x.dtype == torch.bool:
+            raise ValueError(f"Expected {name} to be numeric; got a bool tensor")
         return x.to(like.dtype if like is not None else torch.float32)
     try:
-        arr = np.asarray(x, dtype=np.float64)
+        arr = np.asarray(x)
     except (TypeError, ValueError) as exc:
         raise ValueError(f"Expected {name} to be numeric; got {type(x).__name__}") from exc
+    if arr.dtype.kind not in "fiu":  # not bool, text or objects (np.asarray would parse "0.7")
+        raise ValueError(f"Expected {name} to be numeric; got {type(x).__name__} of {arr.dtype}")
+    arr = arr.astype(np.float64)
     dtype = like.dtype if like is not None else torch.float32
     device = like.device if like is not None else None
     return torch.as_tensor(arr, dtype=dtype, device=device)

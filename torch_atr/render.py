@@ -49,6 +49,8 @@ frames and masks that come from OpenCV (sequences, segmentation) are NumPy array
 
 from __future__ import annotations
 
+import math
+
 import torch
 import trimesh
 
@@ -216,6 +218,9 @@ def render_templates(vehicle, theta, phi, cfg: TemplateConfig | None = None) -> 
     theta, phi = theta.detach().cpu().double(), phi.detach().cpu().double()
     if not bool(torch.isfinite(theta).all() & torch.isfinite(phi).all()):
         raise ValueError("Expected theta and phi to be finite radians; they hold NaN or inf")
+    if phi.numel() and float(phi.abs().max()) > math.pi / 2 + 1e-6:  # beyond, drawn upside down (float32 π/2 is in)
+        raise ValueError(f"Expected elevations phi in [-π/2, π/2] radians; got {float(phi.abs().max()):.3f} "
+                         f"(the view (θ + π, π − φ) is the one meant)")
     right, up = view_basis(theta, phi)
     axes = torch.stack([right, up], dim=-1)  # (V, 3, 2)
     verts = verts - centre
