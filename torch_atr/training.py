@@ -187,7 +187,7 @@ def render_set(vehicles: Sequence, theta: torch.Tensor, phi: torch.Tensor, cfg: 
 
 def check_templates(vehicles: Sequence, masks: torch.Tensor, cfg: TemplateConfig) -> None:
     """Raise ValueError naming the first vehicle whose templates are unusable: empty in a view (a
-    model far too small, e.g. millimetres read as metres) or reaching the window's edge (too big
+    model far too small, e.g. a file in metres given scale 0.001) or reaching the window's edge (too big
     for ``template.window_m``, so its silhouettes are cut).
 
     vehicles: K vehicles; masks: (K, V, S, S) bool, their templates (:func:`render_set`).
