@@ -9,6 +9,7 @@ import torch
 from torch_atr.calibration import (_canonical_order, calibrate_checkerboard, camera_from_focal, draw_cubes,
                                    find_checkerboard, floor_pose, focal_from_target)
 from torch_atr.camera import Camera
+from torch_atr.data.checkerboard import render_checkerboard
 
 # ---------------------------------------------------------------- IR: focal length from targets
 
@@ -208,6 +209,27 @@ def test_calibrate_checkerboard_refuses_extra_distortion_terms(views, flag):
     """K fitted with distortion terms that Camera (k1, k2, p1, p2, k3) cannot keep would be wrong."""
     with pytest.raises(ValueError, match=flag):
         calibrate_checkerboard([v[0] for v in views], PATTERN, SQUARE, flags=cv2.CALIB_FIX_K3 | getattr(cv2, flag))
+
+
+def test_calibrate_checkerboard_refuses_boards_in_one_orientation():
+    """Shifted boards on one floor gave fx = 122,585 for 820, the same board thrice 12,687, at rms < 0.13 px."""
+    rng = np.random.default_rng(3)
+    R, t = _pose(20, 50, 0.9, 0)
+    shifted = [_render(R, t + R @ [dx, dy, dz], rng) for dx, dy, dz in
+               [(0.0, 0.0, 0.0), (-0.08, 0.0, 0.0), (0.04, -0.06, 0.0)]]  # one plane
+    parallel = [_render(R, t + R @ [0.0, 0.0, dz], rng) for dz in (0.0, 0.1, 0.25)]  # moved along the normal
+    for images in (shifted, parallel, [shifted[0]] * 3):
+        with pytest.raises(ValueError, match="different orientations: the 3 boards' normals are at most 0.[0-4]"):
+            calibrate_checkerboard(images, PATTERN, SQUARE)
+    # the reviewer's scene: a camera pitched down 25° over boards on the floor (torch_atr's own renderer)
+    pitch = np.deg2rad(25)
+    floor_cam = Camera(820.0, 800.0, 330.0, 235.0, 640, 480, R=[[1.0, 0.0, 0.0], [0.0, np.cos(pitch), np.sin(pitch)],
+                                                                [0.0, -np.sin(pitch), np.cos(pitch)]])
+    generator = torch.Generator().manual_seed(2)
+    on_floor = [render_checkerboard(floor_cam, PATTERN, 0.25, [[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, 1.0, 0.0]],
+                                    [-1.0 + 0.3 * k, -3.0, 5.0 + 0.5 * k], generator=generator) for k in range(3)]
+    with pytest.raises(ValueError, match="Tilt the board between views.*floor_pose"):
+        calibrate_checkerboard(on_floor, PATTERN, 0.25)
 
 
 def _angle_deg(Ra: np.ndarray, Rb: np.ndarray) -> float:

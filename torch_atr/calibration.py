@@ -46,6 +46,11 @@ _EDGE_SAMPLES = 9  # points per drawn edge, so edges bend with the lens distorti
 _EXTRA_TERM_FLAGS = {"CALIB_RATIONAL_MODEL": cv2.CALIB_RATIONAL_MODEL,
                      "CALIB_THIN_PRISM_MODEL": cv2.CALIB_THIN_PRISM_MODEL,
                      "CALIB_TILTED_MODEL": cv2.CALIB_TILTED_MODEL}
+# Zhang's method needs boards in different orientations: parallel boards (one floor, the same board
+# again, boards all facing the camera) gave fx 54,000-123,000 for 820 at rms 0.05-0.13 px. Their
+# normals measured (see _orientation_spread_deg) 0.003-0.18 degrees apart; 6 boards tilted 1, 2,
+# 3, 5 degrees either way measured 1.7, 3.3, 4.7, 8.1 and were 18, 33, 13, 3 % off in fx.
+_MIN_ORIENTATION_SPREAD_DEG = 5.0
 
 
 def _per_frame(name: str, x, n: int | None = None, cols: int | None = None) -> torch.Tensor:
@@ -220,6 +225,29 @@ def find_checkerboard(image: np.ndarray, pattern: tuple[int, int]) -> np.ndarray
     return _canonical_order(grey, corners.reshape(rows, cols, 2)).reshape(-1, 2)
 
 
+def _orientation_spread_deg(board_xy: np.ndarray, img_points: list[np.ndarray], width: int, height: int) -> float:
+    """The largest angle between two boards' normals, in degrees, seen through a nominal camera.
+
+    Each board's vanishing line l = H⁻ᵀ (0, 0, 1) (H: board plane -> image homography) gives its
+    normal n ∝ K₀ᵀ l for a camera K₀ with focal length max(width, height) and the principal point
+    at the image centre. Parallel boards share the vanishing line, so their angle is zero whatever
+    the real K; other angles scale with the real focal length over K₀'s, which is how much the
+    views' perspective differs in pixels, the thing the focal length is fitted from.
+
+    Args:
+        board_xy: (P, 2) board corners in the board plane; img_points: V arrays (P, 2) of pixels.
+    """
+    f0 = float(max(width, height))
+    K0 = np.array([[f0, 0.0, (width - 1) / 2], [0.0, f0, (height - 1) / 2], [0.0, 0.0, 1.0]])
+    normals = []
+    for corners in img_points:
+        H, _ = cv2.findHomography(board_xy, corners)
+        n = K0.T @ np.linalg.solve(H.T, [0.0, 0.0, 1.0])  # K₀ᵀ H⁻ᵀ e₃
+        normals.append(n / np.linalg.norm(n))
+    cos = np.abs(np.stack(normals) @ np.stack(normals).T)  # (V, V); a vanishing line's sign is arbitrary
+    return float(np.degrees(np.arccos(np.clip(cos.min(), 0.0, 1.0))))
+
+
 def calibrate_checkerboard(images: Sequence[np.ndarray], pattern: tuple[int, int], square_m: float,
                            flags: int = cv2.CALIB_FIX_K3) -> tuple[Camera, float]:
     """Intrinsics and distortion from views of a checkerboard (thesis 3.3, Fig. 3.5).
@@ -233,13 +261,20 @@ def calibrate_checkerboard(images: Sequence[np.ndarray], pattern: tuple[int, int
             (``CALIB_RATIONAL_MODEL``, ``CALIB_THIN_PRISM_MODEL``, ``CALIB_TILTED_MODEL``) are
             refused: :class:`Camera` holds only k1, k2, p1, p2, k3, and K fitted with the extra
             terms would not match the distortion kept.
+
+    The boards must lie in different orientations (tilt the board between views, by tens of
+    degrees about different axes): boards all in one plane or in parallel planes, such as several
+    boards on the floor, leave the focal length undetermined, and OpenCV then returns a camera tens
+    of times off at a small rms. Such views are refused; for a fixed camera over a floor, calibrate
+    the intrinsics from a hand-held board and pose the camera with :func:`floor_pose`.
     Returns:
         (camera, rms): the camera posed at the world origin (world = sensor frame), and the RMS
         reprojection error in pixels; the same to the last bit for the same images (OpenCV's
         solver runs on one thread).
     Raises:
         ValueError: fewer than 3 images, an image of another size, an image without the
-            board (naming its index), or a flag that adds distortion terms (naming it).
+            board (naming its index), a flag that adds distortion terms (naming it), or boards
+            whose normals are all within 5° of each other (:func:`_orientation_spread_deg`).
     """
     extra = [name for name, bit in _EXTRA_TERM_FLAGS.items() if flags & bit]
     if extra:
@@ -262,6 +297,12 @@ def calibrate_checkerboard(images: Sequence[np.ndarray], pattern: tuple[int, int
             raise ValueError(f"image {i}: no {pattern[0]}x{pattern[1]} checkerboard found")
         img_points.append(corners)
     height, width = size
+    spread = _orientation_spread_deg(obj[:, :2], img_points, width, height)
+    if spread < _MIN_ORIENTATION_SPREAD_DEG:
+        raise ValueError(f"Expected boards in different orientations: the {len(img_points)} boards' normals are at "
+                         f"most {spread:.2f}° apart (need {_MIN_ORIENTATION_SPREAD_DEG:g}°), so the focal length is "
+                         f"not determined. Tilt the board between views; for a fixed camera over a floor, calibrate "
+                         f"with a hand-held board and pose the camera with floor_pose")
     threads = cv2.getNumThreads()
     cv2.setNumThreads(1)  # on more threads its sums are not reproducible: the same images gave
     try:  # cameras differing in the 12th digit, which a tracker's run then amplified
