@@ -57,6 +57,17 @@ def test_outputs_are_written_and_consistent(run):
                 "overlap_ratio", "frames_per_second", "frames"):
         assert saved[key] is not None and key in metrics
     assert "resample: residual" in (out / "config.yaml").read_text()
+    # TensorBoard's scalars, each with its unit, are the table's columns.
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    events = EventAccumulator(str(out)).Reload()
+    tags = set(events.Tags()["scalars"])
+    assert {"estimate/x_m", "estimate/alpha_rad", "estimate/lost", "recognition/p_apc", "recognition/correct",
+            "error/horizontal_m", "error/aspect_rad"} <= tags
+    logged = [e.value for e in events.Scalars("estimate/x_m")]
+    assert logged == pytest.approx([float(r["x"]) for r in rows], rel=1e-5)
+    correct = [e.value for e in events.Scalars("recognition/correct")]
+    assert correct == [float(r["class"] == r["true_class"]) for r in rows]
 
 
 def test_an_existing_run_is_kept_unless_overwrite(run, tmp_path):

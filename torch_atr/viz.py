@@ -398,8 +398,15 @@ def track_figures(result, model, title: str) -> dict:
     return {name: fig for name, fig in figures.items() if fig is not None}
 
 
+_TENSORBOARD_ESTIMATES = {"x": "x_m", "y": "y_m", "z": "z_m", "heading": "heading_rad", "speed": "speed_mps",
+                          "alpha": "alpha_rad", "theta": "theta_rad", "phi": "phi_rad", "ess": "ess_particles",
+                          "overlap": "overlap_dice"}  # row key -> TensorBoard tag, with its unit
+
+
 def log_track_tensorboard(folder: str | Path, result, figures: dict) -> None:
-    """Per-frame scalars (position, heading, α, ESS, errors where known) and the figures, to
+    """Per-frame scalars, each tag with its unit (the estimate's position, heading, speed, α and
+    view; ESS, overlap, lost; the class posterior ``recognition/p_<class>`` and, where the class
+    is known, ``recognition/correct``; the errors where the truth is known) and the figures, to
     TensorBoard event files in ``folder``."""
     from torch.utils.tensorboard import SummaryWriter
 
@@ -408,9 +415,15 @@ def log_track_tensorboard(folder: str | Path, result, figures: dict) -> None:
     with SummaryWriter(str(folder)) as writer:
         for row in result.rows:
             step = row["frame"]
-            for name in ("x", "z", "heading", "speed", "alpha", "ess", "overlap"):
+            writer.add_scalar("estimate/lost", row["lost"], step)
+            for name, tag in _TENSORBOARD_ESTIMATES.items():
                 if name in row:
-                    writer.add_scalar(f"estimate/{name}", row[name], step)
+                    writer.add_scalar(f"estimate/{tag}", row[name], step)
+            for name in row:
+                if name.startswith("p_"):
+                    writer.add_scalar(f"recognition/{name}", row[name], step)
+            if "class" in row and row.get("true_class"):
+                writer.add_scalar("recognition/correct", float(row["class"] == row["true_class"]), step)
             if "x" in row and "true_x" in row:  # a blob tracker (no camera) has no position
                 writer.add_scalar("error/horizontal_m", abs(row["x"] - row["true_x"]), step)
                 writer.add_scalar("error/range_m", abs(row["z"] - row["true_z"]), step)
