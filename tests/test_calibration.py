@@ -164,6 +164,15 @@ def test_find_checkerboard_corners_in_floor_frame_order(views):
     assert find_checkerboard(np.full((H, W), 128, np.uint8), PATTERN) is None
 
 
+@pytest.mark.parametrize("shape", [(10, 10), (0, 0), (1, 1), (14, 2000), (2000, 14), (10, 10, 3)])
+def test_find_checkerboard_in_an_image_too_small_for_the_detector_finds_none(shape):
+    """A 10 x 10 image raised OpenCV's adaptiveThreshold assertion instead of finding no board."""
+    assert find_checkerboard(np.zeros(shape, np.uint8), PATTERN) is None
+    assert find_checkerboard(np.zeros((15, 2000), np.uint8), (3, 3)) is None  # the smallest side it runs on
+    with pytest.raises(ValueError, match=r"at least 3 x 3 inner corners; got \(2, 5\)"):  # OpenCV's least
+        find_checkerboard(np.zeros((H, W), np.uint8), (2, 5))
+
+
 @pytest.mark.parametrize("order", ["same", "half turn", "rows reversed", "columns reversed"])
 def test_corner_order_is_canonical_whatever_the_detector_returns(views, order):
     """The detector may start at any board corner; the floor-frame order must not depend on it."""

@@ -51,6 +51,7 @@ _EXTRA_TERM_FLAGS = {"CALIB_RATIONAL_MODEL": cv2.CALIB_RATIONAL_MODEL,
 # normals measured (see _orientation_spread_deg) 0.003-0.18 degrees apart; 6 boards tilted 1, 2,
 # 3, 5 degrees either way measured 1.7, 3.3, 4.7, 8.1 and were 18, 33, 13, 3 % off in fx.
 _MIN_ORIENTATION_SPREAD_DEG = 5.0
+_MIN_DETECTOR_SIDE = 15  # cv2.findChessboardCorners' adaptive threshold asserts on an image side under 15 px
 
 
 def _per_frame(name: str, x, n: int | None = None, cols: int | None = None) -> torch.Tensor:
@@ -168,8 +169,8 @@ def _check_pattern(pattern) -> tuple[int, int]:
         cols, rows = (int(p) for p in pattern)
     except (TypeError, ValueError) as exc:
         raise ValueError(f"Expected pattern to be (columns, rows) of inner corners; got {pattern!r}") from exc
-    if cols < 2 or rows < 2:
-        raise ValueError(f"Expected pattern to have at least 2 x 2 inner corners; got {pattern!r}")
+    if cols < 3 or rows < 3:  # cv2.findChessboardCorners refuses fewer with a cv2.error
+        raise ValueError(f"Expected pattern to have at least 3 x 3 inner corners; got {pattern!r}")
     return cols, rows
 
 
@@ -203,6 +204,8 @@ def _canonical_order(grey: np.ndarray, grid: np.ndarray) -> np.ndarray:
 def find_checkerboard(image: np.ndarray, pattern: tuple[int, int]) -> np.ndarray | None:
     """The inner corners of a checkerboard, refined to sub-pixel, or None if none is found.
 
+    An image with a side under 15 pixels, too small for OpenCV's detector to run, has none.
+
     Args:
         image: (H, W) grey or (H, W, 3) BGR uint8.
         pattern: (columns, rows) of inner corners, e.g. (9, 6).
@@ -212,6 +215,8 @@ def find_checkerboard(image: np.ndarray, pattern: tuple[int, int]) -> np.ndarray
     """
     cols, rows = _check_pattern(pattern)
     grey = to_grey("image", image, (np.uint8,))
+    if min(grey.shape) < _MIN_DETECTOR_SIDE:
+        return None
     found, corners = cv2.findChessboardCorners(
         grey, (cols, rows), flags=cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE)
     if not found:
