@@ -34,7 +34,7 @@ def render_checkerboard(camera: Camera, pattern: tuple[int, int], square_m: floa
 
     Args:
         camera: a distortion-free camera (intrinsics and world -> sensor pose).
-        pattern: (columns, rows) of inner corners, at least 2 x 2.
+        pattern: (columns, rows) of inner corners, at least 3 x 3 (the fewest OpenCV finds).
         square_m: side of a square, metres.
         R: (3, 3) board -> world rotation; t: (3,) the board's origin in the world frame, metres.
         noise: σ of white noise added, grey levels (drawn from ``generator``).
@@ -43,8 +43,9 @@ def render_checkerboard(camera: Camera, pattern: tuple[int, int], square_m: floa
         (height, width) uint8 grey image.
     """
     cols, rows = (int(p) for p in pattern)
-    if cols < 2 or rows < 2:
-        raise ValueError(f"Expected pattern to have at least 2 x 2 inner corners; got {pattern!r}")
+    if cols < 3 or rows < 3:
+        raise ValueError(f"Expected pattern to have at least 3 x 3 inner corners (the fewest OpenCV finds); "
+                         f"got {pattern!r}")
     if not (0 < square_m < math.inf and 0 <= noise < math.inf):
         raise ValueError(f"Expected a positive square_m and noise >= 0; got {square_m}, {noise}")
     if bool(camera.dist.abs().sum() > 0):
