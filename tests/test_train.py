@@ -208,7 +208,9 @@ def test_a_vehicle_of_the_wrong_size_is_named_before_training(tmp_path):
     manifest = folder / "catalog.yaml"
     good = manifest.read_text()
     for scale, message in [("1.0e-5", r"'camry' \(0.00488 × 0.00208 × 0.00145 m\) covers no template pixel in 12 of 12"),
-                           ("1.0", r"'camry' \(488 × 208 × 145 m\) reaches the edge of the 12 m template window")]:
+                           ("0.03", r"'camry' \(14.6 × 6.24 × 4.34 m\) reaches the edge of the 12 m template window"),
+                           ("1.0", r"vehicles\[3\] \(camry_cm.obj\): .*camry_cm.obj: 488 × 208 × 145 m at scale 1 is "
+                                   r"too big for a vehicle \(at most 100 m")]:  # centimetres read as metres: at loading
         manifest.write_text(good.replace("length: 4.88, name: camry", f"scale: {scale}, name: camry"))
         with pytest.raises(ValueError, match=message):
             train.main(["--config", str(REPO / "configs/default.yaml"), f"catalog={folder}", f"log_dir={tmp_path}",
