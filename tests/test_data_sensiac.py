@@ -277,6 +277,17 @@ AGT_TEXT = """Agt {
 """
 
 
+def test_sensiac_target_types_get_the_thesis_classes():
+    """Thesis 1: tanks T72, 2S3, ZSU23; APCs BTR70, BRDM2, BMP2; an Isuzu SUV and a Ford pickup;
+    spelled as SENSIAC or as our test split; anything else unknown."""
+    from torch_atr.data.sensiac import vehicle_class
+
+    for names, cls in [(("T72", "2S3", "ZSU23-4", "zsu_23_4", "2s3_akatsiya"), "tank"),
+                       (("BTR70", "BRDM2", "BMP-2", "bmp_2"), "apc"), (("ISUZU SUV", "isuzu_rodeo"), "suv"),
+                       (("Ford Pickup", "ford_f150"), "pickup"), (("MTLB", "D20", ""), "")]:
+        assert [vehicle_class(n) for n in names] == [cls] * len(names)
+
+
 def test_agt_parse_tree_and_truth(tmp_path):
     path = tmp_path / "run.agt"
     path.write_text(AGT_TEXT)
@@ -291,8 +302,9 @@ def test_agt_parse_tree_and_truth(tmp_path):
     assert len(truths) == 3 and truths[1] is None
     # 2004 is a leap year: day 123 is 2 May.
     t0 = datetime(2004, 5, 2, 12, 30, 15, 500000, tzinfo=timezone.utc).timestamp()
-    assert truths[0] == FrameTruth(vehicle="BTR70", u=320, v=256, range_m=1000.5, aspect=math.pi / 4, time_s=t0)
-    assert truths[2] == FrameTruth(vehicle="ZSU23", u=321.5, v=250, aspect=1.5 * math.pi,
+    assert truths[0] == FrameTruth(vehicle="BTR70", vehicle_class="apc", u=320, v=256, range_m=1000.5,  # thesis 1
+                                   aspect=math.pi / 4, time_s=t0)
+    assert truths[2] == FrameTruth(vehicle="ZSU23", vehicle_class="tank", u=321.5, v=250, aspect=1.5 * math.pi,
                                    u0=300, v0=240, u1=340, v1=270)
 
 
@@ -412,7 +424,8 @@ def test_sensiac_sequence_merges_companions(tmp_path):
     assert seq.fps == 29.97
     assert seq.meta["agt"] == str(tmp_path / "cegr01.agt") and seq.meta["bbox_met"] == str(tmp_path / "cegr01.bbox_met")
     # Frame 0: upper-left from bbox_met, lower-right mirrored about PixLoc (5, 4): (7, 5.5).
-    assert seq.truth(0) == FrameTruth(vehicle="T72", u=5, v=4, range_m=1000.0, u0=3, v0=2.5, u1=7, v1=5.5)
+    assert seq.truth(0) == FrameTruth(vehicle="T72", vehicle_class="tank", u=5, v=4, range_m=1000.0, u0=3, v0=2.5,
+                                      u1=7, v1=5.5)
     # Frame 1: no AGT target, so only the upper-left corner is known.
     assert seq.truth(1) == FrameTruth(u0=6, v0=6)
     # Frame 2: the AGT's PixBox wins over bbox_met.

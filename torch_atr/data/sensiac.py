@@ -21,7 +21,11 @@ or numbers, e.g. ``TgtType "BTR70"``, ``Range "1000.5"``, ``PixLoc 320 256``,
 frames are the ``TgtUpd`` blocks of ``Agt -> TgtSect``, in order; a frame's target is its first
 ``Tgt``. ``Aspect`` is in degrees, 0 when the target faces the sensor, clockwise seen from
 above; it is kept in ``FrameTruth.aspect`` (in radians), which equals θ of METHOD.md's view Θ.
-The elevation φ needs the sensor's calibration and is left unknown.
+The elevation φ needs the sensor's calibration and is left unknown. ``TgtType`` names the
+vehicle; its class comes from :data:`SENSIAC_CLASSES`, the thesis's grouping of SENSIAC's
+targets (thesis 1: tanks T72, 2S3, ZSU23; APCs BTR70, BRDM2, BMP2; the Isuzu SUV; the Ford
+pickup) and of our SENSIAC-like test split, matched on letters and digits alone ("BMP2",
+"bmp_2" and "BMP-2" alike); any other vehicle's class is left unknown.
 
 ``.bbox_met`` per-frame bounding-box metadata, a comma-separated file of 18 columns and no
 header. The only public loader we found (a DSIAC tool on GitHub) names the first eleven
@@ -337,6 +341,19 @@ def _agt_time(attr: AgtAttr, source: str) -> float:
     return t.timestamp()
 
 
+SENSIAC_CLASSES = {  # TgtType, lower case, letters and digits only -> class (module docstring)
+    "t72": "tank", "2s3": "tank", "2s3akatsiya": "tank", "zsu23": "tank", "zsu234": "tank",
+    "btr70": "apc", "brdm2": "apc", "bmp2": "apc",
+    "pickup": "pickup", "fordpickup": "pickup", "fordf150": "pickup",
+    "suv": "suv", "isuzusuv": "suv", "isuzurodeo": "suv",
+}
+
+
+def vehicle_class(vehicle: str) -> str:
+    """The class of a SENSIAC target type (:data:`SENSIAC_CLASSES`), or "" for another vehicle."""
+    return SENSIAC_CLASSES.get(re.sub(r"[^a-z0-9]", "", vehicle.lower()), "")
+
+
 def agt_frame_truths(agt: AgtBlock, source: str = "<agt>") -> list[FrameTruth | None]:
     """Per-frame truth: one entry per ``TgtUpd`` (None when it holds no time and no target)."""
     truths: list[FrameTruth | None] = []
@@ -353,6 +370,7 @@ def agt_frame_truths(agt: AgtBlock, source: str = "<agt>") -> list[FrameTruth | 
                 tgt = tgts[0]
                 if (a := tgt.attr("TgtType")) is not None:
                     values["vehicle"] = " ".join(a.values)
+                    values["vehicle_class"] = vehicle_class(values["vehicle"])
                 if (a := tgt.attr("Range")) is not None:
                     values["range_m"] = _numbers(a, 1, source)[0]
                 if (a := tgt.attr("Aspect")) is not None:

@@ -936,7 +936,8 @@ def column(rows: list[dict], name: str) -> np.ndarray:
 
 
 def truth_columns(truth: FrameTruth) -> dict:
-    """The ``true_*`` columns of an estimate row."""
+    """The ``true_*`` columns of an estimate row; θ is SENSIAC's aspect where only that is known
+    (``FrameTruth.aspect`` equals θ)."""
     return {"true_x": truth.x, "true_y": truth.y, "true_z": truth.z, "true_heading": truth.heading,
-            "true_theta": truth.theta, "true_phi": truth.phi, "true_vehicle": truth.vehicle,
+            "true_theta": truth.theta if math.isfinite(truth.theta) else truth.aspect, "true_phi": truth.phi, "true_vehicle": truth.vehicle,
             "true_class": truth.vehicle_class}
