@@ -216,6 +216,17 @@ def test_csv_wrong_column_count(saved):
         FolderSequence(saved)
 
 
+def test_csv_blank_lines_at_the_end_are_ignored_elsewhere_named(saved):
+    path = saved / "truth.csv"
+    text = path.read_text()
+    truths = [FolderSequence(saved).truth(i) for i in range(4)]
+    path.write_bytes(text.replace("\n", "\r\n").encode() + b"\r\n\r\n")  # as an editor on Windows leaves it
+    assert [FolderSequence(saved).truth(i) for i in range(4)] == truths
+    _rewrite_csv_line(saved, 3, "")
+    with pytest.raises(ValueError, match=re.escape(f"{path}, line 3 (frame 1): a blank line; every frame needs a row")):
+        FolderSequence(saved)
+
+
 def test_csv_non_numeric(saved):
     cells = [""] * 18
     cells[2] = "far"  # z

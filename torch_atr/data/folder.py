@@ -182,7 +182,8 @@ def _write_truth_csv(path: Path, truths: list[FrameTruth | None]) -> None:
 
 def _read_truth_csv(path: Path, n: int) -> list[FrameTruth | None]:
     """Rows of ``truth.csv``: a FrameTruth per row, None for a row of empty cells. Numbers must be
-    finite (an empty cell is unknown); more rows than the ``n`` frames stop the reading."""
+    finite (an empty cell is unknown); more rows than the ``n`` frames stop the reading; blank
+    lines at the end are ignored, elsewhere refused."""
     truths: list[FrameTruth | None] = []
     reader = csv.reader(io.StringIO(read_text(path), newline=""))
     try:
@@ -195,10 +196,15 @@ def _read_truth_csv(path: Path, n: int) -> list[FrameTruth | None]:
                              f"known: {', '.join(TRUTH_FIELDS)}")
         if len(set(header)) != len(header):
             raise InputError(f"{path}, line 1: repeated column names in {header}")
-        for cells in reader:
-            where = f"{path}, line {reader.line_num} (frame {len(truths)})"
+        rows = [(reader.line_num, cells) for cells in reader]
+        while rows and not rows[-1][1]:  # blank lines at the end, as editors leave them
+            rows.pop()
+        for line, cells in rows:
+            where = f"{path}, line {line} (frame {len(truths)})"
             if len(truths) == n:
                 raise InputError(f"{where}: more rows than the {n} frames in meta.json")
+            if not cells:
+                raise InputError(f"{where}: a blank line; every frame needs a row (its cells may be empty)")
             if len(cells) != len(header):
                 raise InputError(f"{where}: expected {len(header)} columns; got {len(cells)}")
             values = {key: cell if key in TEXT_FIELDS else parse_real(f"{where}, column {key!r}", cell)
