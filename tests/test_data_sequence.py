@@ -227,6 +227,17 @@ def test_csv_blank_lines_at_the_end_are_ignored_elsewhere_named(saved):
         FolderSequence(saved)
 
 
+def test_a_shape_given_as_width_height_is_blamed_on_meta_json(tmp_path):
+    """meta.json's [W, H] against 4 x 3 frames and a 4 x 3 camera: the mistake is meta.json's."""
+    folder = save_sequence(ListSequence([np.zeros((3, 4), np.uint8)] * 2, camera=_camera(4, 3)), tmp_path / "s",
+                           progress=False)
+    meta = json.loads((folder / "meta.json").read_text())
+    (folder / "meta.json").write_text(json.dumps({**meta, "shape": [4, 3]}))
+    with pytest.raises(ValueError, match=re.escape("000000.png: image is 4 x 3 px; meta.json's shape [4, 3] (H, W) "
+                                                   "says 3 x 4")):
+        FolderSequence(folder)
+
+
 def test_csv_non_numeric(saved):
     cells = [""] * 18
     cells[2] = "far"  # z

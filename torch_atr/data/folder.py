@@ -35,8 +35,8 @@ from tqdm import tqdm
 
 from torch_atr.data.sequence import (MAX_CAMERA_HEIGHT_M, TEXT_FIELDS, TRUTH_FIELDS, FrameTruth, Sequence,
                                      load_camera_json, register_scheme)
-from torch_atr.validate import (InputError, image_size, integer, parse_real, read_image, read_json_object, read_text,
-                                real, show)
+from torch_atr.validate import (InputError, image_file_size, image_size, integer, parse_real, read_image,
+                                read_json_object, read_text, real, show)
 
 logger = logging.getLogger(__name__)
 
@@ -87,6 +87,11 @@ class FolderSequence(Sequence):
         self._shape = tuple(self.meta["shape"])
         self._dtype = np.dtype(self.meta["dtype"])
         _check_frame_files(self.folder / "frames", self._n)
+        first = self.folder / "frames" / _frame_filename(0)
+        width, height = image_file_size(first)  # the header only: meta.json's shape checked before the camera's
+        if (height, width) != self._shape[:2]:
+            raise InputError(f"{first}: image is {width} x {height} px; meta.json's shape {list(self._shape)} "
+                             f"(H, W) says {self._shape[1]} x {self._shape[0]}")
         cam_path = self.folder / "camera.json"
         self.camera = load_camera_json(cam_path) if cam_path.exists() else None
         if self.camera is not None and (self.camera.height, self.camera.width) != self._shape[:2]:
