@@ -127,6 +127,17 @@ def test_arf_size_matches_neither_layout(tmp_path):
         SensiacSequence(path)
 
 
+def test_an_arf_header_counting_too_few_frames_is_named(tmp_path):
+    """The header says 3 frames, the data holds 5 contiguous ones (84 bytes each)."""
+    path = tmp_path / "short_header.arf"
+    data = bytearray(arf_bytes(_frames(n=5, rows=6, cols=7)))
+    data[20:24] = (3).to_bytes(4, "big")  # the header's frame count, at byte offset 20
+    path.write_bytes(bytes(data))
+    with pytest.raises(ValueError, match=re.escape("its data holds exactly 5 contiguous frames, not the header's 3 "
+                                                   "(byte offset 20)")):
+        SensiacSequence(path)
+
+
 def test_contiguous_arf_with_40_junk_bytes_a_frame_is_not_read_shifted(tmp_path, caplog):
     """A contiguous ARF followed by exactly 40 x frames bytes fits the trailer layout by size; read
     as such, frames 1... came back shifted. Neither the header nor the content says trailers."""
@@ -437,6 +448,19 @@ def test_sensiac_sequence_merges_companions(tmp_path):
     assert [back.truth(i) for i in range(4)] == [seq.truth(i) for i in range(4)]
     np.testing.assert_array_equal(np.stack(list(back)), frames)
     assert json.loads((out / "meta.json").read_text())["source_meta"]["arf_layout"] == "trailer40"
+
+
+def test_agt_times_that_run_backwards_are_warned_of(tmp_path, caplog):
+    write_arf(tmp_path / "back.arf", _frames(n=3, rows=8, cols=10))
+    write_agt(tmp_path / "back.agt", [FrameTruth(vehicle="T72", time_s=t) for t in (100.0, 99.0, 101.0)])
+    with caplog.at_level(logging.WARNING):
+        seq = open_sequence(f"sensiac:{tmp_path / 'back.arf'}")
+    assert "the AGT's times run backwards" in caplog.text and seq.truth(1).time_s == 99.0  # kept as given
+    caplog.clear()
+    write_agt(tmp_path / "back.agt", [FrameTruth(vehicle="T72", time_s=t) for t in (100.0, 100.0, 101.0)])
+    with caplog.at_level(logging.WARNING):
+        open_sequence(f"sensiac:{tmp_path / 'back.arf'}")
+    assert "backwards" not in caplog.text  # equal times (a slow clock) are not backwards
 
 
 def test_dsiac_folder_layout_and_calib(tmp_path):

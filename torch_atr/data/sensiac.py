@@ -151,9 +151,14 @@ def read_arf_header(path: str | os.PathLike, layout: str | None = None) -> tuple
                          f"{hint}")
     if size < need["contiguous"]:
         _truncated(path, h, fb, size)
+    data = size - h.offset
+    strides = (("contiguous", fb), ("trailer40", fb + ARF_TRAILER_BYTES))
+    whole = [f"{data // stride} {name} frames" for name, stride in strides if data % stride == 0]
+    count = (f"; its data holds exactly {' or '.join(whole)}, not the header's {h.frames} (byte offset 20)"
+             if whole else "")
     raise InputError(f"{path}: ARF size {size} bytes matches neither layout: {need['contiguous']} bytes "
                      f"without per-frame trailers, {need['trailer40']} bytes with {ARF_TRAILER_BYTES}-byte "
-                     f"trailers; {hint}")
+                     f"trailers{count}; {hint}")
 
 
 def _truncated(path: Path, h: ArfHeader, stride: int, size: int) -> None:
@@ -562,6 +567,10 @@ def _merge_truth(n: int, agt: list[FrameTruth | None], met: list[BboxMetRow], so
     mirrored about PixLoc) where the AGT has no PixBox."""
     if agt and len(agt) != n:
         logger.warning("%s: the AGT has %d frames, the ARF %d; matching by index", source, len(agt), n)
+    times = [t.time_s for t in agt if t is not None and math.isfinite(t.time_s)]
+    if any(b < a for a, b in zip(times, times[1:])):
+        logger.warning("%s: the AGT's times run backwards (frames out of order, or another file's?); the truth keeps "
+                       "them, the tracker's clock does not use them", source)
     corners: dict[int, tuple[float, float]] = {}
     for row in met:
         corners.setdefault(row.frame - 1, row.upper_left)
