@@ -207,6 +207,12 @@ def test_methods_snap_what_they_should(model, method):
     torch.testing.assert_close(got, want, atol=2e-4, rtol=0)
 
 
+def test_method_iv_cannot_adapt_kernel_widths(model, btr):
+    """Method IV compares the training templates: no kernel width shapes them (adapting crashed in backward)."""
+    with pytest.raises(ConfigError, match=r"adapt.every > 0 tunes the model's kernel widths, but method IV"):
+        Tracker(model, btr.camera, _config("filter.method=IV", "adapt.every=1"))
+
+
 def test_method_iv_needs_templates_of_the_right_shape(model):
     with pytest.raises(ValueError, match=r"Method IV needs the training templates .*: pass "
                                          r"templates=torch_atr.training.training_templates\(model\)"):
@@ -441,6 +447,8 @@ def test_a_blob_no_particle_explains_is_lost_and_the_tracker_says_why_once(model
     said = [r.getMessage() for r in caplog.records if "no particle explains the blob" in r.getMessage()]
     assert len(said) == 1 and said[0].startswith("frames 0-9: ")
     assert f"The blob spans {box.any(0).sum()} x {box.any(1).sum()} px" in said[0]
+    bound = -math.log(torch.finfo(torch.float32).tiny) * 2 * 0.02 ** 2  # eq. 5.2 at the default σ, by hand
+    assert f"a mean squared error above {bound:.3g} template units at filter.sigma=0.02" in said[0]
 
 
 def test_target_leaving_the_image_is_lost_not_nan(model):

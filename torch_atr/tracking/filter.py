@@ -339,6 +339,9 @@ class Tracker:
         self.model = model.to(self.device)
         self.camera = camera
         fc = self.cfg.filter
+        if self.cfg.adapt.every and fc.method == "IV":
+            raise ConfigError("adapt.every > 0 tunes the model's kernel widths, but method IV compares the training "
+                              "templates themselves: use method I, II or III, or adapt.every=0")
         size = model.template.size_px
         if size % fc.likelihood_px:
             fits = [d for d in range(size, 0, -1) if size % d == 0][:3]
@@ -538,11 +541,14 @@ class Tracker:
         the best particle's log-likelihood, ``floor`` the one below which a frame is lost, ``side``
         the largest predicted window in pixels."""
         u0, v0, u1, v1 = mask_box(mask)
+        sigma = self.cfg.filter.sigma
         log.warning("frames %d-%d: no particle explains the blob (best log-likelihood %.0f; a frame is lost below "
-                    "%.0f), so the track keeps its prediction. The blob spans %d x %d px, the largest predicted "
-                    "window %.0f px (the model's %g m): a vehicle longer than the window, or unlike every vehicle "
-                    "the model was trained on, cannot be explained", self._frames - _UNEXPLAINED_WARNING + 1,
-                    self._frames, best, floor, u1 - u0 + 1, v1 - v0 + 1, side, self.model.template.window_m)
+                    "%.0f, a mean squared error above %.3g template units at filter.sigma=%g), so the track keeps its "
+                    "prediction. The blob spans %d x %d px, the largest predicted window %.0f px (the model's %g m): "
+                    "a vehicle longer than the window, or unlike every vehicle the model was trained on, cannot be "
+                    "explained; a smaller sigma makes that bound stricter (0.02 allows %.3g)",
+                    self._frames - _UNEXPLAINED_WARNING + 1, self._frames, best, floor, -floor * 2 * sigma ** 2,
+                    sigma, u1 - u0 + 1, v1 - v0 + 1, side, self.model.template.window_m, -floor * 2 * 0.02 ** 2)
 
     def _check_mask(self, mask) -> np.ndarray:
         """A user's mask as an (H, W) bool array (a tensor is taken too) of the camera's image size
