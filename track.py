@@ -18,7 +18,7 @@ import logging
 from pathlib import Path
 
 from torch_atr import viz
-from torch_atr.cli import console_logging, run_main
+from torch_atr.cli import REPO, console_logging, in_repo, run_main
 from torch_atr.config import ConfigError, load_config
 from torch_atr.data import open_sequence
 from torch_atr.io import check_output_dir, claimed_output_dir
@@ -30,7 +30,6 @@ from torch_atr.tracking.job import TrackConfig, is_track_run, run_summary, write
 from torch_atr.training import trained_catalog, training_templates
 
 log = logging.getLogger("track")
-REPO = Path(__file__).resolve().parent
 SETTLE_FRAMES = 60  # metrics.json's "settled" block: the frames after a blind start's first 2 s
 OUTPUTS = ("metrics.json", "estimates.csv", "config.yaml", "*.png", "overlay.mp4")  # a run's files, all replaced
 # The summary line's errors: label, metrics.json key, format, unit.
@@ -49,12 +48,6 @@ FLAGS = {
     "out": ("out", "DIR", "the run folder"),
     "frames": ("frames", "N", "track only the first N frames"),
 }
-
-
-def resolve(path: str) -> Path:
-    """A relative path as given if it exists from here, else from the repository (the defaults)."""
-    p = Path(path)
-    return p if p.is_absolute() or p.exists() or not (REPO / p).exists() else REPO / p
 
 
 def main(argv: list[str] | None = None) -> dict:
@@ -81,7 +74,7 @@ def main(argv: list[str] | None = None) -> dict:
     # 1. The model, the sequence, the run folder and the tracker. A bad input is reported before
     # the run folder is checked (a typo in --sequence is not "runs/track exists"), and a value the
     # tracker refuses before the folder is claimed.
-    model, extra = load_checkpoint(resolve(cfg.checkpoint), map_location=cfg.device)
+    model, extra = load_checkpoint(in_repo(cfg.checkpoint), map_location=cfg.device)
     sequence = open_sequence(cfg.sequence)
     out = check_output_dir(cfg.out, args.overwrite, "metrics.json", is_track_run, "tracking run")
     tracker = make_tracker(cfg, model, trained_catalog(extra), sequence)

@@ -4,7 +4,8 @@
 file, spec or checkpoint; an output that may not be replaced) into one line on stderr,
 ``PROG: error: MESSAGE``, and exit status 2, the way ``argparse`` reports a bad argument. Other
 exceptions are bugs and keep their traceback. :func:`console_logging` sets up their log lines,
-which never land inside a progress bar.
+which never land inside a progress bar. :func:`in_repo` finds the repository's defaults
+(``checkpoints/default.pt``) from any folder.
 """
 
 from __future__ import annotations
@@ -19,6 +20,14 @@ from tqdm import tqdm
 # ValueError covers ConfigError and InputError; OSError covers missing files, outputs that may
 # not be replaced (OutputExistsError) and permissions.
 USER_ERRORS: tuple[type[BaseException], ...] = (ValueError, OSError)
+REPO = Path(__file__).resolve().parents[1]  # a source checkout's root: checkpoints/, configs/
+
+
+def in_repo(path: str | Path) -> Path:
+    """A relative ``path`` as given if it exists from here, else from the repository root when it
+    exists there (the defaults, run from another folder); an absolute one as given."""
+    p = Path(path)
+    return p if p.is_absolute() or p.exists() or not (REPO / p).exists() else REPO / p
 
 
 def run_main(main: Callable[[list[str] | None], object], argv: list[str] | None = None,

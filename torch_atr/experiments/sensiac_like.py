@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-import torch_atr
+from torch_atr.cli import REPO, in_repo
 from torch_atr.config import ConfigError, load_config
 from torch_atr.data.sequence import Sequence
 from torch_atr.io import atomic_write_text
@@ -40,7 +40,6 @@ GROUPS = ("tank", "apc", "suv", "pickup")  # Table 6.1's columns (SENSIAC has no
 RESULT_FORMAT = "torch_atr.sensiac_like_sequence"
 GRID_SCENE_KEYS = ("range_m", "circle_diameter_m", "frames", "seed")  # set by the grid, not by scene overrides
 HELDOUT_PREFIX = "heldout:"  # a vehicle name for a held-out mesh: heldout:PATH, PATH as in the manifest
-REPO = Path(torch_atr.__file__).resolve().parents[1]  # a source checkout's root, which holds checkpoints/
 
 
 @dataclass(frozen=True)
@@ -152,9 +151,7 @@ def resolve_checkpoint(checkpoint: str) -> Path:
     """The checkpoint file: a relative path as given if it exists from here, else from the
     repository root (so the default, ``checkpoints/default.pt``, is found from any folder), as
     ``track.py`` resolves it. ``FileNotFoundError`` where neither place holds the file."""
-    path = Path(checkpoint)
-    if not path.is_absolute() and not path.exists() and (REPO / path).exists():
-        path = REPO / path
+    path = in_repo(checkpoint)
     if not path.is_file():
         where = "" if Path(checkpoint).is_absolute() else f" (neither from {Path.cwd()} nor from {REPO})"
         raise FileNotFoundError(f"checkpoint not found: {checkpoint}{where}")
