@@ -99,9 +99,9 @@ def car(tmp_path) -> Path:
 @pytest.mark.parametrize("kwargs, message", [
     (dict(up_axis="z", forward_axis="-z"), "up_axis 'z' and forward_axis '-z' must be perpendicular"),
     (dict(up_axis="Y"), "up_axis must be one of"),
-    (dict(scale="0.01"), "scale must be a positive number; got '0.01'"),
-    (dict(scale=True), "scale must be a positive number; got True"),
-    (dict(min_thickness="0.05"), "min_thickness must be a number >= 0; got '0.05'"),
+    (dict(scale="0.01"), "scale: expected a finite number > 0; got '0.01'"),
+    (dict(scale=True), "scale: expected a finite number > 0; got True"),
+    (dict(min_thickness="0.05"), "min_thickness: expected a finite number >= 0; got '0.05'"),
     (dict(name=""), "name must be a non-empty string .*; got ''"),
     (dict(name="  "), "name must be a non-empty string .*; got '  '"),
 ])

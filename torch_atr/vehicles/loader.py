@@ -28,7 +28,6 @@ import dataclasses
 import io
 import logging
 import math
-import numbers
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -39,6 +38,8 @@ import numpy as np
 import pytorch_kinematics as pk
 import torch
 import trimesh
+
+from torch_atr.validate import real
 
 log = logging.getLogger(__name__)
 
@@ -199,10 +200,8 @@ def load_vehicle(
         raise ValueError(f"{path}: is a folder; expected a URDF or mesh file")
     if not path.is_file():
         raise FileNotFoundError(f"vehicle file not found: {path}")
-    if not (_is_real(scale) and math.isfinite(scale) and scale > 0):
-        raise ValueError(f"{path}: scale must be a positive number; got {scale!r}")
-    if not (_is_real(min_thickness) and math.isfinite(min_thickness) and min_thickness >= 0):
-        raise ValueError(f"{path}: min_thickness must be a number >= 0; got {min_thickness!r}")
+    scale = real(f"{path}: scale", scale, lo=0, lo_open=True)
+    min_thickness = real(f"{path}: min_thickness", min_thickness, lo=0)
     if name is not None and not (isinstance(name, str) and name.strip()):
         raise ValueError(f"{path}: name must be a non-empty string (None: the file's stem); got {name!r}")
     rotation = _file_rotation(path, up_axis, forward_axis) * scale
@@ -210,9 +209,10 @@ def load_vehicle(
     if path.suffix.lower() == ".urdf":
         rig = _load_urdf(path, rotation)
         values = _rest_pose(rig.limits)
-        _check_size(path, rig.mesh(values).vertices, scale)
         values.update(_check_joints(rig, joints or {}, path))
-        return Vehicle(name, cls, rig.mesh(values), path, MappingProxyType(values), rig)
+        mesh = rig.mesh(values)
+        _check_size(path, mesh.vertices, scale)
+        return Vehicle(name, cls, mesh, path, MappingProxyType(values), rig)
     if joints:
         raise ValueError(f"{path} is a plain mesh and has no joints; got {sorted(joints)}")
     mesh = _read_mesh(path, process=True)
@@ -296,10 +296,6 @@ def _clip_to_box(vertices: np.ndarray, faces: np.ndarray, box: np.ndarray) -> tu
     if len(faces) == 0:
         raise ValueError("trimming thin protrusions left no faces")
     return vertices, faces
-
-
-def _is_real(x) -> bool:
-    return isinstance(x, numbers.Real) and not isinstance(x, bool)
 
 
 def _file_rotation(path: Path, up_axis: str, forward_axis: str) -> np.ndarray:
