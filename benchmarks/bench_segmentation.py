@@ -24,13 +24,13 @@ import numpy as np
 import torch
 
 from torch_atr.cli import run_main
-from torch_atr.config import ConfigError, load_config
+from torch_atr.config import load_config
 from torch_atr.data.synthetic import SceneConfig, SyntheticSequence
 from torch_atr.segmentation import ForegroundSegmenter, SegmentationConfig
 from torch_atr.shape import iou
 from torch_atr.vehicles.specs import SPLITS
 
-from benchlib import check_at_least, json_output, write_json
+from benchlib import check_at_least, json_output, sequence, write_json
 
 log = logging.getLogger("bench_segmentation")
 NAME = Path(__file__).stem
@@ -108,14 +108,6 @@ def main(argv: list[str] | None = None) -> None:
                "simulator_fps": sim_fps, "warmup_fps": warm_fps, "segmenter_fps": seg_fps,
                "torch": torch.__version__, "threads": torch.get_num_threads()}
         write_json(data, out, NAME)
-
-
-def sequence(vehicle: str, scene: SceneConfig, range_m: float) -> SyntheticSequence:
-    """The simulated sequence of ``vehicle`` at ``range_m``; ConfigError names a bad vehicle or range."""
-    try:
-        return SyntheticSequence(vehicle, dataclasses.replace(scene, range_m=range_m))
-    except ValueError as exc:
-        raise ConfigError(f"--vehicles {vehicle} --ranges {range_m:g}: {exc}") from None
 
 
 if __name__ == "__main__":

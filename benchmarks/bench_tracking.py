@@ -26,13 +26,13 @@ import torch
 
 from torch_atr.cli import run_main
 from torch_atr.config import ConfigError, load_config
-from torch_atr.data.synthetic import SceneConfig, SyntheticSequence
+from torch_atr.data.synthetic import SceneConfig
 from torch_atr.model.generative import load_checkpoint
 from torch_atr.tracking import Tracker, TrackerConfig
 from torch_atr.tracking.job import run_summary
 from torch_atr.training import trained_catalog, training_templates
 
-from benchlib import SHIPPED, check_at_least, json_output, write_json
+from benchlib import SHIPPED, check_at_least, json_output, sequence, write_json
 
 log = logging.getLogger("bench_tracking")
 NAME = Path(__file__).stem
@@ -77,7 +77,7 @@ def main(argv: list[str] | None = None) -> list[dict]:
     configs = {(init, method): load_config(TrackerConfig, None, [  # ConfigError names a bad --set override
         f"filter.particles={args.particles}", f"filter.method={method}", f"init.mode={init}", *args.set])
         for init in args.inits for method in args.methods}
-    sequences = {(vehicle, range_m): sequence(vehicle, range_m, args)
+    sequences = {(vehicle, range_m): sequence(vehicle, SceneConfig(frames=args.frames, seed=args.seed), range_m)
                  for vehicle in args.vehicles for range_m in args.ranges}
     out = json_output(args.json, args.overwrite, NAME)
     logging.basicConfig(level=logging.INFO, format="%(message)s")
@@ -106,14 +106,6 @@ def main(argv: list[str] | None = None) -> list[dict]:
     if out is not None:
         write_json({"args": vars(args), "runs": results, "threads": torch.get_num_threads()}, out, NAME)
     return results
-
-
-def sequence(vehicle: str, range_m: float, args: argparse.Namespace) -> SyntheticSequence:
-    """The simulated sequence of ``vehicle`` at ``range_m``; ConfigError names a bad vehicle or range."""
-    try:
-        return SyntheticSequence(vehicle, SceneConfig(range_m=range_m, frames=args.frames, seed=args.seed))
-    except ValueError as exc:
-        raise ConfigError(f"--vehicles {vehicle} --ranges {range_m:g}: {exc}") from None
 
 
 if __name__ == "__main__":

@@ -10,14 +10,16 @@ that matplotlib wrote (its ``Software`` text chunk). Outputs are written atomica
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import logging
 import math
 from pathlib import Path
 
 from torch_atr.config import ConfigError
+from torch_atr.data.synthetic import SceneConfig, SyntheticSequence
 from torch_atr.io import atomic_write_text, check_output_file, check_writable
-from torch_atr.validate import MAX_JSON_BYTES, read_text
+from torch_atr.validate import read_json_object
 
 log = logging.getLogger("benchmarks")
 
@@ -67,13 +69,21 @@ def _checked(path: Path) -> Path:
 def _benchmark_of(path: Path) -> str | None:
     """The ``"benchmark"`` key of the JSON object in ``path`` (None for anything else)."""
     try:
-        data = json.loads(read_text(path, MAX_JSON_BYTES))
+        return read_json_object(path, "").get("benchmark")
     except (OSError, ValueError):
         return None
-    return data.get("benchmark") if isinstance(data, dict) else None
 
 
 def _is_matplotlib_png(path: Path) -> bool:
     with open(path, "rb") as fh:
         head = fh.read(4096)
     return head.startswith(PNG_SIGNATURE) and MATPLOTLIB_PNG in head
+
+
+def sequence(vehicle: str, scene: SceneConfig, range_m: float) -> SyntheticSequence:
+    """The simulated sequence of ``vehicle`` at ``range_m`` (``scene`` otherwise); ConfigError names a
+    bad vehicle or range as the flags that gave them."""
+    try:
+        return SyntheticSequence(vehicle, dataclasses.replace(scene, range_m=range_m))
+    except ValueError as exc:
+        raise ConfigError(f"--vehicles {vehicle} --ranges {range_m:g}: {exc}") from None
