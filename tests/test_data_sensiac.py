@@ -299,6 +299,14 @@ def test_sensiac_target_types_get_the_thesis_classes():
         assert [vehicle_class(n) for n in names] == [cls] * len(names)
 
 
+def test_sensiac_aspect_scores_as_the_view_theta():
+    """An AGT gives the aspect, not θ; the metrics read true_theta, which the aspect fills."""
+    from torch_atr.tracking.filter import truth_columns
+
+    assert truth_columns(FrameTruth(vehicle="BMP2", vehicle_class="apc", aspect=0.5))["true_theta"] == 0.5
+    assert truth_columns(FrameTruth(theta=1.0, aspect=0.5))["true_theta"] == 1.0  # a known θ stands
+
+
 def test_agt_parse_tree_and_truth(tmp_path):
     path = tmp_path / "run.agt"
     path.write_text(AGT_TEXT)

@@ -546,9 +546,10 @@ class Tracker:
                     "%.0f, a mean squared error above %.3g template units at filter.sigma=%g), so the track keeps its "
                     "prediction. The blob spans %d x %d px, the largest predicted window %.0f px (the model's %g m): "
                     "a vehicle longer than the window, or unlike every vehicle the model was trained on, cannot be "
-                    "explained; a smaller sigma makes that bound stricter (0.02 allows %.3g)",
+                    "explained; a smaller sigma makes that bound stricter (the default %g allows %.3g)",
                     self._frames - _UNEXPLAINED_WARNING + 1, self._frames, best, floor, -floor * 2 * sigma ** 2,
-                    sigma, u1 - u0 + 1, v1 - v0 + 1, side, self.model.template.window_m, -floor * 2 * 0.02 ** 2)
+                    sigma, u1 - u0 + 1, v1 - v0 + 1, side, self.model.template.window_m, FilterConfig.sigma,
+                    -floor * 2 * FilterConfig.sigma ** 2)
 
     def _check_mask(self, mask) -> np.ndarray:
         """A user's mask as an (H, W) bool array (a tensor is taken too) of the camera's image size
@@ -945,5 +946,6 @@ def truth_columns(truth: FrameTruth) -> dict:
     """The ``true_*`` columns of an estimate row; θ is SENSIAC's aspect where only that is known
     (``FrameTruth.aspect`` equals θ)."""
     return {"true_x": truth.x, "true_y": truth.y, "true_z": truth.z, "true_heading": truth.heading,
-            "true_theta": truth.theta if math.isfinite(truth.theta) else truth.aspect, "true_phi": truth.phi, "true_vehicle": truth.vehicle,
+            "true_theta": truth.theta if math.isfinite(truth.theta) else truth.aspect, "true_phi": truth.phi,
+            "true_vehicle": truth.vehicle,
             "true_class": truth.vehicle_class}
