@@ -62,6 +62,7 @@ def test_bad_arrays_are_named():
              "frames[1]: shape (5, 6), dtype uint8, but frames[0] has shape (4, 6)"),
             (([grey],), {"camera": Camera(fx=10.0, fy=10.0, cx=3.0, cy=2.0, width=8, height=4)},
              "camera: 8 x 4 px, but the frames are 6 x 4"),
+            ((np.zeros((2, 0, 6), np.uint8),), {}, "frames: height: expected an integer in [1, 16384]; got 0"),
             (([grey],), {"truths": [None, None]}, "truths: expected 1 entries"),
             (([grey],), {"fps": 0.0}, "fps must be a positive number"),
             (([grey],), {"camera_height_m": math.nan}, "camera_height_m: expected a positive number of metres")]:

@@ -16,7 +16,7 @@ import numpy as np
 from torch_atr._checks import describe_array
 from torch_atr.camera import Camera
 from torch_atr.data.sequence import FrameTruth, Sequence, check_fps
-from torch_atr.validate import InputError, show
+from torch_atr.validate import InputError, image_size, show
 
 DTYPES = (np.uint8, np.uint16, np.float32, np.float64)
 
@@ -56,6 +56,7 @@ class ArraySequence(Sequence):
                 raise InputError(f"frames[{i}]: {describe_array(f)}, but frames[0] has shape {first.shape}, "
                                  f"dtype {first.dtype}")
         height, width = first.shape[:2]
+        image_size("frames", width, height)  # an empty (0-pixel) frame, say
         if camera is not None:
             if not isinstance(camera, Camera):
                 raise InputError(f"camera: expected a Camera or None; got {type(camera).__name__}")
