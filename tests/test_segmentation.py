@@ -9,6 +9,7 @@ from scipy import ndimage
 
 from torch_atr._checks import to_grey
 from torch_atr.config import ConfigError, load_config
+from torch_atr import segmentation
 from torch_atr.segmentation import (_THIN_SEARCH_PX, ForegroundSegmenter, SegmentationConfig, clean_mask,
                                     extend_thin_parts, normalise_ir, select_blob, static_background_frames)
 from torch_atr.shape import iou
@@ -423,3 +424,84 @@ def test_colour_frames_are_rgb_like_the_sequences():
     rgb[..., 0] = 200  # pure red
     assert to_grey("f", rgb, (np.uint8,), "RGB")[0, 0] == round(0.299 * 200)  # ITU-R BT.601 weights
     assert to_grey("f", rgb, (np.uint8,))[0, 0] == round(0.114 * 200)  # OpenCV's images are BGR
+
+
+@pytest.mark.parametrize("threads", [1, 2])
+def test_mog2_bands_are_one_models_masks_and_background(threads):
+    """The segmenter's MOG2 runs on bands of rows, one model each: against one OpenCV model of the
+    whole frame, the same masks (at both thresholds, learning or not) and background image, and
+    a comparison of some bands gives those rows' masks and leaves the rest untouched."""
+    rng = np.random.default_rng(0)
+    texture = _background(rng)
+    before = cv2.getNumThreads()
+    cv2.setNumThreads(threads)
+    try:
+        bands = segmentation._BandedMOG2((H, W), 200, 36.0, False)
+    finally:
+        cv2.setNumThreads(before)
+    one = cv2.createBackgroundSubtractorMOG2(history=200, varThreshold=36.0, detectShadows=False)
+    for _ in range(30):
+        image = _frame("uint8", texture, [], rng)
+        np.testing.assert_array_equal(bands.apply(image, -1), one.apply(image, learningRate=-1))
+    for t in range(12):
+        image = _frame("uint8", texture, [_rect(10 + 9 * t, 30 + 4 * t, 25, 12), _rect(120, 100, 20, 10)], rng)
+        np.testing.assert_array_equal(bands.apply(image, 0.0), one.apply(image, learningRate=0.0))
+        one.setVarThreshold(9.0)
+        low = one.apply(image, learningRate=0.0)
+        one.setVarThreshold(36.0)
+        if t % 2:
+            np.testing.assert_array_equal(bands.apply(image, 0.0, 9.0), low)
+        else:  # rows 40:70 asked for: bands 32:64 and 64:96 compared, nothing else
+            fg_in = bands.rows_of(image, 0.0, 9.0)
+            got = fg_in(40, 70)
+            np.testing.assert_array_equal(got[32:96], low[32:96] == 255)
+            assert not got[:32].any() and not got[96:].any() and low[96:].any()
+            np.testing.assert_array_equal(fg_in(0, H), low == 255)  # the rest, each band once
+        if t % 4 == 3:
+            np.testing.assert_array_equal(bands.apply(image, 0.05), one.apply(image, learningRate=0.05))
+    np.testing.assert_array_equal(bands.background_image(), one.getBackgroundImage())
+
+
+def test_rows_near_the_prediction_give_the_whole_frames_blob(monkeypatch):
+    """Given a predicted box, the segmenter compares the rows near it first and the whole frame
+    only when the blob it chose there might not be the whole frame's choice. Against the same
+    segmenter comparing every row (no box given; gain fit and learning off, so the box changes
+    nothing else): the same masks, on random scenes with the prediction on a target, off it, or
+    with a nearer blob just beyond the rows or a small one across their edge."""
+    cfg = SegmentationConfig(warmup_frames=30, compensate_gain=False, min_area_px=40, close_px=5, open_px=3)
+    rows_used = []
+    rows_of = segmentation._BandedMOG2.rows_of
+
+    def spy(self, image, rate, threshold=None):
+        fg_in = rows_of(self, image, rate, threshold)
+        if threshold is None:
+            rows_used.append([])
+
+        def logged(r0, r1):
+            if threshold is None:
+                rows_used[-1].append((r0, r1))
+            return fg_in(r0, r1)
+        return logged
+
+    monkeypatch.setattr(segmentation._BandedMOG2, "rows_of", spy)
+    near_only, whole = _warmed("uint8", 3, cfg)[0], _warmed("uint8", 3, cfg)[0]
+    rng = np.random.default_rng(5)
+    texture = _warmed("uint8", 3, cfg)[1]
+    scenes = [([_rect(60, 50, 30, 14), _rect(100, 90, 12, 12)], (58, 48, 92, 66)),  # target in the box
+              ([_rect(20, 40, 30, 14), _rect(75, 76, 20, 10)], (60, 38, 100, 56)),  # a nearer one below them
+              ([_rect(10, 50, 30, 14), _rect(60, 63, 10, 12)], (8, 48, 42, 66)),  # a small one across the edge
+              ([_rect(20, 90, 30, 14)], (60, 20, 90, 40))]  # the prediction off the target
+    for _ in range(40):
+        rects = [_rect(rng.integers(0, W - 30), rng.integers(0, H - 15), rng.integers(4, 30), rng.integers(4, 15))
+                 for _ in range(rng.integers(1, 5))]
+        u, v = rng.integers(0, W - 20), rng.integers(0, H - 10)
+        scenes.append((rects, (u, v, u + rng.integers(5, 40), v + rng.integers(5, 30))))
+    first_only = []  # per scene: whether the rows near the box alone were compared
+    for targets, box in scenes:
+        frame = _frame("uint8", texture, targets, rng)
+        near = ((box[0] + box[2]) / 2, (box[1] + box[3]) / 2)
+        got = near_only(frame, near=near, exclude=tuple(map(float, box)))
+        first_only.append(len(rows_used[-1]) == 1 and rows_used[-1] != [(0, H)])
+        np.testing.assert_array_equal(got, whole(frame, near=near))
+        assert rows_used[-1] == [(0, H)]
+    assert first_only[:4] == [True, False, False, False] and sum(first_only) >= 4

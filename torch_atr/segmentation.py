@@ -42,8 +42,9 @@ from __future__ import annotations
 
 import logging
 import numbers
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
-from typing import Iterable
+from typing import Callable, Iterable
 
 import cv2
 import numpy as np
@@ -216,6 +217,10 @@ _FOREGROUND_MARGIN_PX = 7  # the detected foreground is grown by this before a s
 _THIN_RING_PX = 1  # thin parts: the ring round the blob that a blur halo fills ...
 _THIN_REACH_PX = 2.0  # ... and how far beyond it a part must reach (3 x 3 chamfer: 3 px straight, 2 diagonally)
 _THIN_SEARCH_PX = 32  # ... and the margin round the blob in which its thin parts are looked for first
+_BAND_ROWS = 32  # MOG2 runs on bands of this many rows (_BandedMOG2) ...
+_ROWS_MARGIN_PX = 16  # ... and compares those within this of the predicted box first (ForegroundSegmenter)
+
+Rows = Callable[[int, int], np.ndarray]  # (r0, r1) -> (H, W) bool mask, exact in rows r0:r1
 
 
 def _box_mask(shape: tuple[int, int], box: Box | None) -> np.ndarray:
@@ -236,26 +241,28 @@ def _box_mask(shape: tuple[int, int], box: Box | None) -> np.ndarray:
     return out
 
 
-def _components_holding(blob: np.ndarray, both: np.ndarray, rect: tuple[int, int, int, int], ring_px: int
+def _components_holding(blob: np.ndarray, low_in: Rows, rect: tuple[int, int, int, int], ring_px: int
                         ) -> tuple[np.ndarray, np.ndarray, tuple[slice, slice]]:
-    """The 8-connected components of ``both`` that hold pixels of ``blob`` (whose bounding
+    """The 8-connected components of ``low | blob`` that hold pixels of ``blob`` (whose bounding
     rectangle (x, y, w, h) is ``rect``), and the box that holds them grown by ``ring_px``.
 
     They are labelled in the blob's rectangle grown by ``_THIN_SEARCH_PX``, and in the whole frame
     only when one of them, grown by the ring, would leave that region inside the image: the result
     is the whole frame's either way, at a fraction of the cost (a whole 640 x 512 frame of noise
-    at the lower threshold is most of this function's time).
+    at the lower threshold is most of this function's time). ``low_in(r0, r1)`` gives ``low``
+    exact in rows r0:r1, so a segmenter compares only the rows looked at.
 
     Returns:
         labels: the labels inside the box; touching: (T,) the labels holding the blob; box: the
         (rows, cols) slices of the box in the frame.
     """
-    H, W = both.shape
+    H, W = blob.shape
     x, y, w, h = rect
     pad = _THIN_SEARCH_PX
     for r0, r1, c0, c1 in ((max(y - pad, 0), min(y + h + pad, H), max(x - pad, 0), min(x + w + pad, W)),
                            (0, H, 0, W)):
-        _, labels, stats, _ = cv2.connectedComponentsWithStats(both[r0:r1, c0:c1].view(np.uint8), connectivity=8)
+        both = low_in(r0, r1)[r0:r1, c0:c1] | blob[r0:r1, c0:c1]
+        _, labels, stats, _ = cv2.connectedComponentsWithStats(both.view(np.uint8), connectivity=8)
         touching = np.unique(labels[blob[r0:r1, c0:c1]])
         corner = stats[touching, :2]  # (left, top) of each, then (right, bottom) past its end, in the region
         (left, top), (right, bottom) = corner.min(0) - ring_px, (corner + stats[touching, 2:4]).max(0) + ring_px
@@ -288,11 +295,18 @@ def extend_thin_parts(blob: np.ndarray, low: np.ndarray, ring_px: int = _THIN_RI
     blob, low = _check_mask(blob), _check_mask(low)
     if low.shape != blob.shape:
         raise ValueError(f"Expected low of the blob's shape {blob.shape}; got {low.shape}")
+    return _extend_thin_parts(blob, lambda r0, r1: low, ring_px, reach_px)
+
+
+def _extend_thin_parts(blob: np.ndarray, low_in: Rows, ring_px: int, reach_px: float) -> np.ndarray:
+    """:func:`extend_thin_parts` of an (H, W) bool ``blob`` (extended in place and returned), with
+    the lower threshold's foreground given row by row: ``low_in(r0, r1)`` is (H, W) bool, exact in
+    rows r0:r1 (:func:`_components_holding`)."""
     points = cv2.findNonZero(blob.view(np.uint8))
     if points is None:
         return blob
-    labels, touching, box = _components_holding(blob, low | blob, cv2.boundingRect(points), ring_px)
-    out, blob, low = blob, blob[box], low[box]
+    labels, touching, box = _components_holding(blob, low_in, cv2.boundingRect(points), ring_px)
+    out, blob, low = blob, blob[box], low_in(box[0].start, box[0].stop)[box]
     disk = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * ring_px + 1,) * 2)
     ring = cv2.dilate(blob.view(np.uint8), disk).astype(bool)
     beyond = np.isin(labels, touching) & ~ring  # reachable from the blob, outside the ring
@@ -310,8 +324,77 @@ def extend_thin_parts(blob: np.ndarray, low: np.ndarray, ring_px: int = _THIN_RI
     bridge = thin
     for _ in range(ring_px):  # through the ring, one pixel at a time
         bridge = bridge | (ring & low & cv2.dilate(bridge.view(np.uint8), np.ones((3, 3), np.uint8)).astype(bool))
-    out[box] |= bridge  # out is _check_mask's copy, not the caller's array
+    out[box] |= bridge
     return out
+
+
+class _BandedMOG2:
+    """OpenCV's MOG2 on horizontal bands of ``_BAND_ROWS`` rows, one model each.
+
+    MOG2 models every pixel on its own, so the bands give the whole frame's model and masks
+    exactly (tests/test_segmentation.py compares them with one model), while a comparison can be
+    limited to the rows it is needed in (``ForegroundSegmenter``, "Rows compared"). The bands of a
+    call are spread over as many threads as OpenCV uses (``cv2.getNumThreads()``), as OpenCV
+    splits one model's rows; the threads end with the object.
+    """
+
+    def __init__(self, shape: tuple[int, int], history: int, var_threshold: float, detect_shadows: bool):
+        H = shape[0]
+        self.rows = [(r, min(r + _BAND_ROWS, H)) for r in range(0, H, _BAND_ROWS)]
+        self.models = [cv2.createBackgroundSubtractorMOG2(history=history, varThreshold=var_threshold,
+                                                          detectShadows=detect_shadows) for _ in self.rows]
+        self.var_threshold = var_threshold
+        self.threads = max(1, min(cv2.getNumThreads(), len(self.rows)))
+        self._pool = ThreadPoolExecutor(self.threads - 1) if self.threads > 1 else None
+
+    def apply(self, image: np.ndarray, rate: float, threshold: float | None = None,
+              bands: list[int] | None = None, out: np.ndarray | None = None) -> np.ndarray:
+        """MOG2's ``apply(image, learningRate=rate)`` at ``threshold`` (the models' own if None) on
+        the given bands (every band if None), into ``out``.
+
+        Args:
+            image: (H, W) uint8; out: (H, W) uint8 or None (zeros).
+        Returns:
+            out: (H, W) uint8, MOG2's mask (255 foreground, 127 shadow, 0 background) on the bands
+            applied, untouched elsewhere.
+        """
+        out = np.zeros(image.shape, np.uint8) if out is None else out
+        bands = range(len(self.rows)) if bands is None else bands
+
+        def run(group: np.ndarray) -> None:
+            for b in group:
+                (r0, r1), model = self.rows[b], self.models[b]
+                if threshold is not None:
+                    model.setVarThreshold(threshold)
+                out[r0:r1] = model.apply(image[r0:r1], learningRate=rate)
+                if threshold is not None:
+                    model.setVarThreshold(self.var_threshold)
+
+        first, *rest = np.array_split(np.asarray(bands, dtype=int), min(self.threads, max(len(bands), 1)))
+        pending = [self._pool.submit(run, group) for group in rest]
+        run(first)
+        for job in pending:
+            job.result()
+        return out
+
+    def rows_of(self, image: np.ndarray, rate: float, threshold: float | None = None) -> Rows:
+        """The foreground of ``image`` compared band by band as rows are asked for, each band once:
+        ``fg_in(r0, r1)`` is (H, W) bool, MOG2's foreground (not shadow) in rows r0:r1 and in every
+        row asked for before, False elsewhere. Arguments as :meth:`apply`."""
+        out, done = np.zeros(image.shape, np.uint8), np.zeros(len(self.rows), dtype=bool)
+
+        def fg_in(r0: int, r1: int) -> np.ndarray:
+            todo = [b for b, (b0, b1) in enumerate(self.rows) if b0 < r1 and b1 > r0 and not done[b]]
+            if todo:
+                self.apply(image, rate, threshold, todo, out)
+                done[todo] = True
+            return out == 255
+
+        return fg_in
+
+    def background_image(self) -> np.ndarray:
+        """(H, W) uint8, MOG2's background image."""
+        return np.concatenate([model.getBackgroundImage() for model in self.models])
 
 
 _MOVING_SIGMAS = 3.0  # static_background_frames: a pixel this many robust σ from its median moves
@@ -396,19 +479,70 @@ def fit_gain(frame: np.ndarray, background: np.ndarray, valid: np.ndarray) -> tu
     return a, b
 
 
+def _clean_reach(cfg: SegmentationConfig) -> int:
+    """How many pixels away :func:`clean_mask` looks: opening then closing, each an erosion and a
+    dilation by half its kernel."""
+    return 2 * (cfg.open_px // 2 + cfg.close_px // 2)
+
+
+def _rows_near(box: Box | None, near: tuple[float, float] | None, H: int) -> tuple[int, int] | None:
+    """The rows (r0, r1) of the predicted box grown by ``_ROWS_MARGIN_PX``, clipped to the image;
+    None without a finite prediction, or when they hold the whole image or not ``near``."""
+    if box is None or near is None or not np.isfinite([*box, *near]).all():
+        return None
+    r0 = int(np.clip(np.floor(box[1]) - _ROWS_MARGIN_PX, 0, H))
+    r1 = int(np.clip(np.ceil(box[3]) + 1 + _ROWS_MARGIN_PX, 0, H))
+    if (r0, r1) == (0, H) or not r0 <= near[1] < r1:
+        return None
+    return r0, r1
+
+
+def _chosen_within(cleaned: np.ndarray, blob: np.ndarray, rows: tuple[int, int], near: tuple[float, float],
+                   reach: int) -> bool:
+    """Whether the blob chosen from rows r0:r1 alone is the one the whole frame gives.
+
+    The cleaned mask equals the whole frame's more than ``reach`` rows inside r0:r1 (or up to the
+    image's edge). So it does when the cleaned mask has no foreground within ``2·reach + 2`` rows
+    of an edge inside the image (an empty band there parts whatever lies beyond from the rest,
+    with the same components, sizes and all) and the chosen blob is nearer ``near`` than any pixel
+    within ``reach`` rows of such an edge, or beyond it.
+
+    Args:
+        cleaned: (H, W) bool, the cleaned mask of rows r0:r1 (False elsewhere); blob: (H, W) bool,
+            the blob :func:`select_blob` chose from it; near: (u, v) pixel.
+    """
+    r0, r1 = rows
+    H, (u, v), band = cleaned.shape[0], near, 2 * reach + 2
+    ys, xs = np.nonzero(blob)
+    if ys.size == 0 or cleaned[r0:min(r0 + band, r1)].any() and r0 > 0 or cleaned[max(r1 - band, r0):r1].any() and r1 < H:
+        return False
+    gap = min(v - (r0 + reach) if r0 > 0 else np.inf, r1 - 1 - reach - v if r1 < H else np.inf)
+    return bool(np.sqrt(((xs - u) ** 2 + (ys - v) ** 2).min()) < gap)
+
+
 class ForegroundSegmenter:
     """MOG2 background subtraction with a cleaned target mask (module docstring).
 
     Usage: ``seg = ForegroundSegmenter(cfg); seg.warm_up(target_free_frames); mask = seg(frame)``.
     Frames must keep the warm-up frames' size and dtype. An empty or all-foreground mask (e.g.
     after a sudden global change) is returned like any other and logged at debug level.
+
+    Rows compared. MOG2 runs on bands of ``_BAND_ROWS`` rows, one model each (``_BandedMOG2``,
+    the same per-pixel models). Given a prediction (``near`` and ``exclude``), a frame is compared
+    first in the rows of the predicted box grown by ``_ROWS_MARGIN_PX``, and in every row only
+    when the blob chosen there might not be the whole frame's choice (foreground near those rows'
+    edges, or a pixel beyond them could be nearer ``near``), on frames that learn, and with
+    OpenCV's automatic rate; the thin parts' comparison covers the rows round the blob. The masks
+    are the whole frame's (tests/test_segmentation.py). The models differ only where a band was
+    not compared: a comparison that learns nothing still leaves a mode of weight zero where a
+    pixel fits none, and such modes never make a pixel background.
     """
 
     def __init__(self, cfg: SegmentationConfig | None = None):
         self.cfg = cfg or SegmentationConfig()
         self.levels: tuple[float, float] | None = None  # (lo, hi) of the IR map; None for uint8 frames
         self.gain: tuple[float, float] = (1.0, 0.0)  # the last (a, b) of frame ≈ a·background + b
-        self._mog: cv2.BackgroundSubtractorMOG2 | None = None
+        self._mog: _BandedMOG2 | None = None
         self._kind: tuple[tuple[int, int], np.dtype] | None = None
         self._background: np.ndarray | None = None  # MOG2's background image, refreshed when it learns
         self._frames = 0
@@ -498,11 +632,10 @@ class ForegroundSegmenter:
             span = float(hi - lo) or 1.0  # a flat background still gets a valid map
             self.levels = (float(lo) - cfg.headroom * span, float(lo) + (1 + cfg.headroom) * span)
             logger.debug("IR normalisation: [%.1f, %.1f] -> [0, 255]", *self.levels)
-        self._mog = cv2.createBackgroundSubtractorMOG2(history=cfg.history, varThreshold=cfg.var_threshold,
-                                                       detectShadows=cfg.detect_shadows)
-        for i, grey in enumerate(greys):
-            self._mog.apply(self.display(grey), learningRate=-1)
-        self._background = self._mog.getBackgroundImage()
+        self._mog = _BandedMOG2(greys[0].shape, cfg.history, cfg.var_threshold, cfg.detect_shadows)
+        for grey in greys:
+            self._mog.apply(self.display(grey), -1)
+        self._background = self._mog.background_image()
         self.gain, self._frames = (1.0, 0.0), 0
         H, W = self._kind[0]
         self._samples = np.ix_(np.arange(0, H, _GAIN_STRIDE), np.arange(0, W, _GAIN_STRIDE))  # the gain fit's grid
@@ -538,20 +671,30 @@ class ForegroundSegmenter:
         # A positive rate learns only in the selective update below; −1 is OpenCV's automatic
         # rate on every whole frame.
         learn = cfg.learning_rate > 0 and self._frames % cfg.learning_interval == 0
-        raw = self._mog.apply(image, learningRate=min(cfg.learning_rate, 0.0)) == 255  # 127 = shadow
+        rate, H = min(cfg.learning_rate, 0.0), image.shape[0]
+        fg_in = self._mog.rows_of(image, rate)
+        # Rows compared (class docstring): near the prediction first, unless every band must see the
+        # frame (learning needs the whole foreground; OpenCV's automatic rate counts frames).
+        rows = None if learn or rate < 0 else _rows_near(exclude, near, H)
+        if rows is not None:
+            raw = fg_in(*rows)
+            cleaned = clean_mask(raw, cfg.open_px, cfg.close_px)
+            mask = select_blob(cleaned, near, cfg.min_area_px)
+        if rows is None or not _chosen_within(cleaned, mask, rows, near, _clean_reach(cfg)):
+            raw = fg_in(0, H)
+            mask = select_blob(clean_mask(raw, cfg.open_px, cfg.close_px), near, cfg.min_area_px)
         self._frames += 1
-        mask = select_blob(clean_mask(raw, cfg.open_px, cfg.close_px), near, cfg.min_area_px)
         if cfg.thin_threshold > 0 and mask.any():  # the same comparison at the lower threshold; nothing learned
-            self._mog.setVarThreshold(cfg.thin_threshold)
-            low = self._mog.apply(image, learningRate=0.0) == 255
-            self._mog.setVarThreshold(cfg.var_threshold)
-            mask = extend_thin_parts(mask, low)
+            low_in = self._mog.rows_of(image, 0.0, cfg.thin_threshold)
+            if rate < 0:  # every band counts the frame in OpenCV's automatic rate
+                low_in(0, H)
+            mask = _extend_thin_parts(mask, low_in, _THIN_RING_PX, _THIN_REACH_PX)
         if learn:  # selective update: the background image stands in where the target may be
             grown = cv2.dilate(raw.astype(np.uint8), cv2.getStructuringElement(
                 cv2.MORPH_ELLIPSE, (2 * _FOREGROUND_MARGIN_PX + 1,) * 2)).astype(bool)
             image = np.where(_box_mask(grey.shape, exclude) | grown, self._background, image)
-            self._mog.apply(image, learningRate=cfg.learning_rate)
-            self._background = self._mog.getBackgroundImage()
+            self._mog.apply(image, cfg.learning_rate)
+            self._background = self._mog.background_image()
         fraction = mask.mean()
         if fraction == 0:
             logger.debug("empty foreground mask")
