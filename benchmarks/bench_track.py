@@ -11,7 +11,7 @@ particles, each with its own prediction, view, model query (full size, pooled), 
 likelihood — on the same frames, segmentation included, always on the CPU; the speed-up is the
 ratio of the two medians at the same particle count, measured in this run (with ``--device cuda``,
 the GPU's filter against the CPU's loop). The tracker's segmentation is also timed alone (no
-particles), the floor under every row: back to back, and with its calls a frame period apart,
+particles, the true window as its prediction), the floor under every row: back to back, and with its calls a frame period apart,
 idle in between, as a live camera feeds them (slower: docs/tracking.md, "Speed across hosts");
 with ``--segmentation-gaps`` also with that many milliseconds of busy waiting between calls; and
 inside the step, between the filter's tensor operations. Frames per second are the median
@@ -50,6 +50,7 @@ from torch_atr.segmentation import ForegroundSegmenter
 from torch_atr.shape import signed_distance_px
 from torch_atr.tracking import Tracker, TrackerConfig
 from torch_atr.tracking.motion import MotionConfig
+from torch_atr.tracking.observation import project_windows
 
 from benchlib import SHIPPED, check_at_least, json_output, write_json
 
@@ -180,18 +181,29 @@ def busy_wait(seconds: float) -> None:
         pass
 
 
-def segmentation_ms(seq, frames, tracker_cfg: TrackerConfig, between=None) -> float:
-    """Median milliseconds of the tracker's segmentation alone (its settings, no predicted region),
-    outside the profiler: the floor under every frame's time, whatever the particle count.
-    ``between(last_s)``, if given, runs before every call but the first, given the last call's
-    seconds: idle or busy time between the calls (a live camera's period, the filter's share)."""
+def truth_regions(model, seq, count: int) -> list[tuple[tuple[float, float], tuple[float, float, float, float]]]:
+    """Per frame, the true window's centre (u, v) and box (u0, v0, u1, v1) in pixels: a perfect
+    prediction, what the tracker's ``_predicted_region`` gives the segmenter with no spread."""
+    truths = [seq.truth(i) for i in range(count)]
+    uv, side = project_windows(seq.camera, torch.tensor([[t.x, t.y, t.z] for t in truths]),
+                               model.template.window_m)
+    return [(tuple(c), tuple(c0 + c1)) for c, c0, c1 in zip(uv.tolist(), (uv - side / 2).tolist(),
+                                                             (uv + side / 2).tolist())]
+
+
+def segmentation_ms(seq, frames, tracker_cfg: TrackerConfig, regions, between=None) -> float:
+    """Median milliseconds of the tracker's segmentation alone (its settings, given the true
+    ``regions`` as its prediction: :func:`truth_regions`), outside the profiler: the floor under
+    every frame's time, whatever the particle count. ``between(last_s)``, if given, runs before
+    every call but the first, given the last call's seconds: idle or busy time between the calls
+    (a live camera's period, the filter's share)."""
     seg = warmed_segmenter(seq, tracker_cfg)
     times = []
-    for frame in frames:
+    for frame, (near, box) in zip(frames, regions):
         if times and between is not None:
             between(times[-1])
         start = time.perf_counter()
-        seg(frame)
+        seg(frame, near=near, exclude=box)
         times.append(time.perf_counter() - start)
     return 1e3 * statistics.median(times)
 
@@ -280,15 +292,17 @@ def main(argv: list[str] | None = None) -> None:
         in_step_ms[n_ref] = 1e3 * statistics.median(seg_times)
     log.info("per-particle reference at N = %d: %.3f frames/s; the batched filter is %.0fx faster", n_ref, ref,
              batched / ref)
-    seg_ms = segmentation_ms(seq, frames, tracker_config(n_ref, args.set))
+    regions = truth_regions(model.cpu(), seq, len(frames))
+    seg_ms = segmentation_ms(seq, frames, tracker_config(n_ref, args.set), regions)
     period = 1 / seq.fps  # a live camera: each call starts a frame period after the last, idle in between
-    live_ms = segmentation_ms(seq, frames, tracker_config(n_ref, args.set),
+    live_ms = segmentation_ms(seq, frames, tracker_config(n_ref, args.set), regions,
                               lambda last: time.sleep(max(period - last, 0.0)))
-    log.info("segmentation alone (MOG2 with the tracker's settings, on the CPU): %.1f ms per frame back to back, "
+    log.info("segmentation alone (MOG2 with the tracker's settings, the true window as its prediction, on the "
+             "CPU): %.1f ms per frame back to back, "
              "%.1f ms with the calls %.0f ms apart as a live camera feeds them (medians of %d); inside the step at "
              "N = %d: %.1f ms (docs/tracking.md, \"Speed across hosts\")", seg_ms, live_ms, 1e3 / seq.fps,
              len(frames), n_ref, in_step_ms[n_ref])
-    gap_ms = {gap: segmentation_ms(seq, frames, tracker_config(n_ref, args.set),
+    gap_ms = {gap: segmentation_ms(seq, frames, tracker_config(n_ref, args.set), regions,
                                    lambda _, gap=gap: busy_wait(gap / 1e3)) for gap in args.segmentation_gaps}
     for gap, ms in gap_ms.items():
         log.info("segmentation alone with %g ms of busy waiting before each call: %.1f ms", gap, ms)
