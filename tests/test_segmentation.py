@@ -505,3 +505,59 @@ def test_rows_near_the_prediction_give_the_whole_frames_blob(monkeypatch):
         np.testing.assert_array_equal(got, whole(frame, near=near))
         assert rows_used[-1] == [(0, H)]
     assert first_only[:4] == [True, False, False, False] and sum(first_only) >= 4
+
+
+def _two_threads_segmenter(seed: int) -> tuple[ForegroundSegmenter, np.ndarray]:
+    """A warmed segmenter whose MOG2 bands run on two threads, and a frame with a target."""
+    before = cv2.getNumThreads()
+    cv2.setNumThreads(2)
+    try:
+        seg, texture, rng = _warmed("uint8", seed)
+    finally:
+        cv2.setNumThreads(before)
+    return seg, _frame("uint8", texture, [_rect(60, 50, 30, 14)], rng)
+
+
+def test_a_forked_process_segments_with_its_own_threads():
+    """A segmenter whose threads ran before a fork still segments in the child (a pool copied from
+    the parent has no threads there, and waiting on it would hang)."""
+    import multiprocessing
+    import warnings
+
+    seg, frame = _two_threads_segmenter(4)
+    seg(frame)  # the parent's threads start
+    ctx = multiprocessing.get_context("fork")
+    queue = ctx.Queue()
+    child = ctx.Process(target=lambda: queue.put(seg(frame)))
+    with warnings.catch_warnings():  # Python >= 3.12 warns of fork in a process with threads
+        warnings.simplefilter("ignore", DeprecationWarning)
+        child.start()
+    try:
+        got = queue.get(timeout=60)
+    finally:
+        child.join(timeout=10)
+        if child.is_alive():
+            child.kill()
+    np.testing.assert_array_equal(got, seg(frame))
+    assert child.exitcode == 0 and _iou(got, _rect(60, 50, 30, 14)) > 0.8
+
+
+def test_segmenters_threads_end_with_them():
+    import gc
+    import threading
+
+    seg, frame = _two_threads_segmenter(5)
+    seg(frame)
+    del seg
+    gc.collect()
+    start = threading.active_count()
+    for seed in range(6):
+        seg, frame = _two_threads_segmenter(seed)
+        seg(frame)
+    del seg
+    gc.collect()
+    for _ in range(100):  # the pools' threads leave once their pools are collected
+        if threading.active_count() <= start:
+            break
+        threading.Event().wait(0.01)
+    assert threading.active_count() <= start

@@ -42,6 +42,7 @@ from __future__ import annotations
 
 import logging
 import numbers
+import os
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import Callable, Iterable
@@ -335,7 +336,7 @@ class _BandedMOG2:
     exactly (tests/test_segmentation.py compares them with one model), while a comparison can be
     limited to the rows it is needed in (``ForegroundSegmenter``, "Rows compared"). The bands of a
     call are spread over as many threads as OpenCV uses (``cv2.getNumThreads()``), as OpenCV
-    splits one model's rows; the threads end with the object.
+    splits one model's rows; the threads end with the object, and a forked process makes its own.
     """
 
     def __init__(self, shape: tuple[int, int], history: int, var_threshold: float, detect_shadows: bool):
@@ -345,7 +346,7 @@ class _BandedMOG2:
                                                           detectShadows=detect_shadows) for _ in self.rows]
         self.var_threshold = var_threshold
         self.threads = max(1, min(cv2.getNumThreads(), len(self.rows)))
-        self._pool = ThreadPoolExecutor(self.threads - 1) if self.threads > 1 else None
+        self._pool, self._pid = None, None  # made on first use, and again in a forked child (its threads stay behind)
 
     def apply(self, image: np.ndarray, rate: float, threshold: float | None = None,
               bands: list[int] | None = None, out: np.ndarray | None = None) -> np.ndarray:
@@ -371,6 +372,8 @@ class _BandedMOG2:
                     model.setVarThreshold(self.var_threshold)
 
         first, *rest = np.array_split(np.asarray(bands, dtype=int), min(self.threads, max(len(bands), 1)))
+        if rest and self._pid != os.getpid():
+            self._pool, self._pid = ThreadPoolExecutor(self.threads - 1), os.getpid()
         pending = [self._pool.submit(run, group) for group in rest]
         run(first)
         for job in pending:
