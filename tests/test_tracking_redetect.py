@@ -204,6 +204,13 @@ def test_redetection_searches_every_kth_frame_up_to_until():
     assert [f for f in range(45) if RedetectConfig(every=20, until=0).searches(f)] == [20, 40]
     assert [f for f in range(100) if RedetectConfig().searches(f)] == [10]  # the default: one search
     assert not any(RedetectConfig(every=0, until=50).searches(f) for f in range(100))
+    # then every later_every frames after until (long runs)
+    assert [f for f in range(1000) if RedetectConfig(later_every=300).searches(f)] == [10, 300, 600, 900]
+    assert [f for f in range(120) if RedetectConfig(every=10, until=35, later_every=50).searches(f)] == [
+        10, 20, 30, 50, 100]
+    assert [f for f in range(45) if RedetectConfig(every=20, until=0, later_every=7).searches(f)] == [20, 40]
+    with pytest.raises(ConfigError, match="later_every"):
+        RedetectConfig(later_every=-1)
 
 
 def _spy_searches(tracker: Tracker) -> list[int]:
