@@ -463,11 +463,12 @@ def test_mog2_bands_are_one_models_masks_and_background(threads):
 
 
 def test_rows_near_the_prediction_give_the_whole_frames_blob(monkeypatch):
-    """Given a predicted box, the segmenter compares the rows near it first and the whole frame
-    only when the blob it chose there might not be the whole frame's choice. Against the same
-    segmenter comparing every row (no box given; gain fit and learning off, so the box changes
-    nothing else): the same masks, on random scenes with the prediction on a target, off it, or
-    with a nearer blob just beyond the rows or a small one across their edge."""
+    """Given a prediction, the segmenter compares the rows of the last blob and the predicted pixel
+    (with no last blob, of the predicted box) first, and the whole frame only when the blob it
+    chose there might not be the whole frame's choice. Against the same segmenter comparing every
+    row (gain fit and learning off, so the box changes nothing else): the same masks, on random
+    scenes with the prediction on a target, off it, or with a nearer blob just beyond the rows or
+    a small one across their edge."""
     cfg = SegmentationConfig(warmup_frames=30, compensate_gain=False, min_area_px=40, close_px=5, open_px=3)
     rows_used = []
     rows_of = segmentation._BandedMOG2.rows_of
@@ -483,28 +484,35 @@ def test_rows_near_the_prediction_give_the_whole_frames_blob(monkeypatch):
             return fg_in(r0, r1)
         return logged
 
+    def every_row(frame, near):
+        with monkeypatch.context() as m:
+            m.setattr(segmentation, "_rows_first", lambda *args: None)
+            return whole(frame, near=near)
+
     monkeypatch.setattr(segmentation._BandedMOG2, "rows_of", spy)
     near_only, whole = _warmed("uint8", 3, cfg)[0], _warmed("uint8", 3, cfg)[0]
     rng = np.random.default_rng(5)
     texture = _warmed("uint8", 3, cfg)[1]
+    forget = ([], None)  # a frame with no target and no prediction: no last blob after it
     scenes = [([_rect(60, 50, 30, 14), _rect(100, 90, 12, 12)], (58, 48, 92, 66)),  # target in the box
-              ([_rect(20, 40, 30, 14), _rect(75, 76, 20, 10)], (60, 38, 100, 56)),  # a nearer one below them
-              ([_rect(10, 50, 30, 14), _rect(60, 63, 10, 12)], (8, 48, 42, 66)),  # a small one across the edge
-              ([_rect(20, 90, 30, 14)], (60, 20, 90, 40))]  # the prediction off the target
-    for _ in range(40):
+              ([_rect(60, 52, 30, 14), _rect(100, 90, 12, 12)], (0, 0, W - 1, H - 1)),  # the last blob's rows
+              forget, ([_rect(20, 40, 30, 14), _rect(75, 76, 20, 10)], (60, 38, 100, 56)),  # a nearer one below
+              forget, ([_rect(10, 50, 30, 14), _rect(60, 63, 10, 12)], (8, 48, 42, 66)),  # a small one across the edge
+              forget, ([_rect(20, 90, 30, 14)], (60, 20, 90, 40))]  # the prediction off the target
+    for _ in range(25):  # random layouts, each in two frames with one prediction (the second has a last blob)
         rects = [_rect(rng.integers(0, W - 30), rng.integers(0, H - 15), rng.integers(4, 30), rng.integers(4, 15))
                  for _ in range(rng.integers(1, 5))]
         u, v = rng.integers(0, W - 20), rng.integers(0, H - 10)
-        scenes.append((rects, (u, v, u + rng.integers(5, 40), v + rng.integers(5, 30))))
-    first_only = []  # per scene: whether the rows near the box alone were compared
+        scenes += [(rects, (u, v, u + rng.integers(5, 40), v + rng.integers(5, 30)))] * 2
+    first_only = []  # per scene: whether the rows compared first were enough
     for targets, box in scenes:
         frame = _frame("uint8", texture, targets, rng)
-        near = ((box[0] + box[2]) / 2, (box[1] + box[3]) / 2)
-        got = near_only(frame, near=near, exclude=tuple(map(float, box)))
+        near = None if box is None else ((box[0] + box[2]) / 2, (box[1] + box[3]) / 2)
+        got = near_only(frame, near=near, exclude=None if box is None else tuple(map(float, box)))
         first_only.append(len(rows_used[-1]) == 1 and rows_used[-1] != [(0, H)])
-        np.testing.assert_array_equal(got, whole(frame, near=near))
+        np.testing.assert_array_equal(got, every_row(frame, near))
         assert rows_used[-1] == [(0, H)]
-    assert first_only[:4] == [True, False, False, False] and sum(first_only) >= 4
+    assert first_only[:8] == [True, True, False, False, False, False, False, False] and sum(first_only) >= 4
 
 
 def _two_threads_segmenter(seed: int) -> tuple[ForegroundSegmenter, np.ndarray]:

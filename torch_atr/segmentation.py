@@ -219,7 +219,7 @@ _THIN_RING_PX = 1  # thin parts: the ring round the blob that a blur halo fills 
 _THIN_REACH_PX = 2.0  # ... and how far beyond it a part must reach (3 x 3 chamfer: 3 px straight, 2 diagonally)
 _THIN_SEARCH_PX = 32  # ... and the margin round the blob in which its thin parts are looked for first
 _BAND_ROWS = 32  # MOG2 runs on bands of this many rows (_BandedMOG2) ...
-_ROWS_MARGIN_PX = 16  # ... and compares those within this of the predicted box first (ForegroundSegmenter)
+_ROWS_MARGIN_PX = 16  # ... and compares those within this of the last blob first (ForegroundSegmenter)
 
 Rows = Callable[[int, int], np.ndarray]  # (r0, r1) -> (H, W) bool mask, exact in rows r0:r1
 
@@ -334,9 +334,11 @@ class _BandedMOG2:
 
     MOG2 models every pixel on its own, so the bands give the whole frame's model and masks
     exactly (tests/test_segmentation.py compares them with one model), while a comparison can be
-    limited to the rows it is needed in (``ForegroundSegmenter``, "Rows compared"). The bands of a
-    call are spread over as many threads as OpenCV uses (``cv2.getNumThreads()``), as OpenCV
-    splits one model's rows; the threads end with the object, and a forked process makes its own.
+    limited to the rows it is needed in (``ForegroundSegmenter``, "Rows compared"). A whole-frame
+    call spreads the bands over as many threads as OpenCV uses (``cv2.getNumThreads()``), as
+    OpenCV splits one model's rows; the threads end with the object, and a forked process makes
+    its own. A call on some bands runs them on the calling thread: in the tracker's step, waking a
+    second thread cost more than the bands (2.2 ms against 0.7 for a tank's 3 bands at 1000 m).
     """
 
     def __init__(self, shape: tuple[int, int], history: int, var_threshold: float, detect_shadows: bool):
@@ -371,7 +373,8 @@ class _BandedMOG2:
                 if threshold is not None:
                     model.setVarThreshold(self.var_threshold)
 
-        first, *rest = np.array_split(np.asarray(bands, dtype=int), min(self.threads, max(len(bands), 1)))
+        whole = len(bands) == len(self.rows)
+        first, *rest = np.array_split(np.asarray(bands, dtype=int), self.threads if whole else 1)
         if rest and self._pid != os.getpid():
             self._pool, self._pid = ThreadPoolExecutor(self.threads - 1), os.getpid()
         pending = [self._pool.submit(run, group) for group in rest]
@@ -488,14 +491,24 @@ def _clean_reach(cfg: SegmentationConfig) -> int:
     return 2 * (cfg.open_px // 2 + cfg.close_px // 2)
 
 
-def _rows_near(box: Box | None, near: tuple[float, float] | None, H: int) -> tuple[int, int] | None:
-    """The rows (r0, r1) of the predicted box grown by ``_ROWS_MARGIN_PX``, clipped to the image;
-    None without a finite prediction, or when they hold the whole image or not ``near``."""
-    if box is None or near is None or not np.isfinite([*box, *near]).all():
+def _rows_first(last: tuple[int, int] | None, box: Box | None, near: tuple[float, float] | None, H: int
+                ) -> tuple[int, int] | None:
+    """The rows (r0, r1) to compare first: those of the ``last`` blob's rows (r0, r1) and of
+    ``near``, or with no last blob those of the predicted box, grown by ``_ROWS_MARGIN_PX`` and
+    clipped to the image; None without a finite prediction, or when they hold the whole image or
+    not ``near``."""
+    if near is None or not np.isfinite(near).all():
         return None
-    r0 = int(np.clip(np.floor(box[1]) - _ROWS_MARGIN_PX, 0, H))
-    r1 = int(np.clip(np.ceil(box[3]) + 1 + _ROWS_MARGIN_PX, 0, H))
-    if (r0, r1) == (0, H) or not r0 <= near[1] < r1:
+    v = near[1]
+    if last is not None:
+        lo, hi = min(last[0], v), max(last[1], v + 1)
+    elif box is not None and np.isfinite(box).all():
+        lo, hi = box[1], box[3] + 1
+    else:
+        return None
+    r0 = int(np.clip(np.floor(lo) - _ROWS_MARGIN_PX, 0, H))
+    r1 = int(np.clip(np.ceil(hi) + _ROWS_MARGIN_PX, 0, H))
+    if (r0, r1) == (0, H) or not r0 <= v < r1:
         return None
     return r0, r1
 
@@ -531,14 +544,15 @@ class ForegroundSegmenter:
     after a sudden global change) is returned like any other and logged at debug level.
 
     Rows compared. MOG2 runs on bands of ``_BAND_ROWS`` rows, one model each (``_BandedMOG2``,
-    the same per-pixel models). Given a prediction (``near`` and ``exclude``), a frame is compared
-    first in the rows of the predicted box grown by ``_ROWS_MARGIN_PX``, and in every row only
-    when the blob chosen there might not be the whole frame's choice (foreground near those rows'
-    edges, or a pixel beyond them could be nearer ``near``), on frames that learn, and with
-    OpenCV's automatic rate; the thin parts' comparison covers the rows round the blob. The masks
-    are the whole frame's (tests/test_segmentation.py). The models differ only where a band was
-    not compared: a comparison that learns nothing still leaves a mode of weight zero where a
-    pixel fits none, and such modes never make a pixel background.
+    the same per-pixel models). Given a prediction ``near``, a frame is compared first in the rows
+    of the last frame's blob and of ``near`` (with no last blob, of the ``exclude`` box) grown by
+    ``_ROWS_MARGIN_PX``, and in every row only when the blob chosen there might not be the whole
+    frame's choice (foreground near those rows' edges, or a pixel beyond them could be nearer
+    ``near``), on frames that learn, and with OpenCV's automatic rate; the thin parts' comparison
+    covers the rows round the blob. The masks are the whole frame's (tests/test_segmentation.py).
+    The models differ only where a band was not compared: a comparison that learns nothing still
+    leaves a mode of weight zero where a pixel fits none, and such modes never make a pixel
+    background.
     """
 
     def __init__(self, cfg: SegmentationConfig | None = None):
@@ -549,6 +563,7 @@ class ForegroundSegmenter:
         self._kind: tuple[tuple[int, int], np.dtype] | None = None
         self._background: np.ndarray | None = None  # MOG2's background image, refreshed when it learns
         self._frames = 0
+        self._last_rows: tuple[int, int] | None = None  # rows (r0, r1) of the last frame's blob
 
     def check_frame(self, frame) -> None:
         """Raise ValueError unless ``frame`` can be segmented: warmed up, and a numpy (H, W) or
@@ -639,7 +654,7 @@ class ForegroundSegmenter:
         for grey in greys:
             self._mog.apply(self.display(grey), -1)
         self._background = self._mog.background_image()
-        self.gain, self._frames = (1.0, 0.0), 0
+        self.gain, self._frames, self._last_rows = (1.0, 0.0), 0, None
         H, W = self._kind[0]
         self._samples = np.ix_(np.arange(0, H, _GAIN_STRIDE), np.arange(0, W, _GAIN_STRIDE))  # the gain fit's grid
 
@@ -649,7 +664,8 @@ class ForegroundSegmenter:
 
         Args:
             frame: (H, W) or (H, W, 3) of the warm-up frames' size and dtype.
-            near: optional predicted target pixel (u, v); keep the blob nearest to it.
+            near: optional predicted target pixel (u, v); keep the blob nearest to it (and compare
+                the rows near it and the last blob first: class docstring, "Rows compared").
             exclude: optional predicted target box (u0, v0, u1, v1) in pixels: left out of the
                 gain fit and of the background update.
         Returns:
@@ -678,7 +694,7 @@ class ForegroundSegmenter:
         fg_in = self._mog.rows_of(image, rate)
         # Rows compared (class docstring): near the prediction first, unless every band must see the
         # frame (learning needs the whole foreground; OpenCV's automatic rate counts frames).
-        rows = None if learn or rate < 0 else _rows_near(exclude, near, H)
+        rows = None if learn or rate < 0 else _rows_first(self._last_rows, exclude, near, H)
         if rows is not None:
             raw = fg_in(*rows)
             cleaned = clean_mask(raw, cfg.open_px, cfg.close_px)
@@ -698,6 +714,8 @@ class ForegroundSegmenter:
             image = np.where(_box_mask(grey.shape, exclude) | grown, self._background, image)
             self._mog.apply(image, cfg.learning_rate)
             self._background = self._mog.background_image()
+        found = np.flatnonzero(mask.any(1))
+        self._last_rows = (int(found[0]), int(found[-1]) + 1) if found.size else None
         fraction = mask.mean()
         if fraction == 0:
             logger.debug("empty foreground mask")
