@@ -292,7 +292,7 @@ def main(argv: list[str] | None = None) -> None:
         in_step_ms[n_ref] = 1e3 * statistics.median(seg_times)
     log.info("per-particle reference at N = %d: %.3f frames/s; the batched filter is %.0fx faster", n_ref, ref,
              batched / ref)
-    regions = truth_regions(model.cpu(), seq, len(frames))
+    regions = truth_regions(model, seq, len(frames))
     seg_ms = segmentation_ms(seq, frames, tracker_config(n_ref, args.set), regions)
     period = 1 / seq.fps  # a live camera: each call starts a frame period after the last, idle in between
     live_ms = segmentation_ms(seq, frames, tracker_config(n_ref, args.set), regions,
