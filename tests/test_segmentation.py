@@ -379,7 +379,7 @@ def test_thin_parts_match_a_whole_frame_reference_however_far_a_part_reaches(see
     out = extend_thin_parts(blob, low)
     np.testing.assert_array_equal(out, _thin_parts_reference(blob, low))
     cols = np.flatnonzero(out.any(0))
-    assert cols[0] < c - _THIN_SEARCH_PX or cols[-1] >= c + 35 + _THIN_SEARCH_PX  # beyond the first search
+    assert cols[0] < c - _THIN_SEARCH_PX[1] or cols[-1] >= c + 35 + _THIN_SEARCH_PX[1]  # beyond the first search
     corner = np.s_[r - 5:, c - 5:]  # the blob near the image's top-left corner
     np.testing.assert_array_equal(extend_thin_parts(blob[corner], low[corner]),
                                   _thin_parts_reference(blob[corner], low[corner]))

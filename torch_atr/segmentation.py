@@ -217,7 +217,7 @@ _GAIN_TRIM = 0.2  # ... and refits without the worst-fitting fifth
 _FOREGROUND_MARGIN_PX = 7  # the detected foreground is grown by this before a selective update
 _THIN_RING_PX = 1  # thin parts: the ring round the blob that a blur halo fills ...
 _THIN_REACH_PX = 2.0  # ... and how far beyond it a part must reach (3 x 3 chamfer: 3 px straight, 2 diagonally)
-_THIN_SEARCH_PX = 32  # ... and the margin round the blob in which its thin parts are looked for first
+_THIN_SEARCH_PX = (16, 32)  # ... and the margins (rows, columns) round the blob searched first for them
 _BAND_ROWS = 32  # MOG2 runs on bands of this many rows (_BandedMOG2) ...
 _ROWS_MARGIN_PX = 16  # ... and compares those within this of the last blob first (ForegroundSegmenter)
 
@@ -247,11 +247,13 @@ def _components_holding(blob: np.ndarray, low_in: Rows, rect: tuple[int, int, in
     """The 8-connected components of ``low | blob`` that hold pixels of ``blob`` (whose bounding
     rectangle (x, y, w, h) is ``rect``), and the box that holds them grown by ``ring_px``.
 
-    They are labelled in the blob's rectangle grown by ``_THIN_SEARCH_PX``, and in the whole frame
-    only when one of them, grown by the ring, would leave that region inside the image: the result
-    is the whole frame's either way, at a fraction of the cost (a whole 640 x 512 frame of noise
-    at the lower threshold is most of this function's time). ``low_in(r0, r1)`` gives ``low``
-    exact in rows r0:r1, so a segmenter compares only the rows looked at.
+    They are labelled in the blob's rectangle grown by ``_THIN_SEARCH_PX`` (16 rows, 32 columns: a
+    gun reaches far sideways, rarely up or down, and every row costs the segmenter a comparison),
+    and in the whole frame only when one of them, grown by the ring, would leave that region
+    inside the image: the result is the whole frame's either way, at a fraction of the cost (a
+    whole 640 x 512 frame of noise at the lower threshold is most of this function's time).
+    ``low_in(r0, r1)`` gives ``low`` exact in rows r0:r1, so a segmenter compares only the rows
+    looked at.
 
     Returns:
         labels: the labels inside the box; touching: (T,) the labels holding the blob; box: the
@@ -259,8 +261,8 @@ def _components_holding(blob: np.ndarray, low_in: Rows, rect: tuple[int, int, in
     """
     H, W = blob.shape
     x, y, w, h = rect
-    pad = _THIN_SEARCH_PX
-    for r0, r1, c0, c1 in ((max(y - pad, 0), min(y + h + pad, H), max(x - pad, 0), min(x + w + pad, W)),
+    rows, cols = _THIN_SEARCH_PX
+    for r0, r1, c0, c1 in ((max(y - rows, 0), min(y + h + rows, H), max(x - cols, 0), min(x + w + cols, W)),
                            (0, H, 0, W)):
         both = low_in(r0, r1)[r0:r1, c0:c1] | blob[r0:r1, c0:c1]
         _, labels, stats, _ = cv2.connectedComponentsWithStats(both.view(np.uint8), connectivity=8)
