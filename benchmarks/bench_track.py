@@ -11,10 +11,11 @@ particles, each with its own prediction, view, model query (full size, pooled), 
 likelihood — on the same frames, segmentation included, always on the CPU; the speed-up is the
 ratio of the two medians at the same particle count, measured in this run (with ``--device cuda``,
 the GPU's filter against the CPU's loop). The tracker's segmentation is also timed alone (no
-particles, the true window as its prediction), the floor under every row: back to back, and with its calls a frame period apart,
-idle in between, as a live camera feeds them (slower: docs/tracking.md, "Speed across hosts");
-with ``--segmentation-gaps`` also with that many milliseconds of busy waiting between calls; and
-inside the step, between the filter's tensor operations. Frames per second are the median
+particles, the true window as its prediction), the floor under every row: back to back, and
+with its calls a frame period apart, idle in between, as a live camera feeds them (slower:
+docs/tracking.md, "Speed across hosts"); with ``--segmentation-gaps`` also with that many
+milliseconds of busy waiting between calls; and inside the step, between the filter's tensor
+operations. Frames per second are the median
 step's; the rate over all frames is printed beside it, since re-detection searches the blob on
 a few frames only (by default once, 10 frames after the start; ``redetect``) and the median does
 not see it.

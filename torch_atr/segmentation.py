@@ -532,7 +532,8 @@ def _chosen_within(cleaned: np.ndarray, blob: np.ndarray, rows: tuple[int, int],
     r0, r1 = rows
     H, (u, v), band = cleaned.shape[0], near, 2 * reach + 2
     ys, xs = np.nonzero(blob)
-    if ys.size == 0 or cleaned[r0:min(r0 + band, r1)].any() and r0 > 0 or cleaned[max(r1 - band, r0):r1].any() and r1 < H:
+    near_edge = (r0 > 0 and cleaned[r0:min(r0 + band, r1)].any()) or (r1 < H and cleaned[max(r1 - band, r0):r1].any())
+    if ys.size == 0 or near_edge:
         return False
     gap = min(v - (r0 + reach) if r0 > 0 else np.inf, r1 - 1 - reach - v if r1 < H else np.inf)
     return bool(np.sqrt(((xs - u) ** 2 + (ys - v) ** 2).min()) < gap)

@@ -245,8 +245,8 @@ class RedetectConfig:
     def __post_init__(self) -> None:
         if not (0 <= self.every and 0 <= self.until and 0 <= self.later_every and 0 <= self.view_every
                 and 0 <= self.restart and math.isfinite(self.margin) and self.margin >= 0 and 0 < self.share <= 1):
-            raise ConfigError(f"redetect: expected every, until, later_every, view_every and restart >= 0, margin >= 0, "
-                              f"share in (0, 1]; got {self}")
+            raise ConfigError(f"redetect: expected every, until, later_every, view_every and restart >= 0, "
+                              f"margin >= 0, share in (0, 1]; got {self}")
         if 0 < self.until < self.every:
             raise ConfigError(f"redetect.every={self.every} is after redetect.until={self.until}, so no frame would be "
                               f"searched; set until=0 to search all through the run, or every=0 for no search")
