@@ -569,3 +569,15 @@ def test_segmenters_threads_end_with_them():
             break
         threading.Event().wait(0.01)
     assert threading.active_count() <= start
+
+
+def test_a_malformed_predicted_box_is_refused_and_a_nan_one_is_no_prediction():
+    """The box reaches the rows compared first even with gain fit and learning off: anything but
+    four numbers is a ValueError naming it; a non-finite corner means no box."""
+    seg, texture, rng = _warmed("uint8", 6, SegmentationConfig(warmup_frames=30, compensate_gain=False))
+    target = _rect(60, 50, 30, 14)
+    frame = _frame("uint8", texture, [target], rng)
+    for box in [(1, 2, 3), ("a", 1, 2, 3), 7]:
+        with pytest.raises(ValueError, match="Expected a box"):
+            seg(frame, near=(75.0, 57.0), exclude=box)
+    assert _iou(seg(frame, near=(75.0, 57.0), exclude=(np.nan, 40.0, 95.0, 70.0)), target) > 0.8

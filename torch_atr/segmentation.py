@@ -41,6 +41,7 @@ foreground (and is left out of the gain fit).
 from __future__ import annotations
 
 import logging
+import math
 import numbers
 import os
 from concurrent.futures import ThreadPoolExecutor
@@ -224,17 +225,27 @@ _ROWS_MARGIN_PX = 16  # ... and compares those within this of the last blob firs
 Rows = Callable[[int, int], np.ndarray]  # (r0, r1) -> (H, W) bool mask, exact in rows r0:r1
 
 
+def _box_corners(box: Box | None) -> tuple[float, float, float, float] | None:
+    """A predicted box's (u0, v0, u1, v1) as floats; None for None or a box with a non-finite
+    corner (no prediction). ValueError for anything else that is not four numbers."""
+    if box is None:
+        return None
+    try:
+        corners = tuple(float(c) for c in box)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"Expected a box (u0, v0, u1, v1); got {box!r}") from exc
+    if len(corners) != 4:
+        raise ValueError(f"Expected a box (u0, v0, u1, v1); got {box!r}")
+    return corners if all(map(math.isfinite, corners)) else None
+
+
 def _box_mask(shape: tuple[int, int], box: Box | None) -> np.ndarray:
     """(H, W) bool: True inside the box (clipped to the image); all False for None or an empty box."""
     out = np.zeros(shape, dtype=bool)
-    if box is None:
+    corners = _box_corners(box)
+    if corners is None:
         return out
-    try:
-        u0, v0, u1, v1 = (float(c) for c in box)
-    except (TypeError, ValueError) as exc:
-        raise ValueError(f"Expected a box (u0, v0, u1, v1); got {box!r}") from exc
-    if not all(np.isfinite([u0, v0, u1, v1])):
-        return out
+    u0, v0, u1, v1 = corners
     H, W = shape
     c0, c1 = int(np.clip(np.floor(u0), 0, W)), int(np.clip(np.ceil(u1) + 1, 0, W))
     r0, r1 = int(np.clip(np.floor(v0), 0, H)), int(np.clip(np.ceil(v1) + 1, 0, H))
@@ -499,13 +510,14 @@ def _rows_first(last: tuple[int, int] | None, box: Box | None, near: tuple[float
     ``near``, or with no last blob those of the predicted box, grown by ``_ROWS_MARGIN_PX`` and
     clipped to the image; None without a finite prediction, or when they hold the whole image or
     not ``near``."""
+    corners = _box_corners(box)
     if near is None or not np.isfinite(near).all():
         return None
     v = near[1]
     if last is not None:
         lo, hi = min(last[0], v), max(last[1], v + 1)
-    elif box is not None and np.isfinite(box).all():
-        lo, hi = box[1], box[3] + 1
+    elif corners is not None:
+        lo, hi = corners[1], corners[3] + 1
     else:
         return None
     r0 = int(np.clip(np.floor(lo) - _ROWS_MARGIN_PX, 0, H))
