@@ -63,9 +63,16 @@ def test_bad_arrays_are_named():
             (([grey],), {"camera": Camera(fx=10.0, fy=10.0, cx=3.0, cy=2.0, width=8, height=4)},
              "camera: 8 x 4 px, but the frames are 6 x 4"),
             ((np.zeros((2, 0, 6), np.uint8),), {}, "frames: height: expected an integer in [1, 16384]; got 0"),
-            (([grey],), {"truths": [None, None]}, "truths: expected 1 entries"),
+            (([grey],), {"truths": [None, None]}, "truths: expected a list of 1 entries"),
             (([grey],), {"fps": 0.0}, "fps must be a positive number"),
-            (([grey],), {"camera_height_m": math.nan}, "camera_height_m: expected a positive number of metres")]:
+            (([grey],), {"camera_height_m": math.nan}, "camera_height_m (metres, or None): expected a finite"),
+            (([grey],), {"camera_height_m": 1e6}, "camera_height_m (metres, or None): expected a finite number in "
+                                                 "(0, 10000]"),
+            (([grey],), {"truths": [{"x": 1}]}, "truths[0]: expected a FrameTruth or None"),
+            (([grey],), {"truths": 5}, "truths: expected a list of 1 entries"),
+            ((np.zeros((48, 64, 3), np.uint8),), {}, "reads as 48 frames 3 pixels wide; for one colour frame pass"),
+            (([grey],), {"camera": Camera.from_opencv(np.diag([10.0, 10.0, 1.0]), [], [0.0] * 3, [0.0] * 3, 6, 4)},
+             "camera: Expected a camera whose world frame is sensor-like")]:
         with pytest.raises(InputError, match=re.escape(message)):
             ArraySequence(*args, **kwargs)
     seq = ArraySequence([grey], camera=camera)

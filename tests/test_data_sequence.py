@@ -499,7 +499,8 @@ def test_load_camera_json_errors(tmp_path, caplog):
     d = cam.to_dict()
     d["R"] = [[1, 0, 0], [0, 1, 0], [0, 0, -1]]
     path.write_text(json.dumps(d))
-    with pytest.raises(ValueError, match=re.escape(f"{path}, key 'R': det R = -1, a reflection")):
+    with pytest.raises(ValueError, match=re.escape(f"{path}, key 'R': Expected a camera whose world frame is "
+                                                   f"sensor-like") + ".*got det R = -1.000"):
         load_camera_json(path)
     d["R"] = [[1, 0, 0], [0, -1, 0], [0, 0, -1]]  # det +1, but turned 180 degrees about x: looking back
     path.write_text(json.dumps(d))

@@ -57,7 +57,7 @@ from torch_atr.config import ConfigError
 
 logger = logging.getLogger(__name__)
 
-_DTYPES = (np.uint8, np.uint16, np.float32, np.float64)
+FRAME_DTYPES = (np.uint8, np.uint16, np.float32, np.float64)  # what frames may hold
 
 
 @dataclass(frozen=True)
@@ -427,7 +427,7 @@ def _grey_frames(frames: Iterable[np.ndarray], what: str, limit: int | None = No
     for i, frame in enumerate(frames):
         if i == limit:
             break
-        grey = to_grey(f"warm-up frame {i}", frame, _DTYPES, "RGB")
+        grey = to_grey(f"warm-up frame {i}", frame, FRAME_DTYPES, "RGB")
         if greys and (grey.shape, grey.dtype) != (greys[0].shape, greys[0].dtype):
             raise ValueError(f"warm-up frame {i}: shape {frame.shape}, dtype {frame.dtype} differs from "
                              f"frame 0's size {greys[0].shape}, dtype {greys[0].dtype}")
@@ -595,7 +595,7 @@ class ForegroundSegmenter:
         with its non-finite pixels (float frames) set to 0, and the (H, W) bool mask of those
         pixels (None: none)."""
         self.check_frame(frame)
-        grey = to_grey("frame", frame, _DTYPES, "RGB")
+        grey = to_grey("frame", frame, FRAME_DTYPES, "RGB")
         if grey.dtype.kind != "f" or np.isfinite(grey).all():
             return grey, None
         missing = ~np.isfinite(grey)

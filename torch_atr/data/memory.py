@@ -1,5 +1,6 @@
 """Frames already in memory as a :class:`~torch_atr.data.Sequence`: a stack of frames from your
-own pipeline, tracked with ``Tracker.run`` or written with ``save_sequence`` like any source.
+own pipeline, tracked with ``Tracker.run``, or written with ``save_sequence`` like any source
+when its frames are of a kind a folder stores (uint8 or uint16 grey, uint8 RGB).
 
     seq = ArraySequence(frames, camera=camera, fps=30.0)   # frames: (T, H, W) uint16, say
     result = Tracker(model, seq.camera, cfg).run(seq)
@@ -8,17 +9,16 @@ own pipeline, tracked with ``Tracker.run`` or written with ``save_sequence`` lik
 from __future__ import annotations
 
 import math
-import numbers
 from typing import Sequence as Items
 
 import numpy as np
 
 from torch_atr._checks import describe_array
 from torch_atr.camera import Camera
-from torch_atr.data.sequence import FrameTruth, Sequence, check_fps
-from torch_atr.validate import InputError, image_size, show
-
-DTYPES = (np.uint8, np.uint16, np.float32, np.float64)
+from torch_atr.data.sequence import MAX_CAMERA_HEIGHT_M, FrameTruth, Sequence, check_fps
+from torch_atr.pose import check_sensor_like
+from torch_atr.segmentation import FRAME_DTYPES
+from torch_atr.validate import InputError, image_size, real, show
 
 
 class ArraySequence(Sequence):
@@ -28,10 +28,12 @@ class ArraySequence(Sequence):
         frames: (T, H, W) or (T, H, W, 3) array, or a list of T frames of one shape and dtype
             (uint8, uint16, float32 or float64; colour in RGB order), T >= 1. Kept as given, not
             copied; :meth:`frame` returns a copy.
-        camera: the frames' calibrated camera (of their size), or None: uncalibrated.
+        camera: the frames' calibrated camera (of their size, world frame sensor-like as the
+            tracker's: ``pose.check_sensor_like``), or None: uncalibrated.
         fps: frames per second; None: unknown (the tracker then takes ``tracker.filter.fps``).
         truths: None, or T entries, each a :class:`FrameTruth` or None (no truth for that frame).
-        camera_height_m: the camera centre's height above flat ground, metres; None: unknown.
+        camera_height_m: the camera centre's height above flat ground, metres, in (0, 10000];
+            None: unknown.
         name: a short name for logs and run folders.
     Raises:
         InputError (a ValueError) naming the argument and what was expected.
@@ -43,15 +45,18 @@ class ArraySequence(Sequence):
         if isinstance(frames, np.ndarray):
             if frames.ndim not in (3, 4):
                 raise InputError(f"frames: expected a (T, H, W) or (T, H, W, 3) array; got shape {frames.shape}")
+            if frames.ndim == 3 and frames.shape[2] == 3:
+                raise InputError(f"frames: shape {frames.shape} reads as {frames.shape[0]} frames 3 pixels wide; "
+                                 f"for one colour frame pass frames[None] or [frame]")
             frames = list(frames)
         if not isinstance(frames, (list, tuple)) or not frames:
             raise InputError(f"frames: expected a non-empty array or list of frames; got {show(frames)}")
         first = frames[0]
         for i, f in enumerate(frames):
-            if not isinstance(f, np.ndarray) or f.dtype not in DTYPES or not (
+            if not isinstance(f, np.ndarray) or f.dtype not in FRAME_DTYPES or not (
                     f.ndim == 2 or f.ndim == 3 and f.shape[2] == 3):
                 raise InputError(f"frames[{i}]: expected an (H, W) or (H, W, 3) array of "
-                                 f"{'/'.join(np.dtype(d).name for d in DTYPES)}; got {describe_array(f)}")
+                                 f"{'/'.join(np.dtype(d).name for d in FRAME_DTYPES)}; got {describe_array(f)}")
             if (f.shape, f.dtype) != (first.shape, first.dtype):
                 raise InputError(f"frames[{i}]: {describe_array(f)}, but frames[0] has shape {first.shape}, "
                                  f"dtype {first.dtype}")
@@ -62,14 +67,19 @@ class ArraySequence(Sequence):
                 raise InputError(f"camera: expected a Camera or None; got {type(camera).__name__}")
             if (camera.height, camera.width) != (height, width):
                 raise InputError(f"camera: {camera.width} x {camera.height} px, but the frames are {width} x {height}")
+            try:
+                check_sensor_like(camera)
+            except ValueError as exc:
+                raise InputError(f"camera: {exc}") from exc
         if truths is not None:
-            if len(truths) != len(frames) or not all(t is None or isinstance(t, FrameTruth) for t in truths):
-                raise InputError(f"truths: expected {len(frames)} entries, each a FrameTruth or None; got "
-                                 f"{len(truths)}")
-        if camera_height_m is not None and (isinstance(camera_height_m, bool) or not isinstance(
-                camera_height_m, numbers.Real) or not 0 < camera_height_m < math.inf):
-            raise InputError(f"camera_height_m: expected a positive number of metres or None; got "
-                             f"{show(camera_height_m)}")
+            if not isinstance(truths, (list, tuple)) or len(truths) != len(frames):
+                raise InputError(f"truths: expected a list of {len(frames)} entries, one a frame; got {show(truths)}")
+            for i, t in enumerate(truths):
+                if not (t is None or isinstance(t, FrameTruth)):
+                    raise InputError(f"truths[{i}]: expected a FrameTruth or None; got {show(t)}")
+        if camera_height_m is not None:
+            camera_height_m = real("camera_height_m (metres, or None)", camera_height_m, lo=0, hi=MAX_CAMERA_HEIGHT_M,
+                                   lo_open=True)
         if not isinstance(name, str) or not name.strip():
             raise InputError(f"name: expected a non-empty string; got {show(name)}")
         self._frames, self._truths = frames, truths

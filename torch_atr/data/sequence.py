@@ -35,6 +35,7 @@ from typing import Callable, Iterator
 import numpy as np
 
 from torch_atr.camera import Camera
+from torch_atr.pose import check_sensor_like
 from torch_atr.validate import InputError, read_json_object, show
 
 logger = logging.getLogger(__name__)
@@ -330,11 +331,12 @@ def load_camera_json(path: str | Path) -> Camera:
     path = Path(path)
     d = read_json_object(path, f"Camera calibration file not found: {path}")
     camera = Camera.from_dict(d, source=str(path))
+    try:
+        check_sensor_like(camera)
+    except ValueError as exc:
+        raise InputError(f"{path}, key 'R': {exc}; a sequence's R takes the ground-levelled world to the sensor "
+                         f"frame (README, \"Conventions\")") from exc
     R = np.array(camera.R.tolist())
-    if np.linalg.det(R) < 0:
-        raise InputError(f"{path}, key 'R': det R = -1, a reflection; a sequence's R takes the ground-levelled world "
-                         f"(x right, y up, z forward) to the sensor frame, a rotation with det +1 (README, "
-                         f"\"Conventions\")")
     if R[2, 2] <= 0:
         logger.warning("%s: R turns the camera's optical axis %.0f degrees away from the world's forward z; R is "
                        "the camera's tilt (README, \"Conventions\"), and ranges along a backward axis come out "
