@@ -43,6 +43,20 @@ def test_length_is_measured_before_trimming(tmp_path):
     np.testing.assert_allclose(tank.mesh.extents, [true_length, HULL[1], HULL[2] + GUN[2] / 2], atol=1e-9)
 
 
+def test_length_ignores_vertices_no_face_uses(tmp_path):
+    """A PLY box 4 m long with one stray vertex 20 m out (trimesh's PLY reader keeps it; its OBJ
+    reader would drop it): length 4.5 makes the box 4.5 m long, as the loaded mesh shows."""
+    box = trimesh.creation.box(extents=[4.0, 1.8, 1.5])
+    stray = trimesh.Trimesh(np.vstack([box.vertices, [[20.0, 0.0, 0.0]]]), box.faces, process=False)
+    (tmp_path / "stray.ply").write_bytes(trimesh.exchange.ply.export_ply(stray, encoding="ascii"))
+    assert len(trimesh.load(tmp_path / "stray.ply", process=False).vertices) == 9  # the stray vertex is read
+    trimesh.creation.box(extents=[4.5, 1.8, 1.5]).export(tmp_path / "van.obj")
+    (tmp_path / "catalog.yaml").write_text("vehicles:\n  - {file: stray.ply, class: car, length: 4.5}\n"
+                                           "  - {file: van.obj, class: minivan, scale: 1.0}\n")
+    car = {v.name: v for v in load_catalog_folder(tmp_path)}["stray"]
+    np.testing.assert_allclose(car.mesh.extents, [4.5, 1.8 * 4.5 / 4.0, 1.5 * 4.5 / 4.0], rtol=1e-6)  # PLY: float32
+
+
 @pytest.mark.parametrize("extent, scale", [(1e6, 1.0), (4.5, 1e12), (MAX_EXTENT_M * 1.01, 1.0)])
 def test_mis_scaled_mesh_fails_fast_naming_file_and_size(tmp_path, extent, scale):
     path = tmp_path / "huge.obj"

@@ -239,7 +239,8 @@ def forward_extent(path: str | Path, *, up_axis: str = "z", forward_axis: str = 
         rig = _load_urdf(path, rotation)
         forward = rig.mesh(_rest_pose(rig.limits)).vertices[:, 0]
     else:
-        forward = _read_mesh(path, process=False).vertices @ rotation[0]
+        mesh = _read_mesh(path, process=False)
+        forward = mesh.vertices[np.unique(mesh.faces)] @ rotation[0]  # a vertex no face uses is no part of it
     extent = float(np.ptp(forward))
     if not extent > 0:
         raise ValueError(f"{path}: extent along forward_axis {forward_axis!r} is {extent}; expected a positive length")
