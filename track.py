@@ -19,7 +19,7 @@ from pathlib import Path
 
 from torch_atr import viz
 from torch_atr.cli import REPO, console_logging, in_repo, run_main
-from torch_atr.config import ConfigError, load_config
+from torch_atr.config import load_config
 from torch_atr.data import open_sequence
 from torch_atr.io import check_output_dir, claimed_output_dir
 from torch_atr.model import GenerativeShapeModel
@@ -64,12 +64,7 @@ def main(argv: list[str] | None = None) -> dict:
     console_logging()
     flags = [f"{key}={getattr(args, flag)}" for flag, (key, *_) in FLAGS.items() if getattr(args, flag) is not None]
     flags += [f"{name}=true" for name in ("tensorboard", "video") if getattr(args, name)]
-    by_key = {key: flag for flag, (key, *_) in FLAGS.items()} | {name: name for name in ("tensorboard", "video")}
-    for override in args.overrides:  # the later would win without a word
-        key = override.split("=", 1)[0].strip()
-        if any(flag.startswith(f"{key}=") for flag in flags):
-            raise ConfigError(f"--{by_key[key]} and the override {override} both set {key}; give one")
-    cfg = load_config(TrackConfig, args.config, flags + args.overrides)
+    cfg = load_config(TrackConfig, args.config, flags + args.overrides)  # a key set twice is refused there
 
     # 1. The model, the sequence, the run folder and the tracker. A bad input is reported before
     # the run folder is checked (a typo in --sequence is not "runs/track exists"), and a value the

@@ -130,7 +130,7 @@ def test_the_summary_names_what_the_truth_allows():
     (["--checkpoint", "missing.pt"], "missing.pt"),
     (["--device", "tpu"], "device 'tpu' is not available"),
     (["tracker.filter.sigma=0.03", "--overwrite", "tracker.filter.method=V"], "method='V'"),  # a flag between
-    (["--frames", "3", "frames=5"], "--frames and the override frames=5 both set frames; give one"),
+    (["--frames", "3", "frames=5"], "overrides 'frames=3' and 'frames=5' both set frames; give one"),
 ])
 def test_user_errors_are_one_line(tmp_path, args, message):
     proc = subprocess.run([sys.executable, str(REPO / "track.py"), "--out", str(tmp_path / "x"), *args],

@@ -274,6 +274,9 @@ def load_config(cls: type[T], path: str | Path | None = None, overrides: list[st
             raise ConfigError(f"{what} {item!r}: not a YAML value: {' '.join(str(exc).split())}") from None
         except ConfigError as exc:
             raise ConfigError(f"{what} {item!r}: {exc}") from None
+        earlier = next((other for other, k, v in parsed if k == key.strip() and v != value), None)
+        if earlier is not None:  # the later would win without a word
+            raise ConfigError(f"{what}s {earlier!r} and {item!r} both set {key.strip()}; give one")
         parsed.append((item, key.strip(), value))
     try:
         return _build(cls, data)
