@@ -64,7 +64,7 @@ def main(argv: list[str] | None = None) -> dict:
     console_logging()
     flags = [f"{key}={getattr(args, flag)}" for flag, (key, *_) in FLAGS.items() if getattr(args, flag) is not None]
     flags += [f"{name}=true" for name in ("tensorboard", "video") if getattr(args, name)]
-    cfg = load_config(TrackConfig, args.config, flags + args.overrides)  # a key set twice is refused there
+    cfg = load_config(TrackConfig, args.config, flags + args.overrides, unique=True)
 
     # 1. The model, the sequence, the run folder and the tracker. A bad input is reported before
     # the run folder is checked (a typo in --sequence is not "runs/track exists"), and a value the

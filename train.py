@@ -51,7 +51,7 @@ def main(argv: list[str] | None = None) -> dict:
     parser.add_argument("overrides", nargs="*", help="key=value overrides, dotted for sections (model.ridge=1e-3)")
     args = parser.parse_intermixed_args(argv)  # flags may sit between the key=value overrides
     console_logging()
-    cfg = load_config(TrainConfig, args.config, args.overrides)
+    cfg = load_config(TrainConfig, args.config, args.overrides, unique=True)
     # The training vehicles (the shipped split, or a folder of your own models): a bad catalog is
     # named first. Then refuse to replace outputs before spending minutes on training.
     vehicles = load_catalog("train") if cfg.catalog == "train" else load_catalog_folder(cfg.catalog)

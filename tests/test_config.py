@@ -99,11 +99,12 @@ def test_bad_override_and_missing_file(tmp_path):
         load_config(TrainConfig, None, ["model.pixel_rank=0"])
     with pytest.raises(ConfigError, match="not found.*nope.yaml"):
         load_config(TrainConfig, tmp_path / "nope.yaml")
-    # a key set twice to two values: the later would win without a word (train.py and track.py alike)
+    # unique (train.py's and track.py's user input): a key set twice to two values is refused
     with pytest.raises(ConfigError, match=r"overrides 'model.ridge=0.1' and ' model.ridge =0.2' both set "
                                           r"model.ridge; give one"):
-        load_config(TrainConfig, None, ["model.ridge=0.1", "name=x", " model.ridge =0.2"])
-    assert load_config(TrainConfig, None, ["name=x", "name=x"]).name == "x"  # the same value twice is no clash
+        load_config(TrainConfig, None, ["model.ridge=0.1", "name=x", " model.ridge =0.2"], unique=True)
+    assert load_config(TrainConfig, None, ["name=x", "name=x"], unique=True).name == "x"  # the same value: no clash
+    assert load_config(TrainConfig, None, ["model.ridge=0.1", "model.ridge=0.2"]).model.ridge == 0.2  # code's layers
 
 
 def test_a_bad_override_is_reported_as_an_override_not_against_the_file(tmp_path):

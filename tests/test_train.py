@@ -31,10 +31,10 @@ TINY = ("template.size_px=16", "template.tau_px=2", "views.azimuth_step_deg=60",
         "model.pixel_rank=8", "model.width_steps=0", "evaluate_test_split=false", "tensorboard=false")
 
 
-def _run(tmp_path, *overrides, flags=()):
-    ckpt = tmp_path / "model.pt"
+def _run(tmp_path, *overrides, flags=(), checkpoint="model.pt", name="test"):
+    ckpt = tmp_path / checkpoint  # an absolute path stays itself
     report = train.main(["--config", str(REPO / "configs/default.yaml"), *flags, f"checkpoint={ckpt}",
-                         f"log_dir={tmp_path / 'runs'}", "name=test", *overrides])
+                         f"log_dir={tmp_path / 'runs'}", f"name={name}", *overrides])
     return ckpt, report
 
 
@@ -66,17 +66,17 @@ def test_reduced_training_writes_a_loadable_checkpoint_and_logs(tmp_path):
         _run(tmp_path, *TINY)
     report_path.unlink()  # our run folder without its report: a run killed midway, replaced only with --overwrite
     with pytest.raises(OutputExistsError, match=r"runs/test already holds an interrupted run \(no report.json\)"):
-        _run(tmp_path, *TINY, "name=test", f"checkpoint={tmp_path / 'other.pt'}")
+        _run(tmp_path, *TINY, checkpoint="other.pt")
     (tmp_path / "runs/test/.torch_atr_run").unlink()  # without our claim: another tool's folder, never replaced
     with pytest.raises(OutputExistsError, match="runs/test is not empty and holds no report.json of ours"):
         _run(tmp_path, *TINY, flags=["--overwrite"])
     report_path.write_text(before[1])
     with pytest.raises(OutputExistsError, match=rf"{ckpt} exists; pass --overwrite"):
-        _run(tmp_path, *TINY, "name=other")
+        _run(tmp_path, *TINY, name="other")
     notes = tmp_path / "my_notes.txt"
     notes.write_text("precious")
     with pytest.raises(OutputExistsError, match=rf"{notes} exists and is not a checkpoint; refusing .*even with "):
-        _run(tmp_path, *TINY, f"checkpoint={notes}", "name=other", flags=["--overwrite"])
+        _run(tmp_path, *TINY, checkpoint=notes, name="other", flags=["--overwrite"])
     assert notes.read_text() == "precious" and (ckpt.read_bytes(), report_path.read_text()) == before
     stale = tmp_path / "runs/test/model.pt"  # the replaced run's checkpoint, where this run writes none
     stale.write_bytes(ckpt.read_bytes())
@@ -225,6 +225,8 @@ def test_bad_config_key_and_type_are_named(tmp_path):
         _run(tmp_path, "template.size_px=big")
     with pytest.raises(ConfigError, match="model.ridg"):  # a flag between the overrides
         train.main([f"log_dir={tmp_path}", "--overwrite", "model.ridg=1"])
+    with pytest.raises(ConfigError, match="'model.ridge=0.1' and 'model.ridge=0.2' both set model.ridge"):
+        _run(tmp_path, "model.ridge=0.1", "model.ridge=0.2")
 
 
 @pytest.mark.slow

@@ -239,12 +239,15 @@ def _set_dotted(data: dict, dotted: str, value: Any) -> None:
 
 
 def load_config(cls: type[T], path: str | Path | None = None, overrides: list[str] | None = None,
-                what: str = "override") -> T:
+                what: str = "override", unique: bool = False) -> T:
     """Build ``cls`` from its defaults, a YAML file and ``key=value`` overrides.
 
     ``overrides`` use dotted keys for nested sections (``template.size_px=32``); values are
-    parsed as YAML scalars. Raises :class:`ConfigError` naming the file (for a file that is bad
-    on its own) or the override (``what`` names them in messages) and the key at fault.
+    parsed as YAML scalars; a later one wins, so code can lay its own over defaults. With
+    ``unique`` (the entry points' user input) a key set twice to two values is refused instead,
+    since the later would win without a word. Raises :class:`ConfigError` naming the file (for a
+    file that is bad on its own) or the override (``what`` names them in messages) and the key at
+    fault.
     """
     data: dict = {}
     if path is not None:
@@ -274,8 +277,8 @@ def load_config(cls: type[T], path: str | Path | None = None, overrides: list[st
             raise ConfigError(f"{what} {item!r}: not a YAML value: {' '.join(str(exc).split())}") from None
         except ConfigError as exc:
             raise ConfigError(f"{what} {item!r}: {exc}") from None
-        earlier = next((other for other, k, v in parsed if k == key.strip() and v != value), None)
-        if earlier is not None:  # the later would win without a word
+        earlier = next((other for other, k, v in parsed if unique and k == key.strip() and v != value), None)
+        if earlier is not None:
             raise ConfigError(f"{what}s {earlier!r} and {item!r} both set {key.strip()}; give one")
         parsed.append((item, key.strip(), value))
     try:
