@@ -146,6 +146,9 @@ def test_home_in_a_spec_is_expanded(avi, tmp_path, monkeypatch):
                                                            height=H).to_dict()))
     seq = open_sequence(f"video:~/{avi.name},calib=~/cam.json")
     assert len(seq) == N and seq.camera.fx == 100.0
+    save_sequence(seq, avi.parent / "saved", progress=False)
+    for spec in ("~/saved", "folder:~/saved"):  # a folder, with its scheme or without
+        assert len(open_sequence(spec)) == N, spec
 
 
 def test_calibration_option(avi, tmp_path):

@@ -72,7 +72,7 @@ class FolderSequence(Sequence):
     """A sequence stored in our folder format (see the module docstring)."""
 
     def __init__(self, folder: str | os.PathLike):
-        self.folder = Path(folder)
+        self.folder = Path(folder).expanduser()  # ~ as a shell would, for specs from config files
         if not self.folder.exists():
             raise FileNotFoundError(f"Sequence folder not found: {self.folder}")
         if not self.folder.is_dir():

@@ -234,7 +234,7 @@ def open_sequence(spec: str | os.PathLike) -> Sequence:
         raise InputError(f"Expected a sequence spec string; got {show(spec)}")
     m = _SPEC_RE.fullmatch(spec)
     if m is None:
-        scheme, rest = "folder", os.path.expanduser(spec)  # ~ as a shell would, for specs from config files
+        scheme, rest = "folder", spec  # FolderSequence expands a ~, as it does after "folder:"
     else:
         scheme, rest = m.group(1).lower(), m.group(2)
     if scheme not in _SCHEMES:
