@@ -247,3 +247,30 @@ def test_csv_columns_keep_the_rows_order_when_the_first_row_has_fewer_keys(tmp_p
         "frame,time_s,lost,mask_area_px,x,overlap,step_ms,true_x\n"
         "0,0,1,0,,,2.5,1\n"
         "1,0.5,0,9,1.5,0.75,3,1.25\n")
+    # a later row with two known keys swapped: its new key goes after both, not between them
+    atomic_write_csv([{"a": 1, "b": 2}, {"b": 3, "a": 4, "c": 5}], tmp_path / "swapped.csv")
+    assert (tmp_path / "swapped.csv").read_text() == "a,b,c\n1,2,\n4,3,5\n"
+
+
+def test_a_file_that_cannot_be_set_aside_leaves_every_earlier_output_in_place(tmp_path, monkeypatch):
+    run = tmp_path / "run"
+    with claimed_output_dir(run, "run", replaces=("*.json", "*.png")):
+        for name in ("a.json", "b.png", "c.png"):
+            (run / name).write_text(name)
+    replace, calls = os.replace, []
+
+    def failing(src, dst):  # the second file set aside cannot be
+        if str(dst).endswith(".replaced"):
+            calls.append(src)
+            if len(calls) == 2:
+                raise PermissionError(13, "denied", str(src))
+        replace(src, dst)
+
+    monkeypatch.setattr(os, "replace", failing)
+    with pytest.raises(PermissionError):
+        with claimed_output_dir(run, "run", replaces=("*.json", "*.png")):
+            pytest.fail("the block must not run")
+    monkeypatch.undo()
+    with claimed_output_dir(run, "run", replaces=()):  # the next claim deletes files set aside and left
+        pass
+    assert sorted(p.name for p in run.iterdir() if p.name != RUN_CLAIM) == ["a.json", "b.png", "c.png"]

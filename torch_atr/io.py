@@ -146,7 +146,7 @@ def column_order(rows: list[dict]) -> list[str]:
         at = 0
         for key in keys:
             if key in order:
-                at = order.index(key) + 1
+                at = max(at, order.index(key) + 1)  # never back: a key met out of order keeps its place
             else:
                 order.insert(at, key)
                 at += 1
@@ -233,9 +233,15 @@ def claimed_output_dir(folder: Path, what: str, replaces: tuple[str, ...] = ()) 
         left.unlink(missing_ok=True)
     olds = sorted({p for pattern in (*replaces, "events.out.tfevents.*") for p in folder.glob(pattern) if p.is_file()})
     before = _listing(folder, skip=olds)
-    aside = [(old, old.with_name(f".{old.name}{_SET_ASIDE}")) for old in olds]
-    for old, kept in aside:
-        os.replace(old, kept)
+    aside = []
+    try:
+        for old in olds:
+            aside.append((old, old.with_name(f".{old.name}{_SET_ASIDE}")))
+            os.replace(*aside[-1])
+    except OSError:  # a file that cannot be moved: those moved come back, not deleted at the next claim
+        for old, kept in aside[:-1]:
+            os.replace(kept, old)
+        raise
     try:
         yield folder
     except BaseException:
@@ -257,8 +263,8 @@ def claimed_output_dir(folder: Path, what: str, replaces: tuple[str, ...] = ()) 
 def _listing(folder: Path, skip: list[Path]) -> dict[str, tuple[int, int]]:
     """{name: (mtime ns, size)} of the entries of ``folder`` but ``skip`` and killed writes' temp files."""
     names = {p.name for p in skip}
-    return {e.name: (e.stat().st_mtime_ns, e.stat().st_size) for e in folder.iterdir()
-            if e.name not in names and not _is_stale_temp(e)}
+    return {e.name: (st.st_mtime_ns, st.st_size) for e in folder.iterdir()
+            if e.name not in names and not _is_stale_temp(e) for st in (e.stat(),)}
 
 
 def check_writable(path: str | os.PathLike) -> None:
