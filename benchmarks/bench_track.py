@@ -259,6 +259,9 @@ def main(argv: list[str] | None = None) -> None:
     for flag in ("particles", "reference_particles", "reference_frames"):
         check_at_least(flag.replace("_", "-"), getattr(args, flag), 1)
     check_at_least("skip", args.skip, 0)
+    if args.reference_frames > args.frames:
+        raise ConfigError(f"--reference-frames {args.reference_frames} is more than the --frames {args.frames} made; "
+                          f"give --frames {args.reference_frames} or fewer reference frames")
     if args.frames <= max(args.skip, PROFILE_WARMUP):
         raise ConfigError(f"--frames {args.frames} must exceed --skip ({args.skip}) and {PROFILE_WARMUP} (the "
                           f"profile's unprofiled frames); give --frames {max(args.skip, PROFILE_WARMUP) + 1} or more")
@@ -266,9 +269,9 @@ def main(argv: list[str] | None = None) -> None:
     # Everything a run could refuse before the frames are made: the model and device, the output,
     # and the trackers' settings (the --set overrides; filter.likelihood_px against the model).
     model = GenerativeShapeModel.from_checkpoint(args.checkpoint, map_location=args.device)
-    seq = SyntheticSequence("t_72", SceneConfig(frames=max(args.frames, args.reference_frames)))
-    for n in dict.fromkeys(args.particles + [args.reference_particles]):
-        Tracker(model, seq.camera, tracker_config(n, args.set), device=args.device)
+    seq = SyntheticSequence("t_72", SceneConfig(frames=args.frames))
+    configs = [tracker_config(n, args.set) for n in dict.fromkeys(args.particles + [args.reference_particles])]
+    Tracker(model, seq.camera, configs[-1], device=args.device)  # what it refuses does not depend on the count
     out = json_output(args.json, args.overwrite, NAME)
     logging.basicConfig(level=logging.INFO, format="%(message)s")
     frames = [seq.frame(i) for i in range(args.frames)]

@@ -18,6 +18,7 @@ existing file unless it is an earlier output of this benchmark and ``--overwrite
 from __future__ import annotations
 
 import argparse
+import itertools
 import logging
 import time
 from pathlib import Path
@@ -82,30 +83,40 @@ def main(argv: list[str] | None = None) -> list[dict]:
     out = json_output(args.json, args.overwrite, NAME)
     logging.basicConfig(level=logging.INFO, format="%(message)s")
     templates = training_templates(model, trained_catalog(extra)) if "IV" in args.methods else None
-    runs = [(vehicle, range_m, init, method, seq,
-             Tracker(model, seq.camera, cfg, device=args.device, seed=args.seed,
-                     templates=templates if method == "IV" else None))
-            for (vehicle, range_m), seq in sequences.items() for (init, method), cfg in configs.items()]
+
+    def tracker(seq, method: str, cfg: TrackerConfig) -> Tracker:
+        return Tracker(model, seq.camera, cfg, device=args.device, seed=args.seed,
+                       templates=templates if method == "IV" else None)
+
+    first = next(iter(sequences.values()))
+    for (_, method), cfg in configs.items():  # what a tracker refuses depends on its settings, not the scene
+        tracker(first, method, cfg)
 
     settled = [f"{name}{args.settle}" for name in ("horiz", "asp", "rec")]
     log.info("%-12s %5s %-6s %-4s | %7s %7s %7s %6s | %8s %8s %7s | %5s %6s", "vehicle", "range", "start", "meth",
              "horiz m", "range m", "asp rad", "recog", *settled, "conv", "frm/s")
     results = []
-    for vehicle, range_m, init, method, seq, tracker in runs:
+    for ((vehicle, range_m), seq), ((init, method), cfg) in itertools.product(sequences.items(), configs.items()):
         start = time.perf_counter()
-        result = tracker.run(seq, progress=False, snapshots=0)
+        result = tracker(seq, method, cfg).run(seq, progress=False, snapshots=0)  # one tracker alive at a time
         m = run_summary(result, model, args.settle)
         s = m["settled"]
         results.append({"vehicle": vehicle, "range_m": range_m, "init": init, "method": method,
                         "wall_s": time.perf_counter() - start, **m})
-        log.info("%-12s %5.0f %-6s %-4s | %7.2f %7.1f %7.2f %6.2f | %8.2f %8.2f %7.2f | %5s %6.1f",
-                 vehicle, range_m, init, method, m["horizontal_error_m"], m["range_error_m"],
-                 m["aspect_error_rad"], m["recognition_accuracy"], s["horizontal_error_m"],
-                 s["aspect_error_rad"], s["recognition_accuracy"], m["frames_to_convergence"],
-                 m["frames_per_second"])
+        cells = _cells((m["horizontal_error_m"], ".2f"), (m["range_error_m"], ".1f"), (m["aspect_error_rad"], ".2f"),
+                       (m["recognition_accuracy"], ".2f"), (s["horizontal_error_m"], ".2f"),
+                       (s["aspect_error_rad"], ".2f"), (s["recognition_accuracy"], ".2f"), (m["frames_to_convergence"], "d"))
+        log.info("%-12s %5.0f %-6s %-4s | %7s %7s %7s %6s | %8s %8s %7s | %5s %6.1f", vehicle, range_m, init, method,
+                 *cells, m["frames_per_second"])
     if out is not None:
         write_json({"args": vars(args), "runs": results, "threads": torch.get_num_threads()}, out, NAME)
     return results
+
+
+def _cells(*pairs: tuple[float | None, str]) -> list[str]:
+    """Each (value, format) as text; "-" for None (no truth to score: a vehicle of no trained class,
+    a run without an estimate; a run that never converged)."""
+    return ["-" if value is None else format(value, spec) for value, spec in pairs]
 
 
 if __name__ == "__main__":

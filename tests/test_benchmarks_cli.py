@@ -11,6 +11,8 @@ from pathlib import Path
 import pytest
 
 from torch_atr.cli import run_main
+from torch_atr.data.synthetic import SyntheticSequence
+from torch_atr.tracking import Tracker
 
 BENCHMARKS = Path(__file__).resolve().parents[1] / "benchmarks"
 FAKE_MATPLOTLIB_PNG = b"\x89PNG\r\n\x1a\n\x00\x00\x00\rIHDR" + b"\x00" * 17 + b"\x00\x00\x00:tEXtSoftware\x00Matplotlib"
@@ -52,6 +54,7 @@ def error_line(capsys, name: str, argv: list[str]) -> str:
     ("bench_track", ["--frames", "5"], "--frames 5 must exceed --skip (5)"),
     ("bench_track", ["--segmentation-gaps", "2000"], "--segmentation-gaps must be at most 1000 ms"),
     ("bench_tracking", ["--frames", "30"], "--settle 60 leaves none of the --frames 30"),
+    ("bench_track", ["--frames", "10", "--reference-frames", "11"], "--reference-frames 11 is more than the --frames"),
     ("bench_tracking", ["--particles", "0"], "--particles must be at least 1"),
     ("bench_tracking", ["--device", "meta"], "device 'meta' is not available here"),
     ("bench_tracking", ["--inits", "foo"], "--inits foo: override init.mode=foo"),
@@ -61,12 +64,21 @@ def test_bad_argument_is_one_line(capsys, name, argv, expected):
     assert expected in error_line(capsys, name, argv)
 
 
+@pytest.fixture
+def no_work(monkeypatch):
+    """Any frame made or run started fails the test: what it checks must come before them."""
+    def fail(*args, **kwargs):
+        pytest.fail("a frame was made or a run started before every argument was checked")
+    monkeypatch.setattr(SyntheticSequence, "_read_frame", fail)
+    monkeypatch.setattr(Tracker, "run", fail)
+
+
 @pytest.mark.parametrize("argv, expected", [
     (["--vehicles", "isuzu_rodeo", "t99"], "--vehicles t99 --ranges 1000: Unknown vehicle 't99'"),
     (["--methods", "I", "V"], "--methods V: override filter.method=V"),
     (["--set", "filter.foo=1"], "override filter.foo=1: unknown config key(s)"),
 ])
-def test_tracking_checks_every_run_before_the_first(capsys, tmp_path, argv, expected):
+def test_tracking_checks_every_run_before_the_first(capsys, tmp_path, argv, expected, no_work):
     """The SUV was tracked, then t99 failed and nothing was written; now nothing runs."""
     out = tmp_path / "out.json"
     assert expected in error_line(capsys, "bench_tracking", [*argv, "--json", str(out)])
@@ -74,7 +86,7 @@ def test_tracking_checks_every_run_before_the_first(capsys, tmp_path, argv, expe
 
 
 @pytest.mark.parametrize("name", ["bench_tracking", "bench_track", "bench_segmentation", "bench_heldout"])
-def test_existing_json_is_refused_before_the_run(capsys, tmp_path, name):
+def test_existing_json_is_refused_before_the_run(capsys, tmp_path, name, no_work):
     ours, theirs = tmp_path / "ours.json", tmp_path / "theirs.json"
     ours.write_text(json.dumps({"benchmark": name, "runs": []}))
     theirs.write_text(json.dumps({"runs": []}))
@@ -86,7 +98,7 @@ def test_existing_json_is_refused_before_the_run(capsys, tmp_path, name):
     assert json.loads(theirs.read_text()) == {"runs": []}
 
 
-def test_output_under_a_missing_folder_is_refused_and_not_created(capsys, tmp_path):
+def test_output_under_a_missing_folder_is_refused_and_not_created(capsys, tmp_path, no_work):
     out = tmp_path / "missing" / "out.json"
     message = error_line(capsys, "bench_tracking", ["--json", str(out)])
     assert message == f"cannot write {out}: the folder {out.parent} does not exist"
