@@ -105,7 +105,8 @@ def main(argv: list[str] | None = None) -> list[dict]:
                         "wall_s": time.perf_counter() - start, **m})
         cells = _cells((m["horizontal_error_m"], ".2f"), (m["range_error_m"], ".1f"), (m["aspect_error_rad"], ".2f"),
                        (m["recognition_accuracy"], ".2f"), (s["horizontal_error_m"], ".2f"),
-                       (s["aspect_error_rad"], ".2f"), (s["recognition_accuracy"], ".2f"), (m["frames_to_convergence"], "d"))
+                       (s["aspect_error_rad"], ".2f"), (s["recognition_accuracy"], ".2f"),
+                       (m["frames_to_convergence"], "d"))
         log.info("%-12s %5.0f %-6s %-4s | %7s %7s %7s %6s | %8s %8s %7s | %5s %6.1f", vehicle, range_m, init, method,
                  *cells, m["frames_per_second"])
     if out is not None:
