@@ -4,6 +4,7 @@ known K, R, t (cv2.warpPerspective of a board texture, supersampled, blurred, no
 import cv2
 import numpy as np
 import pytest
+from scipy.spatial.transform import Rotation
 import torch
 
 from torch_atr.calibration import (_canonical_order, calibrate_checkerboard, camera_from_focal, draw_cubes,
@@ -239,6 +240,23 @@ def test_calibrate_checkerboard_refuses_boards_in_one_orientation():
                                     [-1.0 + 0.3 * k, -3.0, 5.0 + 0.5 * k], generator=generator) for k in range(3)]
     with pytest.raises(ValueError, match="Tilt the board between views.*floor_pose"):
         calibrate_checkerboard(on_floor, PATTERN, 0.25)
+
+
+def test_a_long_focal_length_camera_with_tilted_boards_is_calibrated():
+    """A 12,000 px telephoto (the simulator's class of camera) over boards tilted ±25° about x and y:
+    through a nominal max(W, H) camera they looked 2.9° apart and were refused; its own fit sees
+    them as they are."""
+    f = 12000.0
+    camera = Camera(f, f, 320.0, 240.0, 640, 480)
+    generator = torch.Generator().manual_seed(0)
+    square = 0.25
+    images = []
+    for axis, angle in (("x", 25), ("x", -25), ("y", 25), ("y", -25)):
+        R = Rotation.from_euler(axis, angle, degrees=True).as_matrix()
+        t = np.array([0.0, 0.0, 80.0]) - R @ [5 * square, 3.5 * square, 0.0]  # the board's centre on the axis
+        images.append(render_checkerboard(camera, PATTERN, square, R, t, generator=generator))
+    fitted, rms = calibrate_checkerboard(images, PATTERN, square)
+    assert rms < 0.3 and abs(fitted.fx / f - 1) < 0.05 and abs(fitted.fy / f - 1) < 0.05
 
 
 def _angle_deg(Ra: np.ndarray, Rb: np.ndarray) -> float:

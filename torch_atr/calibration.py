@@ -230,24 +230,23 @@ def find_checkerboard(image: np.ndarray, pattern: tuple[int, int]) -> np.ndarray
     return _canonical_order(grey, corners.reshape(rows, cols, 2)).reshape(-1, 2)
 
 
-def _orientation_spread_deg(board_xy: np.ndarray, img_points: list[np.ndarray], width: int, height: int) -> float:
-    """The largest angle between two boards' normals, in degrees, seen through a nominal camera.
+def _orientation_spread_deg(board_xy: np.ndarray, img_points: list[np.ndarray], K: np.ndarray) -> float:
+    """The largest angle between two boards' normals, in degrees, seen through the camera ``K``.
 
     Each board's vanishing line l = H⁻ᵀ (0, 0, 1) (H: board plane -> image homography) gives its
-    normal n ∝ K₀ᵀ l for a camera K₀ with focal length max(width, height) and the principal point
-    at the image centre. Parallel boards share the vanishing line, so their angle is zero whatever
-    the real K; other angles scale with the real focal length over K₀'s, which is how much the
-    views' perspective differs in pixels, the thing the focal length is fitted from.
+    normal n ∝ Kᵀ l. Parallel boards share the vanishing line, so their angle is zero whatever K
+    is: through the K fitted from them, which is then arbitrary, as through the true one. Other
+    angles scale with the true focal length over K's (a nominal K of focal length max(W, H) made
+    boards tilted 50° apart look 2.9° apart to a 12,000 px camera), so K is the fitted one.
 
     Args:
-        board_xy: (P, 2) board corners in the board plane; img_points: V arrays (P, 2) of pixels.
+        board_xy: (P, 2) board corners in the board plane; img_points: V arrays (P, 2) of pixels;
+        K: (3, 3) intrinsics.
     """
-    f0 = float(max(width, height))
-    K0 = np.array([[f0, 0.0, (width - 1) / 2], [0.0, f0, (height - 1) / 2], [0.0, 0.0, 1.0]])
     normals = []
     for corners in img_points:
         H, _ = cv2.findHomography(board_xy, corners)
-        n = K0.T @ np.linalg.solve(H.T, [0.0, 0.0, 1.0])  # K₀ᵀ H⁻ᵀ e₃
+        n = K.T @ np.linalg.solve(H.T, [0.0, 0.0, 1.0])  # Kᵀ H⁻ᵀ e₃
         normals.append(n / np.linalg.norm(n))
     cos = np.abs(np.stack(normals) @ np.stack(normals).T)  # (V, V); a vanishing line's sign is arbitrary
     return float(np.degrees(np.arccos(np.clip(cos.min(), 0.0, 1.0))))
@@ -302,12 +301,6 @@ def calibrate_checkerboard(images: Sequence[np.ndarray], pattern: tuple[int, int
             raise ValueError(f"image {i}: no {pattern[0]}x{pattern[1]} checkerboard found")
         img_points.append(corners)
     height, width = size
-    spread = _orientation_spread_deg(obj[:, :2], img_points, width, height)
-    if spread < _MIN_ORIENTATION_SPREAD_DEG:
-        raise ValueError(f"Expected boards in different orientations: the {len(img_points)} boards' normals are at "
-                         f"most {spread:.2f}° apart (need {_MIN_ORIENTATION_SPREAD_DEG:g}°), so the focal length is "
-                         f"not determined. Tilt the board between views; for a fixed camera over a floor, calibrate "
-                         f"with a hand-held board and pose the camera with floor_pose")
     threads = cv2.getNumThreads()
     cv2.setNumThreads(1)  # on more threads its sums are not reproducible: the same images gave
     try:  # cameras differing in the 12th digit, which a tracker's run then amplified
@@ -315,6 +308,12 @@ def calibrate_checkerboard(images: Sequence[np.ndarray], pattern: tuple[int, int
                                                  None, None, flags=flags)
     finally:
         cv2.setNumThreads(threads)
+    spread = _orientation_spread_deg(obj[:, :2], img_points, K)
+    if spread < _MIN_ORIENTATION_SPREAD_DEG:
+        raise ValueError(f"Expected boards in different orientations: the {len(img_points)} boards' normals are at "
+                         f"most {spread:.2f}° apart (need {_MIN_ORIENTATION_SPREAD_DEG:g}°), so the focal length is "
+                         f"not determined. Tilt the board between views; for a fixed camera over a floor, calibrate "
+                         f"with a hand-held board and pose the camera with floor_pose")
     logger.info("checkerboard calibration from %d images: rms %.3f px", len(img_points), rms)
     camera = Camera(K[0, 0], K[1, 1], K[0, 2], K[1, 2], width, height, dist=dist.ravel()[:5])
     return camera, float(rms)
