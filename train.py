@@ -27,7 +27,7 @@ from pathlib import Path
 import torch
 
 from torch_atr import viz
-from torch_atr.cli import console_logging, run_main
+from torch_atr.cli import REPO, console_logging, run_main
 from torch_atr.config import load_config
 from torch_atr.evaluation import (fit_alpha, identity_distances, per_class_mean, rbf_mapping_iou,
                                   reconstruction_iou)
@@ -44,7 +44,7 @@ log = logging.getLogger("train")
 
 def main(argv: list[str] | None = None) -> dict:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--config", default=str(Path(__file__).resolve().parent / "configs" / "default.yaml"),
+    parser.add_argument("--config", default=str(REPO / "configs" / "default.yaml"),
                         help="YAML config (default: the repository's configs/default.yaml)")
     parser.add_argument("--overwrite", action="store_true",
                         help="replace an existing checkpoint and run folder of ours (never anything else)")

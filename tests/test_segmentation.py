@@ -217,6 +217,8 @@ def test_to_grey_matches_the_bgr_weights(dtype):
     assert to_grey("frame", blue, (dtype,)) is blue
     with pytest.raises(ValueError, match="frame to have dtype int16; got"):
         to_grey("frame", bgr, (np.int16,))
+    with pytest.raises(ValueError, match="Expected order 'BGR' or 'RGB'; got 'bgr'"):
+        to_grey("frame", bgr, (dtype,), "bgr")
 
 
 def test_config_validation_and_loading(tmp_path):

@@ -79,7 +79,10 @@ def to_grey(name: str, image, dtypes: Sequence[type | np.dtype], order: str = "B
     Returns:
         (H, W) of ``image``'s dtype.
     """
-    code = {"BGR": cv2.COLOR_BGR2GRAY, "RGB": cv2.COLOR_RGB2GRAY}[order]
+    codes = {"BGR": cv2.COLOR_BGR2GRAY, "RGB": cv2.COLOR_RGB2GRAY}
+    if order not in codes:
+        raise ValueError(f"Expected order 'BGR' or 'RGB'; got {order!r}")
+    code = codes[order]
     if not isinstance(image, np.ndarray):
         raise ValueError(f"Expected {name} to be a numpy array; got {type(image).__name__}")
     if image.dtype not in dtypes:

@@ -67,7 +67,7 @@ class ViewGridConfig:
         if abs(per_turn - n_theta) > 1e-9 * per_turn:
             below, above = _dividing_steps(self.azimuth_step_deg)
             wrap = 360.0 - (n_theta - 1) * self.azimuth_step_deg
-            raise ConfigError(f"views.azimuth_step_deg={self.azimuth_step_deg:g} must divide 360 (e.g. {below:g} or "
+            raise ConfigError(f"views.azimuth_step_deg={self.azimuth_step_deg:.12g} must divide 360 (e.g. {below:g} or "
                               f"{above:g}): 360/{self.azimuth_step_deg:g} = {per_turn:.4g} azimuths would leave a step "
                               f"of {wrap:.3g}° where they wrap")
 
