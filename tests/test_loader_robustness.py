@@ -131,5 +131,9 @@ def test_numpy_scale_is_a_number(car):
 def test_zero_extent_mesh_names_file_and_size(tmp_path):
     path = tmp_path / "point.obj"
     path.write_text("v 1 2 3\nv 1 2 3\nv 1 2 3\nf 1 2 3\n")
-    with pytest.raises(ValueError, match=r"point\.obj: size 0 × 0 × 0 m: all its vertices coincide"):
+    with pytest.raises(ValueError, match=r"point\.obj: size 0 × 0 × 0 m: flat along x"):
         load_vehicle(path)
+    plane = tmp_path / "plane.obj"  # 4 x 2 m, no height: it would cast a line, not a vehicle's silhouette
+    plane.write_text("v 0 0 0\nv 4 0 0\nv 4 2 0\nv 0 2 0\nf 1 2 3\nf 1 3 4\n")
+    with pytest.raises(ValueError, match=r"plane\.obj: size 4 × 2 × 0 m: flat along z .*a vehicle has a size"):
+        load_vehicle(plane)

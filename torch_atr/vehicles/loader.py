@@ -309,11 +309,12 @@ def _file_rotation(path: Path, up_axis: str, forward_axis: str) -> np.ndarray:
 
 def _check_size(path: Path, vertices: np.ndarray, scale: float) -> None:
     """ValueError naming the file and its size when body-frame ``vertices`` (M, 3), metres, are mis-scaled
-    or all coincide."""
+    or flat (no size along some axis: a plane or a line casts no vehicle's silhouette)."""
     extents = np.ptp(vertices, axis=0)
     size = " × ".join(f"{e:.3g}" for e in extents)
-    if not extents.max() > 0:
-        raise ValueError(f"{path}: size {size} m: all its vertices coincide")
+    if not extents.min() > 0:
+        raise ValueError(f"{path}: size {size} m: flat along {'xyz'[int(np.argmin(extents))]} (body frame: x forward, "
+                         f"y left, z up); a vehicle has a size along every axis")
     if extents.max() > MAX_EXTENT_M:
         raise ValueError(f"{path}: {size} m at scale {scale:g} is too big for a vehicle (at most {MAX_EXTENT_M:g} m "
                          f"along each axis); check its scale or length (millimetres or centimetres read as metres?)")
