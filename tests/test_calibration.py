@@ -170,7 +170,7 @@ def test_find_checkerboard_in_an_image_too_small_for_the_detector_finds_none(sha
     """A 10 x 10 image raised OpenCV's adaptiveThreshold assertion instead of finding no board."""
     assert find_checkerboard(np.zeros(shape, np.uint8), PATTERN) is None
     assert find_checkerboard(np.zeros((15, 2000), np.uint8), (3, 3)) is None  # the smallest side it runs on
-    with pytest.raises(ValueError, match=r"at least 3 x 3 inner corners; got \(2, 5\)"):  # OpenCV's least
+    with pytest.raises(ValueError, match=r"at least 3 x 3 inner corners \(the fewest OpenCV finds\); got \(2, 5\)"):
         find_checkerboard(np.zeros((H, W), np.uint8), (2, 5))
 
 

@@ -334,9 +334,10 @@ def test_fit_rejects_bad_inputs(data):
                                  ["car", "tank"], TEMPLATE)
     with pytest.raises(ValueError, match="out of range"):
         GenerativeShapeModel.fit(data["templates"], data["theta"], data["phi"], NAMES, CLASSES, ["car"], TEMPLATE)
-    with pytest.raises(ValueError, match=r"vehicle_classes as indices into class_names; got names \['car'"):
-        GenerativeShapeModel.fit(data["templates"], data["theta"], data["phi"], NAMES, ["car", "tank"] * 3,
-                                 ["car", "tank"], TEMPLATE)
+    for names in (["car", "tank"] * 3, np.array(["car", "tank"] * 3)):  # a list or an array of names
+        with pytest.raises(ValueError, match=r"vehicle_classes as indices into class_names; got names \['car'"):
+            GenerativeShapeModel.fit(data["templates"], data["theta"], data["phi"], NAMES, names, ["car", "tank"],
+                                     TEMPLATE)
     bad = data["templates"].clone()
     bad[1, 2, 3, 4] = math.nan
     with pytest.raises(ValueError, match=r"Expected finite templates; 1 value\(s\) are NaN or infinite"):

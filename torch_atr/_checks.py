@@ -102,3 +102,16 @@ def describe_array(value) -> str:
     if isinstance(value, np.ndarray):
         return f"shape {value.shape}, dtype {value.dtype}"
     return f"a {type(value).__name__}"
+
+
+def check_pattern(pattern) -> tuple[int, int]:
+    """A checkerboard's (columns, rows) of inner corners as ints, at least 3 x 3 (the fewest
+    ``cv2.findChessboardCorners`` takes: fewer is a cv2.error). ValueError naming the value."""
+    try:
+        cols, rows = (int(p) for p in pattern)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"Expected pattern to be (columns, rows) of inner corners; got {pattern!r}") from exc
+    if cols < 3 or rows < 3:
+        raise ValueError(f"Expected pattern to have at least 3 x 3 inner corners (the fewest OpenCV finds); "
+                         f"got {pattern!r}")
+    return cols, rows

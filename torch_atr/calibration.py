@@ -31,7 +31,7 @@ import cv2
 import numpy as np
 import torch
 
-from torch_atr._checks import as_float_tensor, check_shape, to_grey
+from torch_atr._checks import as_float_tensor, check_pattern, check_shape, to_grey
 from torch_atr.camera import Camera
 
 logger = logging.getLogger(__name__)
@@ -164,16 +164,6 @@ def camera_from_focal(f: float, width: int, height: int,
     return Camera(float(f), float(f), float(cx), float(cy), width, height)
 
 
-def _check_pattern(pattern) -> tuple[int, int]:
-    try:
-        cols, rows = (int(p) for p in pattern)
-    except (TypeError, ValueError) as exc:
-        raise ValueError(f"Expected pattern to be (columns, rows) of inner corners; got {pattern!r}") from exc
-    if cols < 3 or rows < 3:  # cv2.findChessboardCorners refuses fewer with a cv2.error
-        raise ValueError(f"Expected pattern to have at least 3 x 3 inner corners; got {pattern!r}")
-    return cols, rows
-
-
 def _board_points(pattern: tuple[int, int], square_m: float) -> np.ndarray:
     """(P, 3) float32 board corners in the floor frame, row by row: corner k at (k % cols, k // cols, 0) · square."""
     if not square_m > 0:
@@ -213,7 +203,7 @@ def find_checkerboard(image: np.ndarray, pattern: tuple[int, int]) -> np.ndarray
         (P, 2) float32 pixels, P = columns · rows, row by row in the floor-frame order of the
         module docstring (corner k sits at board position (k % columns, k // columns)).
     """
-    cols, rows = _check_pattern(pattern)
+    cols, rows = check_pattern(pattern)
     grey = to_grey("image", image, (np.uint8,))
     if min(grey.shape) < _MIN_DETECTOR_SIDE:
         return None
@@ -284,7 +274,7 @@ def calibrate_checkerboard(images: Sequence[np.ndarray], pattern: tuple[int, int
     if extra:
         raise ValueError(f"Expected flags without {' or '.join(extra)}: Camera keeps only the distortion "
                          f"(k1, k2, p1, p2, k3); got flags={flags}")
-    pattern = _check_pattern(pattern)
+    pattern = check_pattern(pattern)
     obj = _board_points(pattern, square_m)
     if len(images) < 3:
         raise ValueError(f"Expected at least 3 checkerboard images; got {len(images)}")
@@ -330,7 +320,7 @@ def floor_pose(camera: Camera, image: np.ndarray, pattern: tuple[int, int], squa
         A copy of ``camera`` whose R, t map the floor frame of the module docstring to the
         sensor frame.
     """
-    pattern = _check_pattern(pattern)
+    pattern = check_pattern(pattern)
     obj = _board_points(pattern, square_m)
     grey = to_grey("image", image, (np.uint8,))
     if grey.shape != (camera.height, camera.width):

@@ -21,7 +21,7 @@ import math
 import numpy as np
 import torch
 
-from torch_atr._checks import check_shape
+from torch_atr._checks import check_pattern, check_shape
 from torch_atr.camera import Camera
 
 SUPERSAMPLE = 4  # sub-samples per pixel side
@@ -42,10 +42,7 @@ def render_checkerboard(camera: Camera, pattern: tuple[int, int], square_m: floa
     Returns:
         (height, width) uint8 grey image.
     """
-    cols, rows = (int(p) for p in pattern)
-    if cols < 3 or rows < 3:
-        raise ValueError(f"Expected pattern to have at least 3 x 3 inner corners (the fewest OpenCV finds); "
-                         f"got {pattern!r}")
+    cols, rows = check_pattern(pattern)
     if not (0 < square_m < math.inf and 0 <= noise < math.inf):
         raise ValueError(f"Expected a positive square_m and noise >= 0; got {square_m}, {noise}")
     if bool(camera.dist.abs().sum() > 0):

@@ -14,6 +14,7 @@ from collections import OrderedDict
 from collections.abc import Sequence
 from pathlib import Path
 
+import numpy as np
 import torch
 from torch import nn
 from tqdm import tqdm
@@ -145,9 +146,11 @@ class GenerativeShapeModel(nn.Module):
         if not bool(templates.isfinite().all()):
             raise ValueError(f"Expected finite templates; {int((~templates.isfinite()).sum())} value(s) are NaN or "
                              f"infinite")
-        if isinstance(vehicle_classes, (list, tuple)) and any(isinstance(c, str) for c in vehicle_classes):
+        if not isinstance(vehicle_classes, torch.Tensor) and any(  # a list, tuple or array of names
+                isinstance(c, str) for c in np.ravel(np.asarray(vehicle_classes, dtype=object))):
             raise ValueError(f"Expected vehicle_classes as indices into class_names; got names "
-                             f"{list(vehicle_classes)[:3]}... (e.g. [class_names.index(c) for c in classes])")
+                             f"{[str(c) for c in vehicle_classes][:3]}... "
+                             f"(e.g. [class_names.index(c) for c in classes])")
         labels = torch.as_tensor(vehicle_classes, dtype=torch.long, device=templates.device)
         check_shape("vehicle_classes", labels, (K,))
         if not 0 <= labels.min() <= labels.max() < len(class_names):
