@@ -69,7 +69,7 @@ def test_a_section_keeps_its_own_defaults_for_the_keys_not_given(tmp_path):
     ("template:\n  size_px: 100000\n", r"size_px must be in \[8, 512\]; got 100000"),
     ("template:\n  tau_px: .inf\n", "template.tau_px: expected a finite number; got inf"),
     ("template:\n  tau_px: .nan\n", "template.tau_px: expected a finite number; got nan"),
-    ("template:\n  tau_px: 1e400\n", "template.tau_px: expected a finite number; got '1e400'"),
+    ("template:\n  tau_px: 1e400\n", "template.tau_px: expected a finite number; got inf"),
     ("template:\n  window_m: 1e-300\n", r"window_m must be in \[0.1, 1000\] metres; got 1e-300"),
     ("model:\n  ridge: 1e300\n", r"model.ridge must be in \[0, 1000\]; got 1e\+300"),
     ("model:\n  init_width: 100\n", r"model.init_width must be in \[0.001, 4\]"),
@@ -239,10 +239,14 @@ def test_paths_from_config_files_expand_the_home_folder(tmp_path, monkeypatch):
 
 
 def test_type_errors_say_what_was_expected_in_words():
-    from torch_atr.config import check_type
+    from torch_atr.config import check_type, parse_yaml
 
     with pytest.raises(ConfigError, match=r"^name: expected text or null; got 2024 \(quote it for text\)$"):
         check_type("name", 2024, str | None)  # a catalog's name: 2024 (YAML reads a number)
     with pytest.raises(ConfigError, match=r"^length: expected a number or null; got '5'$"):
         check_type("length", "5", float | None)  # quoted: text, as the README says
-    assert check_type("ridge", "1e-3", float) == 0.001 and check_type("x", "-2.5E+2", float) == -250.0  # YAML 1.1 text
+    with pytest.raises(ConfigError, match=r"^ridge: expected a number; got '1e-3'$"):
+        check_type("ridge", "1e-3", float)  # quoted, an exponent is text too
+    # unquoted, an exponent without a dot is a number (YAML 1.2; 1.1 reads it as text), in a file or an override
+    assert parse_yaml("a: 1e-3\nb: -2.5E+2\nc: '1e-3'\nd: 1.5e3\ne: 7\n") == {"a": 0.001, "b": -250.0, "c": "1e-3",
+                                                                                 "d": 1500.0, "e": 7}

@@ -59,7 +59,6 @@ class TemplateConfig:
         return self.window_m / self.size_px
 
 
-_EXPONENT = re.compile(r"[-+]?(\d+\.?\d*|\.\d+)[eE][-+]?\d+")  # what YAML 1.1 leaves as text: 1e-3, 5E+2
 _KINDS = {bool: "true/false", int: "an integer", float: "a number", str: "text", type(None): "null"}
 
 
@@ -116,8 +115,6 @@ def check_type(key: str, value: Any, tp: Any) -> Any:
                 number = float(value)
             except OverflowError:  # an integer beyond float's range
                 number = math.inf
-        elif isinstance(value, str) and _EXPONENT.fullmatch(value.strip()):  # YAML 1.1 reads 1e-3 (no dot) as text;
-            number = float(value)  # any other text, a quoted '5' too, is not a number
         if number is None:
             raise ConfigError(f"{key}: expected a number; got {show(value)}")
         if not math.isfinite(number):
@@ -208,6 +205,12 @@ class _UniqueKeyLoader(yaml.SafeLoader):
                         None, None, f"key {show(key)} repeated (first on line {first[key]})", key_node.start_mark)
                 first[key] = key_node.start_mark.line + 1
         return super().construct_mapping(node, deep=deep)
+
+
+# YAML 1.1 reads a number with an exponent and no dot (1e-3, 5E+2) as text; YAML 1.2, and a reader
+# of a config, as a number. Quoted, it stays text, as a quoted '5' does.
+_UniqueKeyLoader.add_implicit_resolver("tag:yaml.org,2002:float", re.compile(r"^[-+]?(?:[0-9]+\.?[0-9]*|\.[0-9]+)"
+                                                                            r"[eE][-+]?[0-9]+$"), list("-+0123456789."))
 
 
 def parse_yaml(text: str):

@@ -108,7 +108,7 @@ def read_catalog_manifest(folder: str | Path) -> list[CatalogEntry]:
         kw = {}
         for key, value in item.items():
             field = _ENTRY_KEYS[key]
-            try:  # YAML 1.1 reads 1e-3 as a string: check_type takes it as the number
+            try:
                 kw[field] = check_type(key, value, types[field])
             except ConfigError as exc:
                 raise ValueError(f"{where}: {exc}") from None
