@@ -119,6 +119,25 @@ def test_heldout_figure_is_checked_up_front(capsys, tmp_path):
     assert figure.read_bytes() == FAKE_MATPLOTLIB_PNG
 
 
+def test_real_figures_are_recognised_as_matplotlib_pngs(tmp_path):
+    """The check --figure's --overwrite relies on, on figures matplotlib writes and on the shipped
+    ones in docs/ (the fake PNG above only mirrors what the check looks for)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    from matplotlib import pyplot as plt
+
+    fig, ax = plt.subplots()
+    ax.plot([0, 1], [1, 0])
+    fig.savefig(tmp_path / "real.png")
+    plt.close(fig)
+    is_ours = script("benchlib")._is_matplotlib_png
+    shipped = sorted((Path(__file__).resolve().parents[1] / "docs").glob("*.png"))
+    assert shipped and all(is_ours(p) for p in [tmp_path / "real.png", *shipped])
+    (tmp_path / "photo.png").write_bytes(b"\x89PNG\r\n\x1a\n" + b"\x00" * 64)
+    assert not is_ours(tmp_path / "photo.png")
+
+
 def test_json_of_ours_is_replaced_only_with_overwrite(tmp_path):
     benchlib = script("benchlib")
     out = tmp_path / "out.json"
