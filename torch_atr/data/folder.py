@@ -187,8 +187,9 @@ def _write_truth_csv(path: Path, truths: list[FrameTruth | None]) -> None:
 
 def _read_truth_csv(path: Path, n: int) -> list[FrameTruth | None]:
     """Rows of ``truth.csv``: a FrameTruth per row, None for a row of empty cells. Numbers must be
-    finite (an empty cell is unknown); more rows than the ``n`` frames stop the reading; blank
-    lines at the end are ignored, elsewhere refused."""
+    finite (an empty cell is unknown); more rows than the ``n`` frames are refused, naming the
+    first one past them; blank lines at the end are ignored, elsewhere refused. (The file is read
+    whole, within ``read_text``'s size bound.)"""
     truths: list[FrameTruth | None] = []
     reader = csv.reader(io.StringIO(read_text(path), newline=""))
     try:

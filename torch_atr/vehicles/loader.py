@@ -352,7 +352,9 @@ def _read_mesh(path: Path, process: bool) -> trimesh.Trimesh:
     """The mesh a file holds, as one Trimesh (merged and cleaned by trimesh when ``process``);
     ValueError naming the file when it cannot be read, holds no triangles or has non-finite
     vertices. The file is read unprocessed first: trimesh's processing drops the faces of a NaN
-    vertex without a word. OBJ and OFF text is decoded by :func:`_mesh_text`."""
+    vertex without a word. OBJ and OFF text is decoded by :func:`_mesh_text`; other text formats
+    (ASCII STL, PLY) trimesh decodes itself, guessing a non-UTF-8 encoding only when the optional
+    ``charset_normalizer`` is installed, and refused here (saying so) when it is not."""
     note = ""
     try:
         if path.suffix.lower() in _TEXT_MESHES:
