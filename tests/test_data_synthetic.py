@@ -309,6 +309,10 @@ def test_open_sequence_spec(tmp_path):
 def test_config_errors_name_the_field():
     with pytest.raises(ConfigError, match=r"noise_k=-1"):
         SceneConfig(noise_k=-1)
+    for key, value in (("body_k", 1e300), ("ground_gradient_k", 1e308), ("noise_k", 1e300), ("clutter_k", 1e300),
+                       ("top_delta_k", -1e308)):  # they overflowed in the renderer (NaN frames)
+        with pytest.raises(ConfigError, match=re.escape(f"{key}={value!r} (expected") + ".*10000"):
+            SceneConfig(**{key: value})
     with pytest.raises(ConfigError, match=r"occluder_range_m=990"):
         SceneConfig(occluder_range_m=990.0)
     with pytest.raises(ValueError, match="SceneConfig"):

@@ -136,6 +136,7 @@ REAR_ENGINE_CLASSES = frozenset({"tank", "apc", "unknown"})
 
 COUNTS_PER_K = 100.0  # counts per kelvin of apparent temperature
 ZERO_COUNT_K = 230.0  # apparent temperature read as 0 counts
+_MAX_K = 1e4  # bound on a scene's temperatures, differences and noise (the sensor saturates near 394 K): no overflow
 MAX_COUNT = 2 ** 14 - 1  # 14-bit sensor
 
 # Geometric part split (fractions of the mesh height / chassis length, body frame).
@@ -252,12 +253,12 @@ class SceneConfig:
             "focal_px": (0 < self.focal_px <= 1e6, "in (0, 1e6]"),
             "camera_height_m": (0 < self.camera_height_m <= MAX_CAMERA_HEIGHT_M, f"in (0, {MAX_CAMERA_HEIGHT_M:g}]"),
             "tilt_deg": (self.tilt_deg is None or -45 <= self.tilt_deg <= 45, "in [-45, 45] or null"),
-            "ground_gradient_k": (math.isfinite(self.ground_gradient_k), "finite"),
-            "clutter_k": (0 <= self.clutter_k < math.inf, ">= 0"),
+            "ground_gradient_k": (abs(self.ground_gradient_k) <= _MAX_K, f"in [-{_MAX_K:g}, {_MAX_K:g}]"),
+            "clutter_k": (0 <= self.clutter_k <= _MAX_K, f"in [0, {_MAX_K:g}]"),
             "clutter_scale_px": (0 < self.clutter_scale_px <= _MAX_BLUR_PX, f"in (0, {_MAX_BLUR_PX:g}]"),
             "clutter_stretch": (0 < self.clutter_stretch and self.clutter_scale_px * self.clutter_stretch <= _MAX_BLUR_PX,
                                 f"positive, clutter_scale_px x clutter_stretch at most {_MAX_BLUR_PX:g} px"),
-            "noise_k": (0 <= self.noise_k < math.inf, ">= 0"),
+            "noise_k": (0 <= self.noise_k <= _MAX_K, f"in [0, {_MAX_K:g}]"),
             "extinction_per_km": (0 <= self.extinction_per_km < math.inf, ">= 0"),
             "psf_sigma_px": (0 <= self.psf_sigma_px <= _MAX_BLUR_PX, f"in [0, {_MAX_BLUR_PX:g}]"),
             "psf_sigma_per_km": (0 <= self.psf_sigma_per_km and self.psf_sigma <= _MAX_BLUR_PX,
@@ -283,8 +284,9 @@ class SceneConfig:
         }
         for key in _NIGHT:
             value = getattr(self, key)
-            checks[key] = (value is None or (math.isfinite(value) and (key == "top_delta_k" or value > ZERO_COUNT_K)),
-                           "null or finite" if key == "top_delta_k" else f"null or above {ZERO_COUNT_K:g} K")
+            checks[key] = (value is None or (abs(value) <= _MAX_K and (key == "top_delta_k" or value > ZERO_COUNT_K)),
+                           f"null or in [-{_MAX_K:g}, {_MAX_K:g}] K" if key == "top_delta_k"
+                           else f"null or in ({ZERO_COUNT_K:g}, {_MAX_K:g}] K")
         bad = [f"{k}={getattr(self, k)!r} (expected {why})" for k, (ok, why) in checks.items() if not ok]
         if bad:
             raise ConfigError("scene: bad value(s) " + "; ".join(bad))
