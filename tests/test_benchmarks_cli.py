@@ -148,6 +148,10 @@ def test_json_of_ours_is_replaced_only_with_overwrite(tmp_path):
     assert benchlib.json_output(out, True, "bench_x") == out
     with pytest.raises(FileExistsError, match="is not a bench_y JSON"):
         benchlib.json_output(out, True, "bench_y")
+    # a NaN (a run without an estimate, say) is written null: strict JSON, still ours to replace
+    benchlib.write_json({"runs": [{"x": float("nan"), "y": [float("inf"), 1.5]}]}, out, "bench_x")
+    assert json.loads(out.read_text(), parse_constant=pytest.fail)["runs"] == [{"x": None, "y": [None, 1.5]}]
+    assert benchlib.json_output(out, True, "bench_x") == out
 
 
 def test_tracking_runs_from_elsewhere_with_labels_of_its_settle(tmp_path, monkeypatch, caplog):
