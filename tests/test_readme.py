@@ -1,6 +1,7 @@
 """The README's Python examples run as written, from the repository root, and give what their
 comments say (shapes, dtypes, values)."""
 
+import math
 import re
 from pathlib import Path
 
@@ -46,6 +47,17 @@ def test_api_tour_model(monkeypatch):
     assert ((sd > 0) == masks).all()  # "positive inside"
     assert y.shape == (2, 64, 64)
     assert isinstance(mask, torch.Tensor) and mask.shape == (512, 640) and mask.dtype == torch.bool and mask.any()
+    # the lines whose value the README only names in a comment
+    model, alpha, catalog = ns["model"], ns["alpha"], {v.name: v.cls for v in ns["vehicles"]}
+    assert len(ns["load_catalog"]("test")) == 8  # "test": 8 held-out
+    assert ns["t72"].joints["turret_yaw"] == 0.5  # articulated turret
+    own = ns["own"]
+    assert own.cls == "pickup" and own.mesh.extents.argmax() == 0 and 4 < own.mesh.extents[0] < 7  # forward: x
+    classes = [model.class_names[int(c)] for c in model.classify(alpha)]
+    assert classes == [catalog[name] for name in model.vehicle_names[:2]]  # the training vehicles' own classes
+    assert model.nearest_vehicles(alpha, k=2)[:, 0].tolist() == [0, 1]  # each is its own nearest
+    theta, phi = ns["view_of_pose"](ns["pose"], ns["camera"])  # the camera 3 m above, 1000 m away, side-on
+    assert abs(float(phi) - math.atan2(3.0, 1000.0)) < 1e-9 and abs(abs(math.sin(float(theta))) - 1) < 1e-9
 
 
 def test_api_tour_segmentation(monkeypatch):
@@ -57,8 +69,12 @@ def test_api_tour_segmentation(monkeypatch):
 @pytest.mark.parametrize("index", range(len(BLOCKS)))
 def test_blocks_use_only_public_names(index):
     """Examples import from the package's public modules, never a private name."""
-    imports = re.findall(r"^from (\S+) import (.+)$", BLOCKS[index], re.M)
+    text = re.sub(r"\(([^)]*)\)", lambda m: m.group(1).replace("\n", " "), BLOCKS[index])  # (a,\n b) on one line
+    imports = re.findall(r"^from (\S+) import (.+)$", text, re.M)
+    modules = [m for line in re.findall(r"^import (.+)$", text, re.M) for m in line.split(",")]
     assert imports
     for module, names in imports:
         assert not any(part.startswith("_") for part in module.split(".")), module
         assert not any(name.strip().startswith("_") for name in names.split(",")), names
+    for module in modules:  # import pkg._private
+        assert not any(part.startswith("_") for part in module.split(" as ")[0].strip().split(".")), module
