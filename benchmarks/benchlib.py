@@ -19,7 +19,7 @@ from pathlib import Path
 from torch_atr.config import ConfigError
 from torch_atr.data.synthetic import SceneConfig, SyntheticSequence
 from torch_atr.io import atomic_write_text, check_output_file, check_writable
-from torch_atr.validate import read_json_object
+from torch_atr.validate import read_json_object, real
 
 log = logging.getLogger("benchmarks")
 
@@ -30,10 +30,9 @@ MATPLOTLIB_PNG = b"tEXtSoftware\x00Matplotlib"  # the text chunk matplotlib writ
 
 
 def check_at_least(flag: str, values: float | list[float], low: float) -> None:
-    """Raise ConfigError naming ``--flag`` unless each of ``values`` (one or a list) is a finite number >= ``low``."""
-    for value in values if isinstance(values, list) else [values]:
-        if not (math.isfinite(value) and value >= low):
-            raise ConfigError(f"--{flag} must be at least {low:g}; got {value:g}")
+    """``validate.real`` of each of ``values`` (one or a list) naming ``--flag``: a finite number >= ``low``."""
+    for value in values if isinstance(values, (list, tuple)) else [values]:
+        real(f"--{flag}", value, lo=low)
 
 
 def json_output(path: str | Path | None, overwrite: bool, benchmark: str) -> Path | None:
