@@ -264,6 +264,26 @@ def test_clean_mask_matches_scipy(open_px, close_px):
     np.testing.assert_array_equal(clean_mask(mask, open_px, close_px), ref)
 
 
+@pytest.mark.parametrize("open_px, close_px", [(3, 5), (5, 7), (0, 7), (3, 0), (1, 1)])
+def test_clean_mask_equals_the_whole_frames_filter(open_px, close_px):
+    # clean_mask filters only the foreground's box and a margin: the reference is OpenCV's filters
+    # on the whole frame, with blobs on the image's edges, near each other and alone.
+    rng = np.random.default_rng(8)
+    for trial in range(20):
+        mask = np.zeros((70, 90), bool)
+        for _ in range(rng.integers(1, 4)):
+            r, c = rng.integers(-5, 70), rng.integers(-5, 90)
+            h, w = rng.integers(1, 25, size=2)
+            mask[max(r, 0):r + h, max(c, 0):c + w] = rng.random((len(range(70)[max(r, 0):r + h]),
+                                                                 len(range(90)[max(c, 0):c + w]))) < 0.7
+        ref = mask.astype(np.uint8)
+        for op, size in ((cv2.MORPH_OPEN, open_px), (cv2.MORPH_CLOSE, close_px)):
+            if size > 1:
+                ref = cv2.morphologyEx(ref, op, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (size, size)))
+        np.testing.assert_array_equal(clean_mask(mask, open_px, close_px), ref.astype(bool), err_msg=f"trial {trial}")
+    assert not clean_mask(np.zeros((5, 6), bool), 3, 5).any()
+
+
 def test_clean_mask_removes_specks_and_fills_holes():
     mask = _rect(40, 40, 30, 20)
     mask[50, 55] = False  # a hole

@@ -159,11 +159,31 @@ def clean_mask(mask: np.ndarray, open_px: int, close_px: int) -> np.ndarray:
     """
     _check_count("open_px", open_px)
     _check_count("close_px", close_px)
-    m = _check_mask(mask).astype(np.uint8)
+    m = _check_mask(mask)
+    out = np.zeros_like(m)
+    box = _foreground_box(m, 2 * (open_px // 2 + close_px // 2) + 1)
+    if box is None:
+        return out
+    # Only the foreground's box is filtered, grown by more than the opening and the closing reach:
+    # beyond that margin the result is background, and inside it the same as the whole frame's.
+    region = m[box].view(np.uint8)
     for op, size in ((cv2.MORPH_OPEN, open_px), (cv2.MORPH_CLOSE, close_px)):
         if size > 1:
-            m = cv2.morphologyEx(m, op, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (size, size)))
-    return m.astype(bool)
+            region = cv2.morphologyEx(region, op, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (size, size)))
+    out[box] = region.view(bool)
+    return out
+
+
+def _foreground_box(mask: np.ndarray, margin: int = 0) -> tuple[slice, slice] | None:
+    """The (rows, cols) slices of the box holding a (H, W) bool mask's foreground, grown by ``margin``
+    pixels and clipped to the image; None when there is none."""
+    rows = np.flatnonzero(mask.any(1))
+    if rows.size == 0:
+        return None
+    cols = np.flatnonzero(mask.any(0))
+    H, W = mask.shape
+    return (slice(max(rows[0] - margin, 0), min(rows[-1] + margin + 1, H)),
+            slice(max(cols[0] - margin, 0), min(cols[-1] + margin + 1, W)))
 
 
 def select_blob(mask: np.ndarray, near: tuple[float, float] | None = None, min_area: int = 0) -> np.ndarray:
@@ -187,12 +207,12 @@ def select_blob(mask: np.ndarray, near: tuple[float, float] | None = None, min_a
             raise ValueError(f"Expected near to be a pixel (u, v); got {near!r}") from exc
         if not (np.isfinite(u) and np.isfinite(v)):
             raise ValueError(f"Expected near to be finite; got {near!r}")
-    points = cv2.findNonZero(m.view(np.uint8))  # foreground (x, y): (P, 1, 2) or (P, 2), or None
     out = np.zeros_like(m)
-    if points is None:
+    box = _foreground_box(m)  # components are found inside the foreground's box only
+    if box is None:
         return out
-    x0, y0, w, h = cv2.boundingRect(points)  # components are found inside the foreground's box only
-    n, labels, stats, _ = cv2.connectedComponentsWithStats(m[y0:y0 + h, x0:x0 + w].view(np.uint8), connectivity=8)
+    y0, x0 = box[0].start, box[1].start
+    n, labels, stats, _ = cv2.connectedComponentsWithStats(m[box].view(np.uint8), connectivity=8)
     areas = stats[:, cv2.CC_STAT_AREA]
     valid = areas >= max(min_area, 1)
     valid[0] = False  # label 0 is the background
@@ -201,13 +221,13 @@ def select_blob(mask: np.ndarray, near: tuple[float, float] | None = None, min_a
     if near is None:
         keep = int(np.argmax(np.where(valid, areas, -1)))
     else:  # the foreground pixel of a valid component nearest to (u, v)
-        xy = points.reshape(-1, 2)
-        cols, rows = xy[:, 0] - x0, xy[:, 1] - y0
+        xy = cv2.findNonZero(m[box].view(np.uint8)).reshape(-1, 2)  # the foreground's (x, y) in the box
+        cols, rows = xy[:, 0], xy[:, 1]
         own = labels[rows, cols]
         ok = valid[own]
         d2 = (cols[ok] + x0 - u) ** 2 + (rows[ok] + y0 - v) ** 2
         keep = own[ok][np.argmin(d2)]
-    out[y0:y0 + h, x0:x0 + w] = labels == keep
+    out[box] = labels == keep
     return out
 
 
@@ -731,7 +751,7 @@ class ForegroundSegmenter:
             self._background = self._mog.background_image()
         found = np.flatnonzero(mask.any(1))
         self._last_rows = (int(found[0]), int(found[-1]) + 1) if found.size else None
-        fraction = mask.mean()
+        fraction = np.count_nonzero(mask) / mask.size
         if fraction == 0:
             logger.debug("empty foreground mask")
         elif fraction > 0.5:

@@ -474,7 +474,7 @@ class Tracker:
         if mask is None:
             mask = self.segmenter(frame, near=near, exclude=box)
         self.last_mask = mask
-        area = int(mask.sum())
+        area = np.count_nonzero(mask)
         observed = 0 < area <= self.cfg.filter.max_foreground * mask.size
         clear = observed and clear_of_border(mask, self.cfg.init.border_px)
         point = (self._frames, self._clock, blob_column(mask)) if clear else None
