@@ -449,69 +449,71 @@ def test_colour_frames_are_rgb_like_the_sequences():
 
 
 @pytest.mark.parametrize("threads", [1, 2])
-def test_mog2_bands_are_one_models_masks_and_background(threads):
-    """The segmenter's MOG2 runs on bands of rows, one model each: against one OpenCV model of the
-    whole frame, the same masks (at both thresholds, learning or not) and background image, and
-    a comparison of some bands gives those rows' masks and leaves the rest untouched."""
+def test_mog2_tiles_are_one_models_masks_and_background(threads):
+    """The segmenter's MOG2 runs on tiles, one model each: against one OpenCV model of the whole
+    frame, the same masks (at both thresholds, learning or not) and background image, and a
+    comparison of a box gives the masks of the tiles that meet it and leaves the rest untouched."""
     rng = np.random.default_rng(0)
     texture = _background(rng)
     before = cv2.getNumThreads()
     cv2.setNumThreads(threads)
     try:
-        bands = segmentation._BandedMOG2((H, W), 200, 36.0, False)
+        tiles = segmentation._TiledMOG2((H, W), 200, 36.0, False)
     finally:
         cv2.setNumThreads(before)
     one = cv2.createBackgroundSubtractorMOG2(history=200, varThreshold=36.0, detectShadows=False)
     for _ in range(30):
         image = _frame("uint8", texture, [], rng)
-        np.testing.assert_array_equal(bands.apply(image, -1), one.apply(image, learningRate=-1))
+        np.testing.assert_array_equal(tiles.apply(image, -1), one.apply(image, learningRate=-1))
     for t in range(12):
         image = _frame("uint8", texture, [_rect(10 + 9 * t, 30 + 4 * t, 25, 12), _rect(120, 100, 20, 10)], rng)
-        np.testing.assert_array_equal(bands.apply(image, 0.0), one.apply(image, learningRate=0.0))
+        np.testing.assert_array_equal(tiles.apply(image, 0.0), one.apply(image, learningRate=0.0))
         one.setVarThreshold(9.0)
         low = one.apply(image, learningRate=0.0)
         one.setVarThreshold(36.0)
         if t % 2:
-            np.testing.assert_array_equal(bands.apply(image, 0.0, 9.0), low)
-        else:  # rows 40:70 asked for: bands 32:64 and 64:96 compared, nothing else
-            fg_in = bands.rows_of(image, 0.0, 9.0)
-            got = fg_in(40, 70)
-            np.testing.assert_array_equal(got[32:96], low[32:96] == 255)
-            assert not got[:32].any() and not got[96:].any() and low[96:].any()
-            np.testing.assert_array_equal(fg_in(0, H), low == 255)  # the rest, each band once
+            np.testing.assert_array_equal(tiles.apply(image, 0.0, 9.0), low)
+        else:  # rows 40:70, columns 30:70 asked for: the tiles 32:96 by 0:128 compared, nothing else
+            fg_in = tiles.regions_of(image, 0.0, 9.0)
+            got = fg_in(40, 70, 30, 70)
+            np.testing.assert_array_equal(got[32:96, :128], low[32:96, :128] == 255)
+            outside = np.ones((H, W), bool)
+            outside[32:96, :128] = False
+            assert not got[outside].any() and (low[outside] == 255).any()
+            np.testing.assert_array_equal(fg_in(0, H, 0, W), low == 255)  # the rest, each tile once
         if t % 4 == 3:
-            np.testing.assert_array_equal(bands.apply(image, 0.05), one.apply(image, learningRate=0.05))
-    np.testing.assert_array_equal(bands.background_image(), one.getBackgroundImage())
+            np.testing.assert_array_equal(tiles.apply(image, 0.05), one.apply(image, learningRate=0.05))
+    np.testing.assert_array_equal(tiles.background_image(), one.getBackgroundImage())
 
 
-def test_rows_near_the_prediction_give_the_whole_frames_blob(monkeypatch):
-    """Given a prediction, the segmenter compares the rows of the last blob and the predicted pixel
-    (with no last blob, of the predicted box) first, and the whole frame only when the blob it
+def test_pixels_near_the_prediction_give_the_whole_frames_blob(monkeypatch):
+    """Given a prediction, the segmenter compares the tiles round the last blob and the predicted
+    pixel (with no last blob, the predicted box) first, and the whole frame only when the blob it
     chose there might not be the whole frame's choice. Against the same segmenter comparing every
-    row (gain fit and learning off, so the box changes nothing else): the same masks, on random
-    scenes with the prediction on a target, off it, or with a nearer blob just beyond the rows or
+    tile (gain fit and learning off, so the box changes nothing else): the same masks, on random
+    scenes with the prediction on a target, off it, or with a nearer blob just beyond the tiles or
     a small one across their edge."""
     cfg = SegmentationConfig(warmup_frames=30, compensate_gain=False, min_area_px=40, close_px=5, open_px=3)
     rows_used = []
-    rows_of = segmentation._BandedMOG2.rows_of
+    regions_of = segmentation._TiledMOG2.regions_of
 
     def spy(self, image, rate, threshold=None):
-        fg_in = rows_of(self, image, rate, threshold)
+        fg_in = regions_of(self, image, rate, threshold)
         if threshold is None:
             rows_used.append([])
 
-        def logged(r0, r1):
+        def logged(*box):
             if threshold is None:
-                rows_used[-1].append((r0, r1))
-            return fg_in(r0, r1)
+                rows_used[-1].append(box)
+            return fg_in(*box)
         return logged
 
-    def every_row(frame, near):
+    def every_tile(frame, near):
         with monkeypatch.context() as m:
-            m.setattr(segmentation, "_rows_first", lambda *args: None)
+            m.setattr(segmentation, "_region_first", lambda *args: None)
             return whole(frame, near=near)
 
-    monkeypatch.setattr(segmentation._BandedMOG2, "rows_of", spy)
+    monkeypatch.setattr(segmentation._TiledMOG2, "regions_of", spy)
     near_only, whole = _warmed("uint8", 3, cfg)[0], _warmed("uint8", 3, cfg)[0]
     rng = np.random.default_rng(5)
     texture = _warmed("uint8", 3, cfg)[1]
@@ -519,22 +521,24 @@ def test_rows_near_the_prediction_give_the_whole_frames_blob(monkeypatch):
     scenes = [([_rect(60, 50, 30, 14), _rect(100, 90, 12, 12)], (58, 48, 92, 66)),  # target in the box
               ([_rect(60, 52, 30, 14), _rect(100, 90, 12, 12)], (0, 0, W - 1, H - 1)),  # the last blob's rows
               forget, ([_rect(20, 40, 30, 14), _rect(75, 76, 20, 10)], (60, 38, 100, 56)),  # a nearer one below
-              forget, ([_rect(10, 50, 30, 14), _rect(60, 63, 10, 12)], (8, 48, 42, 66)),  # a small one across the edge
-              forget, ([_rect(20, 90, 30, 14)], (60, 20, 90, 40))]  # the prediction off the target
+              forget, ([_rect(10, 50, 30, 14), _rect(55, 63, 10, 12)], (8, 48, 42, 66)),  # a small one across the edge
+              forget, ([_rect(20, 90, 30, 14)], (60, 20, 90, 40)),  # the prediction off the target
+              forget, ([_rect(95, 5, 14, 10), _rect(131, 55, 10, 10)], (92, 5, 110, 115)),  # a nearer one to the right
+              forget, ([_rect(10, 50, 70, 14)], (8, 48, 42, 66))]  # the target reaching beyond the box's side
     for _ in range(25):  # random layouts, each in two frames with one prediction (the second has a last blob)
         rects = [_rect(rng.integers(0, W - 30), rng.integers(0, H - 15), rng.integers(4, 30), rng.integers(4, 15))
                  for _ in range(rng.integers(1, 5))]
         u, v = rng.integers(0, W - 20), rng.integers(0, H - 10)
         scenes += [(rects, (u, v, u + rng.integers(5, 40), v + rng.integers(5, 30)))] * 2
-    first_only = []  # per scene: whether the rows compared first were enough
+    first_only = []  # per scene: whether the pixels compared first were enough
     for targets, box in scenes:
         frame = _frame("uint8", texture, targets, rng)
         near = None if box is None else ((box[0] + box[2]) / 2, (box[1] + box[3]) / 2)
         got = near_only(frame, near=near, exclude=None if box is None else tuple(map(float, box)))
-        first_only.append(len(rows_used[-1]) == 1 and rows_used[-1] != [(0, H)])
-        np.testing.assert_array_equal(got, every_row(frame, near))
-        assert rows_used[-1] == [(0, H)]
-    assert first_only[:8] == [True, True, False, False, False, False, False, False] and sum(first_only) >= 4
+        first_only.append(len(rows_used[-1]) == 1 and rows_used[-1] != [(0, H, 0, W)])
+        np.testing.assert_array_equal(got, every_tile(frame, near))
+        assert rows_used[-1] == [(0, H, 0, W)]
+    assert first_only[:12] == [True, True] + [False] * 10 and sum(first_only) >= 4
 
 
 def _two_threads_segmenter(seed: int) -> tuple[ForegroundSegmenter, np.ndarray]:

@@ -239,10 +239,10 @@ _FOREGROUND_MARGIN_PX = 7  # the detected foreground is grown by this before a s
 _THIN_RING_PX = 1  # thin parts: the ring round the blob that a blur halo fills ...
 _THIN_REACH_PX = 2.0  # ... and how far beyond it a part must reach (3 x 3 chamfer: 3 px straight, 2 diagonally)
 _THIN_SEARCH_PX = (16, 32)  # ... and the margins (rows, columns) round the blob searched first for them
-_BAND_ROWS = 32  # MOG2 runs on bands of this many rows (_BandedMOG2) ...
-_ROWS_MARGIN_PX = 16  # ... and compares those within this of the last blob first (ForegroundSegmenter)
+_TILE_PX = (32, 64)  # MOG2 runs on tiles of this many rows and columns (_TiledMOG2) ...
+_REGION_MARGIN_PX = 16  # ... and compares those within this of the last blob first (ForegroundSegmenter)
 
-Rows = Callable[[int, int], np.ndarray]  # (r0, r1) -> (H, W) bool mask, exact in rows r0:r1
+Region = Callable[[int, int, int, int], np.ndarray]  # (r0, r1, c0, c1) -> (H, W) bool, exact in [r0:r1, c0:c1]
 
 
 def _box_corners(box: Box | None) -> tuple[float, float, float, float] | None:
@@ -273,18 +273,18 @@ def _box_mask(shape: tuple[int, int], box: Box | None) -> np.ndarray:
     return out
 
 
-def _components_holding(blob: np.ndarray, low_in: Rows, rect: tuple[int, int, int, int], ring_px: int
+def _components_holding(blob: np.ndarray, low_in: Region, rect: tuple[int, int, int, int], ring_px: int
                         ) -> tuple[np.ndarray, np.ndarray, tuple[slice, slice]]:
     """The 8-connected components of ``low | blob`` that hold pixels of ``blob`` (whose bounding
     rectangle (x, y, w, h) is ``rect``), and the box that holds them grown by ``ring_px``.
 
     They are labelled in the blob's rectangle grown by ``_THIN_SEARCH_PX`` (16 rows, 32 columns: a
-    gun reaches far sideways, rarely up or down, and every row costs the segmenter a comparison),
+    gun reaches far sideways, rarely up or down, and every tile costs the segmenter a comparison),
     and in the whole frame only when one of them, grown by the ring, would leave that region
     inside the image: the result is the whole frame's either way, at a fraction of the cost (a
     whole 640 x 512 frame of noise at the lower threshold is most of this function's time).
-    ``low_in(r0, r1)`` gives ``low`` exact in rows r0:r1, so a segmenter compares only the rows
-    looked at.
+    ``low_in(r0, r1, c0, c1)`` gives ``low`` exact in rows r0:r1 and columns c0:c1, so a segmenter
+    compares only the pixels looked at.
 
     Returns:
         labels: the labels inside the box; touching: (T,) the labels holding the blob; box: the
@@ -295,7 +295,7 @@ def _components_holding(blob: np.ndarray, low_in: Rows, rect: tuple[int, int, in
     rows, cols = _THIN_SEARCH_PX
     for r0, r1, c0, c1 in ((max(y - rows, 0), min(y + h + rows, H), max(x - cols, 0), min(x + w + cols, W)),
                            (0, H, 0, W)):
-        both = low_in(r0, r1)[r0:r1, c0:c1] | blob[r0:r1, c0:c1]
+        both = low_in(r0, r1, c0, c1)[r0:r1, c0:c1] | blob[r0:r1, c0:c1]
         _, labels, stats, _ = cv2.connectedComponentsWithStats(both.view(np.uint8), connectivity=8)
         touching = np.unique(labels[blob[r0:r1, c0:c1]])
         corner = stats[touching, :2]  # (left, top) of each, then (right, bottom) past its end, in the region
@@ -329,18 +329,18 @@ def extend_thin_parts(blob: np.ndarray, low: np.ndarray, ring_px: int = _THIN_RI
     blob, low = _check_mask(blob), _check_mask(low)
     if low.shape != blob.shape:
         raise ValueError(f"Expected low of the blob's shape {blob.shape}; got {low.shape}")
-    return _extend_thin_parts(blob, lambda r0, r1: low, ring_px, reach_px)
+    return _extend_thin_parts(blob, lambda r0, r1, c0, c1: low, ring_px, reach_px)
 
 
-def _extend_thin_parts(blob: np.ndarray, low_in: Rows, ring_px: int, reach_px: float) -> np.ndarray:
+def _extend_thin_parts(blob: np.ndarray, low_in: Region, ring_px: int, reach_px: float) -> np.ndarray:
     """:func:`extend_thin_parts` of an (H, W) bool ``blob`` (extended in place and returned), with
-    the lower threshold's foreground given row by row: ``low_in(r0, r1)`` is (H, W) bool, exact in
-    rows r0:r1 (:func:`_components_holding`)."""
+    the lower threshold's foreground given box by box: ``low_in(r0, r1, c0, c1)`` is (H, W) bool,
+    exact in rows r0:r1 and columns c0:c1 (:func:`_components_holding`)."""
     points = cv2.findNonZero(blob.view(np.uint8))
     if points is None:
         return blob
     labels, touching, box = _components_holding(blob, low_in, cv2.boundingRect(points), ring_px)
-    out, blob, low = blob, blob[box], low_in(box[0].start, box[0].stop)[box]
+    out, blob, low = blob, blob[box], low_in(box[0].start, box[0].stop, box[1].start, box[1].stop)[box]
     disk = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * ring_px + 1,) * 2)
     ring = cv2.dilate(blob.view(np.uint8), disk).astype(bool)
     beyond = np.isin(labels, touching) & ~ring  # reachable from the blob, outside the ring
@@ -362,52 +362,55 @@ def _extend_thin_parts(blob: np.ndarray, low_in: Rows, ring_px: int, reach_px: f
     return out
 
 
-class _BandedMOG2:
-    """OpenCV's MOG2 on horizontal bands of ``_BAND_ROWS`` rows, one model each.
+class _TiledMOG2:
+    """OpenCV's MOG2 on tiles of ``_TILE_PX`` (rows, columns), one model each.
 
-    MOG2 models every pixel on its own, so the bands give the whole frame's model and masks
+    MOG2 models every pixel on its own, so the tiles give the whole frame's model and masks
     exactly (tests/test_segmentation.py compares them with one model), while a comparison can be
-    limited to the rows it is needed in (``ForegroundSegmenter``, "Rows compared"). A whole-frame
-    call spreads the bands over as many threads as OpenCV uses (``cv2.getNumThreads()``), as
-    OpenCV splits one model's rows; the threads end with the object, and a forked process makes
-    its own. A call on some bands runs them on the calling thread: in the tracker's step, waking a
-    second thread cost more than the bands (2.2 ms against 0.7 for a tank's 3 bands at 1000 m).
+    limited to the pixels it is needed in (``ForegroundSegmenter``, "Region compared"). A
+    whole-frame call spreads the tiles over as many threads as OpenCV uses
+    (``cv2.getNumThreads()``), as OpenCV splits one model's rows; the threads end with the object,
+    and a forked process makes its own. A call on some tiles runs them on the calling thread: in
+    the tracker's step, waking a second thread cost more than the tiles (2.2 ms against 0.7 for a
+    tank's 3 bands of whole rows at 1000 m).
     """
 
     def __init__(self, shape: tuple[int, int], history: int, var_threshold: float, detect_shadows: bool):
-        H = shape[0]
-        self.rows = [(r, min(r + _BAND_ROWS, H)) for r in range(0, H, _BAND_ROWS)]
+        (H, W), (th, tw) = shape, _TILE_PX
+        self.shape = (H, W)
+        self.columns = len(range(0, W, tw))  # tiles in a row of tiles
+        self.tiles = [(r, min(r + th, H), c, min(c + tw, W)) for r in range(0, H, th) for c in range(0, W, tw)]
         self.models = [cv2.createBackgroundSubtractorMOG2(history=history, varThreshold=var_threshold,
-                                                          detectShadows=detect_shadows) for _ in self.rows]
+                                                          detectShadows=detect_shadows) for _ in self.tiles]
         self.var_threshold = var_threshold
-        self.threads = max(1, min(cv2.getNumThreads(), len(self.rows)))
+        self.threads = max(1, min(cv2.getNumThreads(), len(self.tiles)))
         self._pool, self._pid = None, None  # made on first use, and again in a forked child (its threads stay behind)
 
     def apply(self, image: np.ndarray, rate: float, threshold: float | None = None,
-              bands: list[int] | None = None, out: np.ndarray | None = None) -> np.ndarray:
+              tiles: list[int] | None = None, out: np.ndarray | None = None) -> np.ndarray:
         """MOG2's ``apply(image, learningRate=rate)`` at ``threshold`` (the models' own if None) on
-        the given bands (every band if None), into ``out``.
+        the given tiles (every tile if None), into ``out``.
 
         Args:
             image: (H, W) uint8; out: (H, W) uint8 or None (zeros).
         Returns:
-            out: (H, W) uint8, MOG2's mask (255 foreground, 127 shadow, 0 background) on the bands
+            out: (H, W) uint8, MOG2's mask (255 foreground, 127 shadow, 0 background) on the tiles
             applied, untouched elsewhere.
         """
         out = np.zeros(image.shape, np.uint8) if out is None else out
-        bands = range(len(self.rows)) if bands is None else bands
+        tiles = range(len(self.tiles)) if tiles is None else tiles
 
         def run(group: np.ndarray) -> None:
-            for b in group:
-                (r0, r1), model = self.rows[b], self.models[b]
+            for t in group:
+                (r0, r1, c0, c1), model = self.tiles[t], self.models[t]
                 if threshold is not None:
                     model.setVarThreshold(threshold)
-                out[r0:r1] = model.apply(image[r0:r1], learningRate=rate)
+                out[r0:r1, c0:c1] = model.apply(image[r0:r1, c0:c1], learningRate=rate)
                 if threshold is not None:
                     model.setVarThreshold(self.var_threshold)
 
-        whole = len(bands) == len(self.rows)
-        first, *rest = np.array_split(np.asarray(bands, dtype=int), self.threads if whole else 1)
+        whole = len(tiles) == len(self.tiles)
+        first, *rest = np.array_split(np.asarray(tiles, dtype=int), self.threads if whole else 1)
         if rest and self._pid != os.getpid():
             self._pool, self._pid = ThreadPoolExecutor(self.threads - 1), os.getpid()
         pending = [self._pool.submit(run, group) for group in rest]
@@ -416,14 +419,22 @@ class _BandedMOG2:
             job.result()
         return out
 
-    def rows_of(self, image: np.ndarray, rate: float, threshold: float | None = None) -> Rows:
-        """The foreground of ``image`` compared band by band as rows are asked for, each band once:
-        ``fg_in(r0, r1)`` is (H, W) bool, MOG2's foreground (not shadow) in rows r0:r1 and in every
-        row asked for before, False elsewhere. Arguments as :meth:`apply`."""
-        out, done = np.zeros(image.shape, np.uint8), np.zeros(len(self.rows), dtype=bool)
+    def cover(self, r0: int, r1: int, c0: int, c1: int) -> tuple[int, int, int, int]:
+        """The box (r0, r1, c0, c1) of the tiles that meet rows r0:r1 and columns c0:c1 (non-empty)."""
+        (H, W), (th, tw) = self.shape, _TILE_PX
+        return r0 // th * th, min(-(-r1 // th) * th, H), c0 // tw * tw, min(-(-c1 // tw) * tw, W)
 
-        def fg_in(r0: int, r1: int) -> np.ndarray:
-            todo = [b for b, (b0, b1) in enumerate(self.rows) if b0 < r1 and b1 > r0 and not done[b]]
+    def regions_of(self, image: np.ndarray, rate: float, threshold: float | None = None) -> Region:
+        """The foreground of ``image`` compared tile by tile as boxes are asked for, each tile once:
+        ``fg_in(r0, r1, c0, c1)`` is (H, W) bool, MOG2's foreground (not shadow) in rows r0:r1 and
+        columns c0:c1 and in every tile compared before, False elsewhere. Arguments as :meth:`apply`."""
+        out, done = np.zeros(image.shape, np.uint8), np.zeros(len(self.tiles), dtype=bool)
+        th, tw = _TILE_PX
+
+        def fg_in(r0: int, r1: int, c0: int, c1: int) -> np.ndarray:
+            R0, R1, C0, C1 = self.cover(r0, r1, c0, c1)
+            tiles = [i * self.columns + j for i in range(R0 // th, -(-R1 // th)) for j in range(C0 // tw, -(-C1 // tw))]
+            todo = [t for t in tiles if not done[t]]
             if todo:
                 self.apply(image, rate, threshold, todo, out)
                 done[todo] = True
@@ -433,7 +444,10 @@ class _BandedMOG2:
 
     def background_image(self) -> np.ndarray:
         """(H, W) uint8, MOG2's background image."""
-        return np.concatenate([model.getBackgroundImage() for model in self.models])
+        out = np.empty(self.shape, np.uint8)
+        for (r0, r1, c0, c1), model in zip(self.tiles, self.models):
+            out[r0:r1, c0:c1] = model.getBackgroundImage()
+        return out
 
 
 _MOVING_SIGMAS = 3.0  # static_background_frames: a pixel this many robust σ from its median moves
@@ -524,51 +538,54 @@ def _clean_reach(cfg: SegmentationConfig) -> int:
     return 2 * (cfg.open_px // 2 + cfg.close_px // 2)
 
 
-def _rows_first(last: tuple[int, int] | None, box: Box | None, near: tuple[float, float] | None, H: int
-                ) -> tuple[int, int] | None:
-    """The rows (r0, r1) to compare first: those of the ``last`` blob's rows (r0, r1) and of
-    ``near``, or with no last blob those of the predicted box, grown by ``_ROWS_MARGIN_PX`` and
-    clipped to the image; None without a finite prediction, or when they hold the whole image or
-    not ``near``."""
+def _region_first(last: tuple[int, int, int, int] | None, box: Box | None, near: tuple[float, float] | None,
+                  shape: tuple[int, int]) -> tuple[int, int, int, int] | None:
+    """The box (r0, r1, c0, c1) to compare first: the box of the ``last`` blob's (r0, r1, c0, c1)
+    and ``near``, or with no last blob the predicted box, grown by ``_REGION_MARGIN_PX`` and
+    clipped to the image; None without a finite prediction, or when it is the whole image or does
+    not hold ``near``."""
     corners = _box_corners(box)
     if near is None or not np.isfinite(near).all():
         return None
-    v = near[1]
+    u, v = near
     if last is not None:
-        lo, hi = min(last[0], v), max(last[1], v + 1)
+        rows, cols = (min(last[0], v), max(last[1], v + 1)), (min(last[2], u), max(last[3], u + 1))
     elif corners is not None:
-        lo, hi = corners[1], corners[3] + 1
+        rows, cols = (corners[1], corners[3] + 1), (corners[0], corners[2] + 1)
     else:
         return None
-    r0 = int(np.clip(np.floor(lo) - _ROWS_MARGIN_PX, 0, H))
-    r1 = int(np.clip(np.ceil(hi) + _ROWS_MARGIN_PX, 0, H))
-    if (r0, r1) == (0, H) or not r0 <= v < r1:
+    (r0, r1), (c0, c1) = ((int(np.clip(np.floor(lo) - _REGION_MARGIN_PX, 0, n)),
+                           int(np.clip(np.ceil(hi) + _REGION_MARGIN_PX, 0, n))) for (lo, hi), n in zip((rows, cols), shape))
+    if (r0, r1, c0, c1) == (0, shape[0], 0, shape[1]) or not (r0 <= v < r1 and c0 <= u < c1):
         return None
-    return r0, r1
+    return r0, r1, c0, c1
 
 
-def _chosen_within(cleaned: np.ndarray, blob: np.ndarray, rows: tuple[int, int], near: tuple[float, float],
-                   reach: int) -> bool:
-    """Whether the blob chosen from rows r0:r1 alone is the one the whole frame gives.
+def _chosen_within(cleaned: np.ndarray, blob: np.ndarray, region: tuple[int, int, int, int],
+                   near: tuple[float, float], reach: int) -> bool:
+    """Whether the blob chosen from the box r0:r1, c0:c1 alone is the one the whole frame gives.
 
-    The cleaned mask equals the whole frame's more than ``reach`` rows inside r0:r1 (or up to the
-    image's edge). So it does when the cleaned mask has no foreground within ``2·reach + 2`` rows
-    of an edge inside the image (an empty band there parts whatever lies beyond from the rest,
-    with the same components, sizes and all) and the chosen blob is nearer ``near`` than any pixel
-    within ``reach`` rows of such an edge, or beyond it.
+    The cleaned mask equals the whole frame's more than ``reach`` pixels inside the box (or up to
+    the image's edge). So it does when the cleaned mask has no foreground within ``2·reach + 2``
+    pixels of an edge inside the image (an empty ring there parts whatever lies beyond from the
+    rest, with the same components, sizes and all) and the chosen blob is nearer ``near`` than
+    any pixel within ``reach`` of such an edge, or beyond it.
 
     Args:
-        cleaned: (H, W) bool, the cleaned mask of rows r0:r1 (False elsewhere); blob: (H, W) bool,
-            the blob :func:`select_blob` chose from it; near: (u, v) pixel.
+        cleaned: (H, W) bool, the cleaned mask of the box (False elsewhere); blob: (H, W) bool,
+            the blob :func:`select_blob` chose from it; region: (r0, r1, c0, c1); near: (u, v) pixel.
     """
-    r0, r1 = rows
-    H, (u, v), band = cleaned.shape[0], near, 2 * reach + 2
-    ys, xs = np.nonzero(blob)
-    near_edge = (r0 > 0 and cleaned[r0:min(r0 + band, r1)].any()) or (r1 < H and cleaned[max(r1 - band, r0):r1].any())
-    if ys.size == 0 or near_edge:
+    r0, r1, c0, c1 = region
+    (H, W), (u, v), band = cleaned.shape, near, 2 * reach + 2
+    strips = [(r0 > 0, np.s_[r0:min(r0 + band, r1), c0:c1]), (r1 < H, np.s_[max(r1 - band, r0):r1, c0:c1]),
+              (c0 > 0, np.s_[r0:r1, c0:min(c0 + band, c1)]), (c1 < W, np.s_[r0:r1, max(c1 - band, c0):c1])]
+    box = _foreground_box(blob)
+    if box is None or any(inner and cleaned[strip].any() for inner, strip in strips):
         return False
-    gap = min(v - (r0 + reach) if r0 > 0 else np.inf, r1 - 1 - reach - v if r1 < H else np.inf)
-    return bool(np.sqrt(((xs - u) ** 2 + (ys - v) ** 2).min()) < gap)
+    ys, xs = np.nonzero(blob[box])
+    gap = min(v - (r0 + reach) if r0 > 0 else np.inf, r1 - 1 - reach - v if r1 < H else np.inf,
+              u - (c0 + reach) if c0 > 0 else np.inf, c1 - 1 - reach - u if c1 < W else np.inf)
+    return bool(np.sqrt(((xs + box[1].start - u) ** 2 + (ys + box[0].start - v) ** 2).min()) < gap)
 
 
 class ForegroundSegmenter:
@@ -578,27 +595,27 @@ class ForegroundSegmenter:
     Frames must keep the warm-up frames' size and dtype. An empty or all-foreground mask (e.g.
     after a sudden global change) is returned like any other and logged at debug level.
 
-    Rows compared. MOG2 runs on bands of ``_BAND_ROWS`` rows, one model each (``_BandedMOG2``,
-    the same per-pixel models). Given a prediction ``near``, a frame is compared first in the rows
-    of the last frame's blob and of ``near`` (with no last blob, of the ``exclude`` box) grown by
-    ``_ROWS_MARGIN_PX``, and in every row only when the blob chosen there might not be the whole
-    frame's choice (foreground near those rows' edges, or a pixel beyond them could be nearer
-    ``near``), on frames that learn, and with OpenCV's automatic rate; the thin parts' comparison
-    covers the rows round the blob. The masks are the whole frame's (tests/test_segmentation.py).
-    The models differ only where a band was not compared: a comparison that learns nothing still
-    leaves a mode of weight zero where a pixel fits none, and such modes never make a pixel
-    background.
+    Region compared. MOG2 runs on tiles of ``_TILE_PX`` pixels, one model each (``_TiledMOG2``,
+    the same per-pixel models). Given a prediction ``near``, a frame is compared first in the tiles
+    that meet the box of the last frame's blob and of ``near`` (with no last blob, the ``exclude``
+    box) grown by ``_REGION_MARGIN_PX``, and in every tile only when the blob chosen there might
+    not be the whole frame's choice (foreground near those tiles' inner edges, or a pixel beyond
+    them could be nearer ``near``), on frames that learn, and with OpenCV's automatic rate; the
+    thin parts' comparison covers the tiles round the blob. The masks are the whole frame's
+    (tests/test_segmentation.py). The models differ only where a tile was not compared: a
+    comparison that learns nothing still leaves a mode of weight zero where a pixel fits none,
+    and such modes never make a pixel background.
     """
 
     def __init__(self, cfg: SegmentationConfig | None = None):
         self.cfg = cfg or SegmentationConfig()
         self.levels: tuple[float, float] | None = None  # (lo, hi) of the IR map; None for uint8 frames
         self.gain: tuple[float, float] = (1.0, 0.0)  # the last (a, b) of frame ≈ a·background + b
-        self._mog: _BandedMOG2 | None = None
+        self._mog: _TiledMOG2 | None = None
         self._kind: tuple[tuple[int, int], np.dtype] | None = None
         self._background: np.ndarray | None = None  # MOG2's background image, refreshed when it learns
         self._frames = 0
-        self._last_rows: tuple[int, int] | None = None  # rows (r0, r1) of the last frame's blob
+        self._last_box: tuple[int, int, int, int] | None = None  # the last frame's blob's box (r0, r1, c0, c1)
 
     def check_frame(self, frame) -> None:
         """Raise ValueError unless ``frame`` can be segmented: warmed up, and a numpy (H, W) or
@@ -685,11 +702,11 @@ class ForegroundSegmenter:
             span = float(hi - lo) or 1.0  # a flat background still gets a valid map
             self.levels = (float(lo) - cfg.headroom * span, float(lo) + (1 + cfg.headroom) * span)
             logger.debug("IR normalisation: [%.1f, %.1f] -> [0, 255]", *self.levels)
-        self._mog = _BandedMOG2(greys[0].shape, cfg.history, cfg.var_threshold, cfg.detect_shadows)
+        self._mog = _TiledMOG2(greys[0].shape, cfg.history, cfg.var_threshold, cfg.detect_shadows)
         for grey in greys:
             self._mog.apply(self.display(grey), -1)
         self._background = self._mog.background_image()
-        self.gain, self._frames, self._last_rows = (1.0, 0.0), 0, None
+        self.gain, self._frames, self._last_box = (1.0, 0.0), 0, None
         H, W = self._kind[0]
         self._samples = np.ix_(np.arange(0, H, _GAIN_STRIDE), np.arange(0, W, _GAIN_STRIDE))  # the gain fit's grid
 
@@ -700,7 +717,7 @@ class ForegroundSegmenter:
         Args:
             frame: (H, W) or (H, W, 3) of the warm-up frames' size and dtype.
             near: optional predicted target pixel (u, v); keep the blob nearest to it (and compare
-                the rows near it and the last blob first: class docstring, "Rows compared").
+                the pixels near it and the last blob first: class docstring, "Region compared").
             exclude: optional predicted target box (u0, v0, u1, v1) in pixels: left out of the
                 gain fit and of the background update.
         Returns:
@@ -725,23 +742,23 @@ class ForegroundSegmenter:
         # A positive rate learns only in the selective update below; −1 is OpenCV's automatic
         # rate on every whole frame.
         learn = cfg.learning_rate > 0 and self._frames % cfg.learning_interval == 0
-        rate, H = min(cfg.learning_rate, 0.0), image.shape[0]
-        fg_in = self._mog.rows_of(image, rate)
-        # Rows compared (class docstring): near the prediction first, unless every band must see the
-        # frame (learning needs the whole foreground; OpenCV's automatic rate counts frames).
-        rows = None if learn or rate < 0 else _rows_first(self._last_rows, exclude, near, H)
-        if rows is not None:
-            raw = fg_in(*rows)
+        rate, whole = min(cfg.learning_rate, 0.0), (0, *image.shape[:1], 0, *image.shape[1:])
+        fg_in = self._mog.regions_of(image, rate)
+        # Region compared (class docstring): near the prediction first, unless every tile must see
+        # the frame (learning needs the whole foreground; OpenCV's automatic rate counts frames).
+        region = None if learn or rate < 0 else _region_first(self._last_box, exclude, near, image.shape)
+        if region is not None:
+            raw = fg_in(*region)
             cleaned = clean_mask(raw, cfg.open_px, cfg.close_px)
             mask = select_blob(cleaned, near, cfg.min_area_px)
-        if rows is None or not _chosen_within(cleaned, mask, rows, near, _clean_reach(cfg)):
-            raw = fg_in(0, H)
+        if region is None or not _chosen_within(cleaned, mask, region, near, _clean_reach(cfg)):
+            raw = fg_in(*whole)
             mask = select_blob(clean_mask(raw, cfg.open_px, cfg.close_px), near, cfg.min_area_px)
         self._frames += 1
         if cfg.thin_threshold > 0 and mask.any():  # the same comparison at the lower threshold; nothing learned
-            low_in = self._mog.rows_of(image, 0.0, cfg.thin_threshold)
-            if rate < 0:  # every band counts the frame in OpenCV's automatic rate
-                low_in(0, H)
+            low_in = self._mog.regions_of(image, 0.0, cfg.thin_threshold)
+            if rate < 0:  # every tile counts the frame in OpenCV's automatic rate
+                low_in(*whole)
             mask = _extend_thin_parts(mask, low_in, _THIN_RING_PX, _THIN_REACH_PX)
         if learn:  # selective update: the background image stands in where the target may be
             grown = cv2.dilate(raw.astype(np.uint8), cv2.getStructuringElement(
@@ -749,8 +766,8 @@ class ForegroundSegmenter:
             image = np.where(_box_mask(grey.shape, exclude) | grown, self._background, image)
             self._mog.apply(image, cfg.learning_rate)
             self._background = self._mog.background_image()
-        found = np.flatnonzero(mask.any(1))
-        self._last_rows = (int(found[0]), int(found[-1]) + 1) if found.size else None
+        box = _foreground_box(mask)
+        self._last_box = None if box is None else (box[0].start, box[0].stop, box[1].start, box[1].stop)
         fraction = np.count_nonzero(mask) / mask.size
         if fraction == 0:
             logger.debug("empty foreground mask")
