@@ -182,8 +182,8 @@ def _foreground_box(mask: np.ndarray, margin: int = 0) -> tuple[slice, slice] | 
         return None
     cols = np.flatnonzero(mask.any(0))
     H, W = mask.shape
-    return (slice(max(rows[0] - margin, 0), min(rows[-1] + margin + 1, H)),
-            slice(max(cols[0] - margin, 0), min(cols[-1] + margin + 1, W)))
+    return (slice(max(int(rows[0]) - margin, 0), min(int(rows[-1]) + margin + 1, H)),
+            slice(max(int(cols[0]) - margin, 0), min(int(cols[-1]) + margin + 1, W)))
 
 
 def select_blob(mask: np.ndarray, near: tuple[float, float] | None = None, min_area: int = 0) -> np.ndarray:
