@@ -302,7 +302,7 @@ def test_bad_inputs_raise():
     # Beyond π/2 the same view was drawn upside down: θ = 0.7, φ = π − 0.3 is θ + π, φ = 0.3 turned over.
     with pytest.raises(ValueError, match=r"elevations phi in \[-π/2, π/2\] radians; got 2\.842"):
         render_templates(_toy_car(), [0.7], [math.pi - 0.3])
-    for bad in ([True], ["0.7"]):  # a bool was 1 rad, a string was parsed
+    for bad in ([True], ["0.7"], [1, True], [[0.5], [False]]):  # a bool was 1 rad, a string was parsed
         with pytest.raises(ValueError, match="Expected theta to be numeric"):
             render_templates(_toy_car(), bad, [0.1])
     with pytest.raises(ValueError, match="size_px"):

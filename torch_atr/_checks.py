@@ -61,6 +61,9 @@ def as_float_tensor(name: str, x, like: torch.Tensor | None = None) -> torch.Ten
         raise ValueError(f"Expected {name} to be numeric; got {type(x).__name__}") from exc
     if arr.dtype.kind not in "fiu":  # not bool, text or objects (np.asarray would parse "0.7")
         raise ValueError(f"Expected {name} to be numeric; got {type(x).__name__} of {arr.dtype}")
+    if not isinstance(x, np.ndarray) and any(
+            isinstance(v, (bool, np.bool_)) for v in np.asarray(x, dtype=object).ravel()):
+        raise ValueError(f"Expected {name} to be numeric; got a bool in {type(x).__name__}")  # [1, True] was [1, 1]
     arr = arr.astype(np.float64)
     dtype = like.dtype if like is not None else torch.float32
     device = like.device if like is not None else None
