@@ -207,6 +207,36 @@ def test_a_video_cut_short_gives_the_frames_it_holds(avi, tmp_path, caplog):
         np.testing.assert_array_equal(seq.frame(i), whole.frame(i))
 
 
+def test_a_video_refused_after_opening_releases_its_capture(avi, monkeypatch):
+    """Every refusal once the capture is open (no frames, a bad size, no readable frame) releases it."""
+    from torch_atr.data import video as video_module
+
+    opened, real = [], cv2.VideoCapture
+
+    class Capture:  # OpenCV's capture, with its release counted
+        def __init__(self, path):
+            self.cap, self.released = real(path), False
+            opened.append(self)
+
+        def __getattr__(self, name):
+            return getattr(self.cap, name)
+
+        def release(self):
+            self.released = True
+            self.cap.release()
+
+    def refuse(*args):
+        raise video_module.InputError("refused")
+
+    monkeypatch.setattr(video_module.cv2, "VideoCapture", Capture)
+    for name in ("image_size", "_readable_frames"):
+        with monkeypatch.context() as m:
+            m.setattr(video_module, name, refuse)
+            with pytest.raises(ValueError, match="refused"):
+                VideoSequence(avi)
+    assert len(opened) == 2 and all(c.released for c in opened)
+
+
 def test_image_headers_are_checked_before_decoding(tmp_path):
     import struct
     import zlib

@@ -107,18 +107,16 @@ class VideoSequence(Sequence):
         cap = cv2.VideoCapture(str(p))
         if not cap.isOpened():
             raise InputError(f"{p}: OpenCV cannot open it as a video")
-        count = cap.get(cv2.CAP_PROP_FRAME_COUNT)
-        if not (math.isfinite(count) and count >= 1):
-            cap.release()
-            raise InputError(f"{p}: the video reports no frames")
-        n = int(count)
-        w, h = int(cap.get(cv2.CAP_PROP_FRAME_WIDTH)), int(cap.get(cv2.CAP_PROP_FRAME_HEIGHT))
         try:
+            count = cap.get(cv2.CAP_PROP_FRAME_COUNT)
+            if not (math.isfinite(count) and count >= 1):
+                raise InputError(f"{p}: the video reports no frames")
+            w, h = int(cap.get(cv2.CAP_PROP_FRAME_WIDTH)), int(cap.get(cv2.CAP_PROP_FRAME_HEIGHT))
             image_size(f"{p}: the video's frame size", w, h)
-        except InputError:
+            n = _readable_frames(cap, int(count), p)
+        except BaseException:
             cap.release()
             raise
-        n = _readable_frames(cap, n, p)
         rate = cap.get(cv2.CAP_PROP_FPS)
         fourcc = int(cap.get(cv2.CAP_PROP_FOURCC))
         self._cap, self._pos, self._n = cap, -1, n  # -1: the first read seeks to its frame
@@ -171,7 +169,6 @@ def _readable_frames(cap: cv2.VideoCapture, count: int, path: Path) -> int:
     if reads(count - 1):
         return count
     if not reads(0):
-        cap.release()
         raise InputError(f"{path}: cannot read its first frame (the video claims {count})")
     good, bad = 0, count - 1
     while bad - good > 1:
