@@ -30,8 +30,9 @@ def _points_in_front(n: int, seed: int) -> np.ndarray:
     return (p_cam - TVEC) @ R_cv  # R_cvᵀ (p_cam − t)
 
 
-def test_project_matches_cv2_project_points():
-    cam = _camera()
+@pytest.mark.parametrize("dist", [DIST_CV, np.zeros(5)])  # without distortion project skips its terms
+def test_project_matches_cv2_project_points(dist):
+    cam = Camera.from_opencv(K_CV, dist, RVEC, TVEC, width=640, height=512)
     pts = _points_in_front(200, seed=0)
     rvec, tvec = cam.opencv_pose()
     ref, _ = cv2.projectPoints(pts, rvec, tvec, cam.K.numpy(), cam.dist.numpy())

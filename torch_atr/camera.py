@@ -112,12 +112,13 @@ class Camera(nn.Module):
             raise ValueError(f"Expected points to have shape (..., 3); got {tuple(p.shape)}")
         z = p[..., 2]
         # OpenCV normalised coordinates: y points down.
-        x, y = p[..., 0] / z, -p[..., 1] / z
-        k1, k2, p1, p2, k3 = self.dist.to(p).unbind(0)
-        r2 = x * x + y * y
-        radial = 1 + k1 * r2 + k2 * r2 * r2 + k3 * r2 * r2 * r2
-        xd = x * radial + 2 * p1 * x * y + p2 * (r2 + 2 * x * x)
-        yd = y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y
+        xd, yd = x, y = p[..., 0] / z, -p[..., 1] / z
+        if bool(self.dist.any()):  # without distortion the terms below are 0 and 1: (x, y) as they are
+            k1, k2, p1, p2, k3 = self.dist.to(p).unbind(0)
+            r2 = x * x + y * y
+            radial = 1 + k1 * r2 + k2 * r2 * r2 + k3 * r2 * r2 * r2
+            xd = x * radial + 2 * p1 * x * y + p2 * (r2 + 2 * x * x)
+            yd = y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y
         K = self.K.to(p)
         u = K[0, 0] * xd + K[0, 2]
         v = K[1, 1] * yd + K[1, 2]
