@@ -787,28 +787,30 @@ class Tracker:
 
     def _estimate(self) -> dict:
         """The estimate row of the current weighted particles (module docstring, step 4)."""
-        model, p = self.model, self.particles
+        model, p, C = self.model, self.particles, len(self.model.class_names)
         w = self.log_weights.exp().to(torch.float64)
         p64 = p.to(torch.float64)
-        linear = p64[:, [X, Y, Z, SPEED]]
-        mean, cov = weighted_mean_cov(linear, w)
+        mean, cov = weighted_mean_cov(p64[:, [X, Y, Z, SPEED]], w)
         heading, heading_r = circular_mean(p64[:, HEADING], w)
         alpha, alpha_r = circular_mean(p64[:, ALPHA], w)
-        alpha_t = alpha.to(self.dtype).reshape(1)
-        theta, phi = view_of_pose(VehiclePose(*mean[:3].tolist(), float(heading)), self.camera)
-        posterior = class_posterior(model.classify(p[:, ALPHA]), w, len(model.class_names))
-        best = p64[int(w.argmax())]
-        nearest = model.nearest_vehicles(alpha_t, 2)[0].tolist()
-        row = {"x": mean[0], "y": mean[1], "z": mean[2], "heading": heading, "speed": mean[3], "alpha": alpha,
-               "std_x": cov[0, 0].sqrt(), "std_y": cov[1, 1].sqrt(), "std_z": cov[2, 2].sqrt(),
-               "std_speed": cov[3, 3].sqrt(), "heading_concentration": heading_r, "alpha_concentration": alpha_r,
-               "theta": theta, "phi": phi, "class": model.class_names[int(model.identity.labels[nearest[0]])],
-               "nearest_1": model.vehicle_names[nearest[0]], "nearest_2": model.vehicle_names[nearest[1]],
-               **{f"p_{name}": posterior[c] for c, name in enumerate(model.class_names)},
-               **{f"best_{name}": best[i] for name, i in (("x", X), ("y", Y), ("z", Z), ("heading", HEADING),
-                                                          ("speed", SPEED), ("alpha", ALPHA))},
-               "ess": effective_sample_size(w)}
-        return {k: float(v) if isinstance(v, torch.Tensor) else v for k, v in row.items()}
+        posterior = class_posterior(model.classify(p[:, ALPHA]), w, C)
+        scalars = torch.stack([heading, heading_r, alpha, alpha_r, effective_sample_size(w)])
+        # One conversion to Python numbers: a float() per tensor cost a call each.
+        numbers = torch.cat([mean, cov.diagonal().sqrt(), scalars, posterior, p64[w.argmax()]]).tolist()
+        (x, y, z, speed), stds, (heading, heading_r, alpha, alpha_r, ess) = numbers[:4], numbers[4:8], numbers[8:13]
+        posterior, best = numbers[13:13 + C], numbers[13 + C:]
+        theta, phi = view_of_pose(VehiclePose(x, y, z, heading), self.camera)
+        nearest = model.nearest_vehicles(torch.tensor([alpha], dtype=self.dtype, device=self.device), 2)[0].tolist()
+        return {"x": x, "y": y, "z": z, "heading": heading, "speed": speed, "alpha": alpha,
+                **{f"std_{name}": std for name, std in zip(("x", "y", "z", "speed"), stds)},
+                "heading_concentration": heading_r, "alpha_concentration": alpha_r,
+                "theta": float(theta), "phi": float(phi),
+                "class": model.class_names[int(model.identity.labels[nearest[0]])],
+                "nearest_1": model.vehicle_names[nearest[0]], "nearest_2": model.vehicle_names[nearest[1]],
+                **{f"p_{name}": posterior[c] for c, name in enumerate(model.class_names)},
+                **{f"best_{name}": best[i] for name, i in (("x", X), ("y", Y), ("z", Z), ("heading", HEADING),
+                                                           ("speed", SPEED), ("alpha", ALPHA))},
+                "ess": ess}
 
     def _estimate_particle(self, row: dict) -> torch.Tensor:
         """(1, 6) the estimate as a particle."""
