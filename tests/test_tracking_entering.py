@@ -234,3 +234,32 @@ def test_windows_wholly_outside_the_image_see_nothing(model):
     behind = inside.clone()
     behind[:, 2] = -100.0  # 100 m behind the camera: no window at all
     assert torch.isneginf(tracker.score(sliver, behind)).all()
+
+
+def test_the_predicted_region_leaves_out_particles_behind_the_camera(model):
+    """The segmenter's prediction is the weighted centre of the particles' windows, a box of 3σ of
+    the centres plus half the largest window, and that window's side, over the particles in front
+    of the camera with their weights renormalised (numpy on Camera.project's pixels and depths);
+    with every particle behind the camera there is none."""
+    seq = SyntheticSequence("t_72", SceneConfig(frames=1))
+    tracker = Tracker(model, seq.camera, _config("init.mode=truth", "filter.particles=60"), seed=0)
+    tracker.initialise(seq.truth(0))
+    particles = tracker.particles.clone()
+    behind = np.arange(60) % 3 == 0
+    particles[behind, 2] = -100.0
+    tracker.reset(particles)
+    weights = np.random.default_rng(0).random(60)
+    tracker.log_weights = torch.as_tensor(np.log(weights / weights.sum()), dtype=tracker.log_weights.dtype)
+    centre, box, side = tracker._predicted_region()
+    uv, depth = (t.numpy() for t in seq.camera.project(particles[:, :3].double()))
+    f = np.array([seq.camera.fx, seq.camera.fy])
+    sides = model.template.window_m * f / depth[:, None]
+    w = weights[~behind] / weights[~behind].sum()
+    ref_centre = (w[:, None] * uv[~behind]).sum(0)
+    spread = 3 * np.sqrt((w[:, None] * (uv[~behind] - ref_centre) ** 2).sum(0)) + sides[~behind].max(0) / 2
+    np.testing.assert_allclose(centre, ref_centre, rtol=1e-5)
+    np.testing.assert_allclose(box, np.concatenate([ref_centre - spread, ref_centre + spread]), rtol=1e-5)
+    assert side == pytest.approx(sides[~behind].max(), rel=1e-5)
+    particles[:, 2] = -100.0
+    tracker.reset(particles)
+    assert tracker._predicted_region() == (None, None, math.inf)

@@ -634,10 +634,11 @@ class Tracker:
         uv, side = project_windows(self.camera, self.particles[:, X:Z + 1], self.model.template.window_m)
         w = self.log_weights.exp()
         finite = (uv.isfinite() & side.isfinite()).all(dim=1)
-        if not finite.any():
-            return None, None, math.inf
-        w = w[finite] / w[finite].sum().clamp_min(1e-30)
-        uv, side = uv[finite], side[finite]
+        if not bool(finite.all()):  # leave out the particles at or behind the camera
+            if not finite.any():
+                return None, None, math.inf
+            w, uv, side = w[finite], uv[finite], side[finite]
+        w = w / w.sum().clamp_min(1e-30)
         centre = (w[:, None] * uv).sum(0)
         spread = 3 * (w[:, None] * (uv - centre).square()).sum(0).sqrt() + side.max(0).values / 2
         box = torch.cat([centre - spread, centre + spread])  # the windows of the weighted particles (3σ)
