@@ -419,11 +419,6 @@ class _TiledMOG2:
             job.result()
         return out
 
-    def cover(self, r0: int, r1: int, c0: int, c1: int) -> tuple[int, int, int, int]:
-        """The box (r0, r1, c0, c1) of the tiles that meet rows r0:r1 and columns c0:c1 (non-empty)."""
-        (H, W), (th, tw) = self.shape, _TILE_PX
-        return r0 // th * th, min(-(-r1 // th) * th, H), c0 // tw * tw, min(-(-c1 // tw) * tw, W)
-
     def regions_of(self, image: np.ndarray, rate: float, threshold: float | None = None) -> Region:
         """The foreground of ``image`` compared tile by tile as boxes are asked for, each tile once:
         ``fg_in(r0, r1, c0, c1)`` is (H, W) bool, MOG2's foreground (not shadow) in rows r0:r1 and
@@ -432,9 +427,9 @@ class _TiledMOG2:
         th, tw = _TILE_PX
 
         def fg_in(r0: int, r1: int, c0: int, c1: int) -> np.ndarray:
-            R0, R1, C0, C1 = self.cover(r0, r1, c0, c1)
-            tiles = [i * self.columns + j for i in range(R0 // th, -(-R1 // th)) for j in range(C0 // tw, -(-C1 // tw))]
-            todo = [t for t in tiles if not done[t]]
+            meeting = [i * self.columns + j for i in range(r0 // th, -(-r1 // th))
+                       for j in range(c0 // tw, -(-c1 // tw))]
+            todo = [t for t in meeting if not done[t]]
             if todo:
                 self.apply(image, rate, threshold, todo, out)
                 done[todo] = True
@@ -555,7 +550,8 @@ def _region_first(last: tuple[int, int, int, int] | None, box: Box | None, near:
     else:
         return None
     (r0, r1), (c0, c1) = ((int(np.clip(np.floor(lo) - _REGION_MARGIN_PX, 0, n)),
-                           int(np.clip(np.ceil(hi) + _REGION_MARGIN_PX, 0, n))) for (lo, hi), n in zip((rows, cols), shape))
+                           int(np.clip(np.ceil(hi) + _REGION_MARGIN_PX, 0, n)))
+                          for (lo, hi), n in zip((rows, cols), shape))
     if (r0, r1, c0, c1) == (0, shape[0], 0, shape[1]) or not (r0 <= v < r1 and c0 <= u < c1):
         return None
     return r0, r1, c0, c1

@@ -177,7 +177,7 @@ def _local_basis(x: torch.Tensor, knots: torch.Tensor, n: int) -> tuple[torch.Te
     coefficients that carry x, and weights: (N, 4) their basis values; differentiable in x.
     """
     span = (torch.searchsorted(knots, x.detach(), right=True) - 1).clamp(DEGREE, n - 1)  # t[ℓ] <= x < t[ℓ+1]
-    near = knots[span.unsqueeze(-1) + torch.arange(1 - DEGREE, DEGREE + 1, device=knots.device)]  # t[ℓ−2] … t[ℓ+3]
+    near = knots[span.unsqueeze(-1) + torch.arange(1 - DEGREE, DEGREE + 1, device=knots.device)]  # t[ℓ−2 … ℓ+3]
     unit = torch.eye(DEGREE + 1, dtype=knots.dtype, device=knots.device)
     d = [unit[j].expand(x.shape[0], -1) for j in range(DEGREE + 1)]  # de Boor on the 4 unit vectors
     for r in range(1, DEGREE + 1):
