@@ -18,7 +18,8 @@ milliseconds of busy waiting between calls; and inside the step, between the fil
 operations. Frames per second are the median
 step's; the rate over all frames is printed beside it, since re-detection searches the blob on
 a few frames only (by default once, 10 frames after the start; ``redetect``) and the median does
-not see it.
+not see it, nor the frames that update the background (every 5th: ``segmentation.learning_interval``),
+whose median step is printed apart from the others'.
 
     python benchmarks/bench_track.py [--particles 250 500 1000 2000 4000 8000 16000] [--frames 60]
         [--device cpu] [--checkpoint checkpoints/default.pt] [--set filter.likelihood_px=16]
@@ -278,14 +279,21 @@ def main(argv: list[str] | None = None) -> None:
     log.info("T-72 at 1000 m, %d frames of %dx%d, device %s, %d torch threads, overrides %s", args.frames,
              seq.cfg.width, seq.cfg.height, args.device, torch.get_num_threads(), args.set or "none")
     rows, in_step_ms = [], {}
+    seg_cfg = configs[-1].segmentation  # step k (from 0) updates the background when k % interval == 0
+    updates = [seg_cfg.learning_rate > 0 and k % seg_cfg.learning_interval == 0 for k in range(args.frames)]
     for n in args.particles:
         fps, times, seg_times = tracker_fps(model, seq, frames, n, args.device, args.skip, args.set)
         in_step_ms[n] = 1e3 * statistics.median(seg_times)
+        split = [[t for t, u in zip(times, updates[args.skip:]) if u == kind] for kind in (True, False)]
+        updating, other = (1e3 * statistics.median(part) if part else None for part in split)
         rows.append({"particles": n, "frames_per_second": fps, "particles_per_second": fps * n,
                      "frames_per_second_mean": len(times) / sum(times),
-                     "ms_per_frame_p90": 1e3 * sorted(times)[int(0.9 * (len(times) - 1))]})
+                     "ms_per_frame_p90": 1e3 * sorted(times)[int(0.9 * (len(times) - 1))],
+                     "ms_per_frame_updating_background": updating, "ms_per_frame_other": other})
         log.info("N = %6d: %7.1f frames/s (%.2e particles/s; %.1f frames/s over all frames), 90th percentile "
-                 "%.1f ms", n, fps, fps * n, rows[-1]["frames_per_second_mean"], rows[-1]["ms_per_frame_p90"])
+                 "%.1f ms; median step %s ms on frames that update the background, %s ms on the others", n, fps,
+                 fps * n, rows[-1]["frames_per_second_mean"], rows[-1]["ms_per_frame_p90"],
+                 "-" if updating is None else f"{updating:.1f}", "-" if other is None else f"{other:.1f}")
     n_ref = args.reference_particles
     ref = reference_fps(model.cpu(), seq, frames[:args.reference_frames], n_ref,  # each Tracker moved it to --device
                         tracker_config(n_ref, args.set))
