@@ -3,6 +3,7 @@
 import dataclasses
 import math
 import re
+import warnings
 
 import cv2
 import numpy as np
@@ -197,6 +198,26 @@ def _fitted_psf_sigma(range_m: float) -> float:
     box = (slice(reach, -reach), slice(reach, -reach))
     errors = [np.square(ndimage.gaussian_filter(a, s)[box] - b[box]).mean() for s in sigmas]
     return float(sigmas[int(np.argmin(errors))])
+
+
+def test_sky_cools_above_the_horizon_and_a_steep_view_is_all_ground():
+    """Above the horizon row v_h the sky goes from the horizon's temperature to the sky's as
+    exp(−(v_h − v) / (H / 8)) (closed form on the sharp scene); a view so steep that the horizon lies
+    far above the frame is ground only, without the overflow warning the unused sky rows gave."""
+    seq = SyntheticSequence("t_72", SceneConfig(frames=1))
+    scene, cfg, temps = seq._static_scene()[0], seq.cfg, seq._temps
+    H = cfg.height
+    v_h = (H - 1) / 2 - cfg.focal_px * math.tan(cfg.tilt_rad)
+    rows = np.arange(H)[np.arange(H) <= v_h]
+    assert 0 < rows.size < H
+    horizon_k = temps["ground_k"] + cfg.ground_gradient_k / 2
+    sky = temps["sky_k"] + (horizon_k - temps["sky_k"]) * np.exp(-(v_h - rows) / (H / 8))
+    np.testing.assert_allclose(scene[rows], np.repeat(sky[:, None], cfg.width, axis=1), rtol=1e-6)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        steep = SyntheticSequence("t_72", SceneConfig(frames=1, height=32, width=64, focal_px=4000, range_m=5000,
+                                                      tilt_deg=45.0))
+        assert np.isfinite(steep._static_scene()[0]).all() and np.isfinite(steep.frame(0).astype(float)).all()
 
 
 def test_blur_grows_with_range():

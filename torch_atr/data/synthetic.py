@@ -744,7 +744,8 @@ class SyntheticSequence(Sequence):
         frac = np.clip((H - 1 - v) / max(H - 1 - top, 1.0), 0.0, None)  # 0 at the bottom, 1 at the horizon
         horizon_k = temps["ground_k"] + cfg.ground_gradient_k / 2
         ground = temps["ground_k"] - cfg.ground_gradient_k / 2 + cfg.ground_gradient_k * frac
-        sky = temps["sky_k"] + (horizon_k - temps["sky_k"]) * np.exp(-(v_h - v) / (_SKY_SCALE * H))
+        # Rows below the horizon are ground: their exponent is held at 0 (a steep view overflowed it).
+        sky = temps["sky_k"] + (horizon_k - temps["sky_k"]) * np.exp(np.minimum(v - v_h, 0.0) / (_SKY_SCALE * H))
         is_ground = v > v_h
         clutter = self._clutter(_CLUTTER)
         scene = np.where(is_ground, ground + cfg.clutter_k * clutter, sky)
