@@ -209,13 +209,16 @@ def sample_windows(distance: torch.Tensor, uv: torch.Tensor, side: torch.Tensor,
         uv, side = torch.where(valid[:, None], uv, 0.0), torch.where(valid[:, None], side, 0.0)
     # grid_sample's normalised coordinates (align_corners=False): −1 is the left edge of pixel 0, so
     # pixel u is (2u + 1) / W − 1; the L cell centres of a window of side s sit at u_c + s·((k + ½)/L − ½).
-    offsets = cell_offsets(L, uv)
-    gx, gy = ((2 * ((uv[:, i] - origin[i])[:, None] + offsets * side[:, i, None]) + 1) / extent - 1
-              for i, extent in enumerate((W, H)))  # (N, L) each: columns, rows
-    gx, gy = gx.to(distance.dtype), gy.to(distance.dtype)
-    # (N, L, L, 2) as a complex tensor's real view: one pass writes both coordinates (the CPU took
-    # twice as long filling each coordinate's strided half in turn).
-    grid = torch.view_as_real(torch.complex(gx[:, None, :].expand(N, L, L), gy[:, :, None].expand(N, L, L)))
+    # The extents divide as tensors: CUDA multiplies by the reciprocal of a Python number (a last bit).
+    offsets, extents = cell_offsets(L, uv), uv.new_tensor([W, H])
+    gx, gy = ((2 * ((uv[:, i] - origin[i])[:, None] + offsets * side[:, i, None]) + 1) / extents[i] - 1
+              for i in range(2))  # (N, L) each: columns, rows
+    columns = gx.to(distance.dtype)[:, None, :].expand(N, L, L)
+    rows = gy.to(distance.dtype)[:, :, None].expand(N, L, L)
+    if distance.device.type == "cpu":  # a complex tensor's real view: one pass writes both (stacking took twice as long)
+        grid = torch.view_as_real(torch.complex(columns, rows))
+    else:  # complex tensors are not on every device (MPS)
+        grid = torch.stack((columns, rows), dim=-1)
     # One batch item per window, the image broadcast (not copied), so grid_sample runs in parallel.
     out = F.grid_sample(distance[None, None].expand(N, 1, H, W), grid, mode="bilinear", padding_mode="border",
                         align_corners=False)[:, 0].to(uv.dtype)
