@@ -130,6 +130,25 @@ def test_glob_and_16_bit(tmp_path):
         np.testing.assert_array_equal(got, frames[i])
 
 
+def test_image_order_across_folders_ties_and_hidden_files(tmp_path):
+    """A glob over several folders keeps each folder's frames together, in natural order; names
+    that sort alike (img1, img01) come in a fixed order; a folder's hidden files (macOS's ._img
+    beside img) are not frames."""
+    for day, values in (("day2", (20, 21, 22)), ("day1", (10, 11, 12)), ("day10", (30,))):
+        (tmp_path / day).mkdir()
+        for k, value in enumerate(values):
+            cv2.imwrite(str(tmp_path / day / f"{k:03d}.png"), np.full((H, W), value, np.uint8))
+    seq = open_sequence(f"video:{tmp_path / 'day*' / '*.png'}")
+    assert [int(seq.frame(i)[0, 0]) for i in range(len(seq))] == [10, 11, 12, 20, 21, 22, 30]
+    tie = tmp_path / "tie"
+    tie.mkdir()
+    for name, value in (("img1.png", 1), ("img01.png", 2), ("._img1.png", 3)):
+        (tie / name).write_bytes(b"not an image" if name.startswith(".") else cv2.imencode(".png",
+                                 np.full((H, W), value, np.uint8))[1].tobytes())
+    seq = open_sequence(f"video:{tie}")
+    assert len(seq) == 2 and [int(seq.frame(i)[0, 0]) for i in range(2)] == [2, 1]  # img01, then img1
+
+
 def test_mixed_image_sizes(tmp_path):
     (tmp_path / "m").mkdir()
     cv2.imwrite(str(tmp_path / "m" / "a1.png"), np.zeros((4, 5), np.uint8))

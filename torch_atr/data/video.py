@@ -33,6 +33,12 @@ def natural_key(name: str) -> list:
     return [int(part) if part.isdigit() else part.lower() for part in re.split(r"(\d+)", name)]
 
 
+def _file_order(path: Path) -> tuple[list, str]:
+    """Sort key of image files: natural, folder by folder (a glob's matches in several folders keep
+    each folder's frames together), then the path itself (``img1`` and ``img01`` in a fixed order)."""
+    return [natural_key(part) for part in path.parts], str(path)
+
+
 def _convert(img: np.ndarray, color: bool, source: str) -> np.ndarray:
     """BGR(A) or grey OpenCV image -> grey (H, W) or RGB (H, W, 3) uint8 (uint16 grey kept)."""
     if img.dtype not in (np.uint8, np.uint16):
@@ -72,14 +78,13 @@ class VideoSequence(Sequence):
         self._files: list[Path] = []
         p = Path(self.path)
         if p.is_dir():
-            self._files = sorted((f for f in p.iterdir() if f.is_file() and f.suffix.lower() in IMAGE_SUFFIXES),
-                                 key=lambda f: natural_key(f.name))
+            self._files = sorted((f for f in p.iterdir() if f.is_file() and f.suffix.lower() in IMAGE_SUFFIXES
+                                  and not f.name.startswith(".")), key=_file_order)  # not macOS's ._ files
             if not self._files:
                 raise FileNotFoundError(f"{p}: no image files ({', '.join(IMAGE_SUFFIXES)})")
             self.name = p.name
         elif not p.exists() and any(c in self.path for c in "*?["):
-            self._files = sorted((Path(f) for f in glob.glob(self.path) if Path(f).is_file()),
-                                 key=lambda f: natural_key(f.name))
+            self._files = sorted((Path(f) for f in glob.glob(self.path) if Path(f).is_file()), key=_file_order)
             if not self._files:
                 raise FileNotFoundError(f"No files match the pattern {self.path!r}")
             self.name = p.parent.name or self.path
