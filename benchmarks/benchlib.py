@@ -13,12 +13,11 @@ from __future__ import annotations
 import dataclasses
 import json
 import logging
-import math
 from pathlib import Path
 
 from torch_atr.config import ConfigError
 from torch_atr.data.synthetic import SceneConfig, SyntheticSequence
-from torch_atr.io import atomic_write_text, check_output_file, check_writable
+from torch_atr.io import atomic_write_text, check_output_file, check_writable, strict_json
 from torch_atr.validate import read_json_object, real
 
 log = logging.getLogger("benchmarks")
@@ -55,19 +54,9 @@ def write_json(data: dict, path: Path, benchmark: str) -> None:
     """Write ``data`` to ``path`` atomically, marked as ``benchmark``'s (the key :func:`json_output` looks for),
     as strict JSON: a NaN or infinite number is written null (no value), which every reader, and
     the check of an earlier output before ``--overwrite``, takes."""
-    atomic_write_text(json.dumps(_finite({"benchmark": benchmark, **data}), indent=2, allow_nan=False) + "\n", path)
+    atomic_write_text(json.dumps(strict_json({"benchmark": benchmark, **data}), indent=2, allow_nan=False) + "\n",
+                      path)
     log.info("wrote %s", path)
-
-
-def _finite(value):
-    """``value`` with every non-finite float in its dicts, lists and tuples replaced by None."""
-    if isinstance(value, float):
-        return value if math.isfinite(value) else None
-    if isinstance(value, dict):
-        return {k: _finite(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_finite(v) for v in value]
-    return value
 
 
 def _checked(path: Path) -> Path:

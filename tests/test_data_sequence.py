@@ -122,6 +122,35 @@ def test_no_truth_no_camera(tmp_path):
     assert back.camera is None and back.truth(0) is None and math.isnan(back.fps)
 
 
+def test_save_refuses_what_the_reader_would_refuse_before_writing(tmp_path, monkeypatch):
+    """A saved folder always opens: values the reader refuses are refused first, and nothing is
+    written; NumPy numbers are saved as numbers, non-finite metadata as null; ~ is the home folder
+    and "." names no folder."""
+    frames = [np.zeros((4, 5), np.uint8)] * 2
+    for seq, message in [(ListSequence(frames, [FrameTruth(x=math.inf), None]), "frame 0's truth x is inf"),
+                         (ListSequence(frames, fps=-3.0), "fps must be a positive number; got -3.0"),
+                         (ListSequence(frames, fps=math.inf), "fps must be a positive number; got inf")]:
+        with pytest.raises(ValueError, match=re.escape(message)):
+            save_sequence(seq, tmp_path / "s", progress=False)
+        assert not (tmp_path / "s").exists() and list(tmp_path.iterdir()) == []
+    high = ListSequence(frames)
+    high.camera_height_m = 1e6
+    with pytest.raises(ValueError, match=r"camera_height_m .*got 1000000"):
+        save_sequence(high, tmp_path / "s", progress=False)
+    seq = ListSequence(frames, fps=np.float32(25))
+    seq.camera_height_m, seq.meta = np.float64(4.5), {"gain": math.nan, "level": np.float32(0.5)}
+    back = open_sequence(str(save_sequence(seq, tmp_path / "s", progress=False)))  # the reader's checks pass
+    assert back.fps == 25.0 and back.camera_height_m == 4.5
+    assert json.loads((tmp_path / "s" / "meta.json").read_text())["source_meta"] == {"gain": None, "level": 0.5}
+    monkeypatch.setenv("HOME", str(tmp_path / "home"))
+    assert save_sequence(seq, "~/clip", progress=False) == tmp_path / "home" / "clip"
+    monkeypatch.chdir(tmp_path / "home")
+    for bad in (".", "..", ""):
+        with pytest.raises(ValueError, match="names no folder to create"):
+            save_sequence(seq, bad, progress=False)
+    assert sorted(p.name for p in (tmp_path / "home").iterdir()) == ["clip"]
+
+
 def test_save_refuses_non_empty_folder_and_overwrites(tmp_path):
     target = tmp_path / "s"
     target.mkdir()

@@ -34,7 +34,8 @@ import numpy as np
 from tqdm import tqdm
 
 from torch_atr.data.sequence import (MAX_CAMERA_HEIGHT_M, TEXT_FIELDS, TRUTH_FIELDS, FrameTruth, Sequence,
-                                     load_camera_json, register_scheme)
+                                     check_fps, load_camera_json, register_scheme)
+from torch_atr.io import strict_json
 from torch_atr.validate import (InputError, image_file_size, image_size, integer, parse_real, read_image,
                                 read_json_object, read_text, real, show)
 
@@ -232,12 +233,21 @@ def save_sequence(seq: Sequence, folder: str | os.PathLike, progress: bool = Tru
     naming it) unless ``overwrite=True`` and it is a sequence folder (its ``meta.json`` says our
     format), so no other folder is ever deleted. Everything is written into a temporary folder
     beside ``folder`` and renamed into place at the end; the folder gets the mode a new folder
-    gets (0o777 less the umask).
+    gets (0o777 less the umask). What :class:`FolderSequence` would refuse to read (an fps or a
+    camera height out of range, an infinite truth value) is refused before anything is written.
     """
-    folder = Path(folder)
+    folder = Path(folder).expanduser()
+    if folder.name in ("", ".", ".."):
+        raise ValueError(f"save_sequence: {str(folder)!r} names no folder to create; give one such as runs/clip")
     n = len(seq)
     if n == 0:
         raise ValueError(f"{seq.name}: cannot save a sequence with no frames")
+    fps, height = float(seq.fps), float(seq.camera_height_m)
+    if not math.isnan(fps):
+        check_fps(fps, f"{seq.name} (not saved)")
+    if not math.isnan(height):
+        real(f"{seq.name} (not saved): camera_height_m (metres, or NaN)", height, lo=0, hi=MAX_CAMERA_HEIGHT_M,
+             lo_open=True)
     if folder.exists():
         if not folder.is_dir():
             raise FileExistsError(f"{folder} exists and is not a folder")
@@ -263,23 +273,33 @@ def save_sequence(seq: Sequence, folder: str | os.PathLike, progress: bool = Tru
             out = tmp / "frames" / _frame_filename(i)
             if not cv2.imwrite(str(out), cv2.cvtColor(img, cv2.COLOR_RGB2BGR) if img.ndim == 3 else img):
                 raise OSError(f"cv2.imwrite could not write {out}")
-            truths.append(seq.truth(i))
+            truths.append(_savable_truth(seq.name, i, seq.truth(i)))
         if any(t is not None for t in truths):
             _write_truth_csv(tmp / "truth.csv", truths)
         if seq.camera is not None:
             (tmp / "camera.json").write_text(json.dumps(seq.camera.to_dict(), indent=1), encoding="utf-8")
-        meta = {"format": FORMAT, "format_version": FORMAT_VERSION, "name": seq.name,
-                "fps": seq.fps if math.isfinite(seq.fps) else None, "frames": n,
-                "dtype": str(first.dtype), "shape": list(first.shape),
-                "camera_height_m": seq.camera_height_m if math.isfinite(seq.camera_height_m) else None,
+        meta = {"format": FORMAT, "format_version": FORMAT_VERSION, "name": seq.name, "fps": fps, "frames": n,
+                "dtype": str(first.dtype), "shape": list(first.shape), "camera_height_m": height,
                 "source": type(seq).__name__, "source_meta": seq.meta}
-        (tmp / "meta.json").write_text(json.dumps(meta, indent=1, default=str), encoding="utf-8")
+        (tmp / "meta.json").write_text(json.dumps(strict_json(meta), indent=1, default=str, allow_nan=False),
+                                       encoding="utf-8")
         _swap_in(tmp, folder)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
     logger.info("saved %d frames of %s to %s", n, seq.name, folder)
     return folder
+
+
+def _savable_truth(name: str, i: int, truth: FrameTruth | None) -> FrameTruth | None:
+    """``truth`` after checking that truth.csv can hold it: every number finite or NaN (unknown)."""
+    if truth is not None:
+        for field in TRUTH_FIELDS:
+            value = getattr(truth, field)
+            if field not in TEXT_FIELDS and math.isinf(value):
+                raise ValueError(f"{name} (not saved): frame {i}'s truth {field} is {value}; expected a finite "
+                                 f"number or NaN (unknown)")
+    return truth
 
 
 def _is_sequence_folder(folder: Path) -> bool:
