@@ -368,7 +368,15 @@ def test_agt_malformed_names_file_and_line(tmp_path, text, line, what):
         assert "Range: expected a number; got 'abc'" in str(err.value)
 
 
-def test_agt_other_errors():
+def test_agt_other_errors(tmp_path):
+    for time in ("2003 366 0 0 0 0", "9999 365 23 59 60 0"):  # no day 366 in 2003; past the last datetime
+        with pytest.raises(ValueError, match=rf"x.agt, line 3: Time {time} is not a valid year"):
+            agt_frame_truths(parse_agt(f"Agt {{\n TgtSect {{ TgtUpd {{\n Time {time}\n }} }}\n}}", "x.agt"), "x.agt")
+    leap = agt_frame_truths(parse_agt("Agt { TgtSect { TgtUpd { Time 2004 366 0 0 0 0 } } }", "x.agt"), "x.agt")
+    assert leap[0].time_s == datetime(2004, 12, 31, tzinfo=timezone.utc).timestamp()
+    with pytest.raises(ValueError, match=r"frame 1: time 1000000000000.0 s is outside the years 1-9999"):
+        write_agt(tmp_path / "never.agt", [None, FrameTruth(time_s=1e12)])
+    assert not (tmp_path / "never.agt").exists()
     with pytest.raises(ValueError, match=r"x.agt, line 3: Time expects six integers"):
         agt_frame_truths(parse_agt("Agt {\n TgtSect { TgtUpd {\n Time 2004 1 2 3 4 5.5\n } }\n}", "x.agt"), "x.agt")
     with pytest.raises(ValueError, match=r"x.agt, line 2: PixLoc expects 2 number\(s\); got 1: 5"):

@@ -40,6 +40,7 @@ and ``../metric/STEM.bbox_met``; each is optional.
 
 from __future__ import annotations
 
+import calendar
 import csv
 import dataclasses
 import io
@@ -337,12 +338,16 @@ def _agt_time(attr: AgtAttr, source: str) -> float:
     if any(not x.is_integer() for x in nums):
         raise InputError(f"{source}, line {attr.line}: Time expects six integers; got {' '.join(attr.values)}")
     year, day, hour, minute, sec, ms = (int(x) for x in nums)
-    if not (1 <= year <= 9999 and 1 <= day <= 366 and 0 <= hour < 24 and 0 <= minute < 60
-            and 0 <= sec < 61 and 0 <= ms < 1000):
-        raise InputError(f"{source}, line {attr.line}: Time {' '.join(attr.values)} is not a valid "
+    invalid = InputError(f"{source}, line {attr.line}: Time {' '.join(attr.values)} is not a valid "
                          f"year, julian day, hour, min, sec, ms")
-    t = datetime(year, 1, 1, tzinfo=timezone.utc) + timedelta(days=day - 1, hours=hour, minutes=minute,
-                                                                seconds=sec, milliseconds=ms)
+    if not (1 <= year <= 9999 and 1 <= day <= 365 + calendar.isleap(year) and 0 <= hour < 24 and 0 <= minute < 60
+            and 0 <= sec < 61 and 0 <= ms < 1000):
+        raise invalid
+    try:  # a leap second at the very end of 9999 is past the last datetime
+        t = datetime(year, 1, 1, tzinfo=timezone.utc) + timedelta(days=day - 1, hours=hour, minutes=minute,
+                                                                    seconds=sec, milliseconds=ms)
+    except OverflowError:
+        raise invalid from None
     return t.timestamp()
 
 
@@ -402,7 +407,11 @@ def write_agt(path: str | os.PathLike, truths: Iterable[FrameTruth | None]) -> N
     for i, t in enumerate(truths):
         lines += ["    TgtUpd", "    {"]
         if t is not None and math.isfinite(t.time_s):
-            dt = datetime(1970, 1, 1, tzinfo=timezone.utc) + timedelta(milliseconds=round(t.time_s * 1000))
+            try:
+                dt = datetime(1970, 1, 1, tzinfo=timezone.utc) + timedelta(milliseconds=round(t.time_s * 1000))
+            except OverflowError:
+                raise ValueError(f"{path}: frame {i}: time {t.time_s} s is outside the years 1-9999 AGT can "
+                                 f"hold") from None
             lines.append(f"      Time {dt.year} {dt.timetuple().tm_yday} {dt.hour} {dt.minute} {dt.second} "
                          f"{dt.microsecond // 1000}")
         tgt = []
