@@ -2,7 +2,8 @@
 
 Frames come out grey uint8 (``color=False``, the default) or RGB uint8 (``color=True``); a
 16-bit grey image (an IR frame saved as PNG or TIFF) stays uint16 when read grey. Image files
-are ordered naturally (``frame2`` before ``frame10``). These sources carry no ground truth.
+are ordered naturally (``frame2`` before ``frame10``), folder by folder for a glob; hidden files are
+not frames. These sources carry no ground truth.
 Frame sizes are checked against the bounds of :mod:`torch_atr.validate` before any decoding
 (an image file's header, a video's reported size).
 """
