@@ -13,7 +13,7 @@ from torch_atr.data.synthetic import SceneConfig, SyntheticSequence
 from torch_atr.evaluation import wrapped_abs
 from torch_atr.model import GenerativeShapeModel
 from torch_atr.tracking import TrackerConfig
-from torch_atr.tracking.blob import BlobTracker, predict_views
+from torch_atr.tracking.blob import BlobTracker, predict_views, wrap_views
 from torch_atr.tracking.motion import MotionConfig
 
 CKPT = Path(__file__).resolve().parents[1] / "checkpoints" / "default.pt"
@@ -53,3 +53,47 @@ def test_blob_tracker_refuses_adaptation_without_a_camera():
     model = GenerativeShapeModel.from_checkpoint(CKPT)
     with pytest.raises(ValueError, match="calibrated camera"):
         BlobTracker(model, load_config(TrackerConfig, None, ["adapt.every=5"]))
+
+
+def _bounce(phi: float) -> float:
+    """φ reflected at 0 and π/2 step by step, as a ball between two walls (the reference)."""
+    phi = abs(phi)
+    while phi > math.pi / 2:
+        phi = math.pi - phi
+        phi = abs(phi)
+    return phi
+
+
+def test_views_reflect_into_the_hemisphere_from_any_elevation():
+    """A long gap between frames walks φ far beyond ±π; the views are reflected as often as it takes
+    (the reference bounces step by step); within ±π the values are the single reflection's."""
+    phi = torch.cat([torch.linspace(-20.0, 20.0, 4001, dtype=torch.float64), torch.tensor([math.pi, -math.pi])])
+    particles = torch.stack([torch.zeros_like(phi), phi, torch.zeros_like(phi)], dim=1)
+    got = wrap_views(particles)[:, 1]
+    torch.testing.assert_close(got, torch.tensor([_bounce(float(p)) for p in phi], dtype=torch.float64),
+                               rtol=0, atol=1e-12)
+    inside = phi.abs() <= math.pi
+    assert torch.equal(got[inside], math.pi / 2 - (math.pi / 2 - phi[inside].abs()).abs())
+
+
+def test_blob_tracker_reset_score_and_a_silhouette_before_any_blob():
+    """Particles of the blob tracker are [θ, φ, α] (N, 3): reset takes them, score weighs them
+    against a mask without changing the filter, and before any blob there is no silhouette to lay."""
+    model = GenerativeShapeModel.from_checkpoint(CKPT)
+    seq = SyntheticSequence("isuzu_rodeo", SceneConfig(frames=2))
+    tracker = BlobTracker(model, load_config(TrackerConfig, None, ["filter.particles=50"]), seed=0)
+    tracker.warm_up(seq.warmup_frames(30))
+    truth = seq.truth(0)
+    tracker.initialise(truth)
+    empty = np.zeros((seq.camera.height, seq.camera.width), dtype=bool)
+    row = tracker.step(mask=empty)
+    assert row["lost"] == 1 and not tracker.silhouette_at(row, empty.shape).any()
+    with pytest.raises(ValueError, match=r"particles to have shape \(N, 3\)"):
+        tracker.reset(torch.zeros(5, 6))
+    views = torch.tensor([[truth.theta, truth.phi, float(model.alphas[0])]] * 5, dtype=torch.float64)
+    tracker.reset(views)
+    mask = seq.true_mask(0)
+    scores = tracker.score(mask, views)
+    assert scores.shape == (5,) and torch.isfinite(scores).all() and tracker._blob_box is None
+    row = tracker.step(mask=mask)
+    assert row["lost"] == 0 and tracker.silhouette_at(row, mask.shape).any()

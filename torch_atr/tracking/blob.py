@@ -24,6 +24,7 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
+from torch_atr._checks import check_shape
 from torch_atr.data.sequence import FrameTruth
 from torch_atr.pose import wrap_angle
 from torch_atr.tracking.estimates import circular_mean, class_posterior
@@ -39,11 +40,13 @@ ELEVATIONS_DEG = (0.0, 10.0, 20.0, 30.0, 40.0)  # the blind start's φ hypothese
 
 
 def wrap_views(particles: torch.Tensor) -> torch.Tensor:
-    """[θ, φ, α] particles (N, 3) with θ and α wrapped to [0, 2π) and φ reflected into [0, π/2]."""
+    """[θ, φ, α] particles (N, 3) with θ and α wrapped to [0, 2π) and φ reflected into [0, π/2]
+    (as often as it takes: a walk of a long gap between frames goes beyond ±π)."""
     out = particles.clone()
     out[:, THETA], out[:, ALPHA] = wrap_angle(out[:, THETA]), wrap_angle(out[:, ALPHA])
-    half_pi = math.pi / 2
-    out[:, PHI] = half_pi - (half_pi - out[:, PHI].abs()).abs()  # reflect at 0 and at π/2
+    half_pi, phi = math.pi / 2, out[:, PHI]
+    phi = torch.where(phi.abs() > math.pi, torch.remainder(phi, math.pi), phi)  # the reflections repeat every π
+    out[:, PHI] = half_pi - (half_pi - phi.abs()).abs()  # reflect at 0 and at π/2
     return out
 
 
@@ -84,6 +87,34 @@ class BlobTracker(Tracker):
         noise = torch.randn(n, 3, generator=self.generator, dtype=self.dtype, device=self.device)
         mean = torch.tensor([truth.theta, truth.phi, alpha], dtype=self.dtype, device=self.device)
         self._reset_views(mean + noise * torch.tensor([std, std, 0.0], dtype=self.dtype, device=self.device))
+
+    def reset(self, particles: torch.Tensor) -> None:
+        """Start from given particles: (N, 3) [θ, φ, α] describing the coming frame (equal weights; the
+        next :meth:`step` weighs them without a prediction first)."""
+        check_shape("particles", particles, ("N", 3))
+        if particles.shape[0] == 0 or not bool(particles.isfinite().all()):
+            raise ValueError(f"Expected at least one particle [θ, φ, α], all finite; got {particles.shape[0]}")
+        self._reset_views(particles.to(self.device, self.dtype))
+        self._start, self._missed, self._unexplained = self._frames, 0, 0
+
+    def score(self, mask: np.ndarray, particles: torch.Tensor) -> torch.Tensor:
+        """Eq. 5.2 of any particles (N, 3) [θ, φ, α] laid on the blob of a target mask (H, W), not
+        empty, leaving the filter as it is. Returns (N,) log-likelihoods; higher is better."""
+        mask = self._check_mask(mask)
+        if not mask.any():
+            raise ValueError("Expected a non-empty mask to score particles against")
+        check_shape("particles", particles, ("N", 3))
+        kept = self._blob_box
+        try:
+            return self._log_likelihood(self._frame_distance(mask, math.inf), particles.to(self.device, self.dtype))
+        finally:
+            self._blob_box = kept
+
+    def silhouette_at(self, row: dict, shape: tuple[int, int]) -> torch.Tensor:
+        """The estimate's silhouette laid on the last blob's box: (H, W) bool; none before the first blob."""
+        if self._blob_box is None:
+            return torch.zeros(tuple(shape), dtype=torch.bool, device=self.device)
+        return super().silhouette_at(row, shape)
 
     def _reset_views(self, particles: torch.Tensor) -> None:
         self.particles = wrap_views(particles)
