@@ -3,6 +3,7 @@ rendered templates, robustness, determinism and seeded end-to-end runs on the si
 
 import copy
 import dataclasses
+import json
 import math
 import re
 from pathlib import Path
@@ -599,3 +600,27 @@ def test_full_runs_at_1000_m_meet_the_bars(model, vehicle, aspect_bar):
     m = run_summary(result, model, 60)
     assert m["horizontal_error_m"] < 1.0 and m["recognition_accuracy"] >= 0.9
     assert m["aspect_error_rad"] < aspect_bar and m["lost_frames"] == 0
+
+
+def test_a_second_run_is_a_new_trackers_run(model):
+    """Each run starts as a new Tracker with the same seed would: a sequence without a frame rate
+    takes filter.fps again, not the last sequence's period, and the blind start does not reuse the
+    silhouette boxes the last run kept at its (nearby) elevation. Against a new Tracker's run."""
+    from torch_atr.data import ArraySequence
+
+    def scene(start_deg, fps):
+        sim = SyntheticSequence("t_72", SceneConfig(frames=4, camera_height_m=100, range_m=200, focal_px=2000,
+                                                    tilt_deg=33.5, start_deg=start_deg))
+        return ArraySequence(np.stack([sim.frame(i) for i in range(4)]), camera=sim.camera, fps=fps,
+                             camera_height_m=100.0)
+
+    cfg = load_config(TrackerConfig, None, ["filter.particles=200"])
+    first, second = scene(190, 5.0), scene(200, None)
+    tracker = Tracker(model, first.camera, cfg, seed=0)
+    tracker.run(first, progress=False)
+    again = tracker.run(second, progress=False).rows
+    fresh = Tracker(model, second.camera, cfg, seed=0).run(second, progress=False).rows
+    assert [r["time_s"] for r in again] == pytest.approx([i / cfg.filter.fps for i in range(4)])
+    json.dumps(again)  # plain Python values (a NumPy count was not)
+    for got, want in zip(again, fresh):
+        assert {k: v for k, v in got.items() if k != "step_ms"} == {k: v for k, v in want.items() if k != "step_ms"}

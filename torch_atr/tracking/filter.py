@@ -474,7 +474,7 @@ class Tracker:
         if mask is None:
             mask = self.segmenter(frame, near=near, exclude=box)
         self.last_mask = mask
-        area = np.count_nonzero(mask)
+        area = int(np.count_nonzero(mask))
         observed = 0 < area <= self.cfg.filter.max_foreground * mask.size
         clear = observed and clear_of_border(mask, self.cfg.init.border_px)
         point = (self._frames, self._clock, blob_column(mask)) if clear else None
@@ -904,8 +904,8 @@ class Tracker:
                 raise ValueError(f"{sequence.name}: its camera differs from the tracker's in {', '.join(differ)}; "
                                  f"build the Tracker with sequence.camera (or open the sequence without one)")
         self._begin()
-        if math.isfinite(sequence.fps) and sequence.fps > 0:
-            self.dt = 1.0 / sequence.fps
+        self._grid.forget()  # boxes kept at an earlier run's elevation (a new Tracker has none)
+        self.dt = 1.0 / (sequence.fps if math.isfinite(sequence.fps) and sequence.fps > 0 else self.cfg.filter.fps)
         if self.cfg.init.camera_height_m is None:
             self.camera_height_m = sequence.camera_height_m
         count = self.cfg.segmentation.warmup_frames
