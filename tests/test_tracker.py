@@ -294,6 +294,24 @@ def _ground_depth_by_projection(camera, camera_height_m: float, u: float, v: flo
     return float(camera.project(torch.tensor([x, ground_y, z], dtype=torch.float64))[1])
 
 
+def test_the_blind_start_undistorts_the_pixels_it_casts_rays_through():
+    """With lens distortion the ground under a pixel is the ground point that Camera.project
+    (distortion applied, tested against OpenCV) sends to it: ground points across the image,
+    projected, come back at their depths; without distortion the pixels are used as they are."""
+    from torch_atr.tracking.initialise import ground_depth
+
+    tilt, height = math.radians(20.0), 6.5
+    R = [[1, 0, 0], [0, math.cos(tilt), math.sin(tilt)], [0, -math.sin(tilt), math.cos(tilt)]]  # looking down
+    ground = torch.tensor([[x, -height, z] for x in (-6.0, 0.0, 5.0) for z in (9.0, 14.0, 25.0)], dtype=torch.float64)
+    for dist in ([-0.2, 0.05, 0.001, -0.002, 0.0], [0.0] * 5):
+        camera = Camera(480.0, 480.0, 319.5, 239.5, 640, 480, dist=dist, R=R)
+        pixels, depths = camera.project(ground)
+        assert ((pixels >= 0) & (pixels < torch.tensor([640.0, 480.0], dtype=torch.float64))).all()
+        got = [ground_depth(camera, pixel, height) for pixel in pixels]
+        np.testing.assert_allclose(got, depths.numpy(), rtol=1e-7, err_msg=str(dist))
+    assert torch.equal(camera.undistort(pixels), pixels)
+
+
 def _first_blob(vehicle: str, range_m: float, night: bool = True):
     """The 150-frame grid scene's first segmented blob, its lowest row and centre column, and its
     median contrast; segmented without thin parts, as the contrast rule was fitted (by day thin

@@ -10,6 +10,7 @@ from __future__ import annotations
 import math
 import numbers
 
+import cv2
 import numpy as np
 import torch
 from torch import nn
@@ -126,8 +127,26 @@ class Camera(nn.Module):
         uv = torch.where((z > 0).unsqueeze(-1), uv, torch.full_like(uv, float("nan")))
         return uv, z
 
+    def undistort(self, uv: torch.Tensor) -> torch.Tensor:
+        """uv: (..., 2) image pixels -> (..., 2) the pixels where the same rays meet the image without
+        lens distortion (OpenCV's iterative undistortion, to 1e-12), for :meth:`pixel_rays`;
+        ``uv`` itself when the camera has no distortion. Same dtype and device as ``uv``."""
+        uv = as_float_tensor("uv", uv, like=self.K)
+        if uv.shape[-1:] != (2,):
+            raise ValueError(f"Expected uv to have shape (..., 2); got {tuple(uv.shape)}")
+        if not bool(self.dist.any()):
+            return uv
+        K, dist = self.K.detach().cpu().double().numpy(), self.dist.detach().cpu().double().numpy()
+        points = uv.detach().cpu().double().reshape(-1, 1, 2).numpy()
+        criteria = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-12)
+        if hasattr(cv2, "undistortPointsIter"):  # OpenCV 4
+            out = cv2.undistortPointsIter(points, K, dist, None, K, criteria)
+        else:  # OpenCV 5 takes the criteria in undistortPoints
+            out = cv2.undistortPoints(points, K, dist, R=None, P=K, criteria=criteria)
+        return torch.from_numpy(out.reshape(uv.shape)).to(uv)
+
     def pixel_rays(self, uv: torch.Tensor) -> torch.Tensor:
-        """uv: (..., 2) undistorted pixels -> (..., 3) sensor-frame ray directions with z = 1."""
+        """uv: (..., 2) undistorted pixels (:meth:`undistort`) -> (..., 3) sensor-frame ray directions with z = 1."""
         uv = as_float_tensor("uv", uv, like=self.K)
         if uv.shape[-1:] != (2,):
             raise ValueError(f"Expected uv to have shape (..., 2); got {tuple(uv.shape)}")

@@ -182,7 +182,7 @@ def ground_depth(camera: Camera, pixel: torch.Tensor, camera_height_m: float) ->
     """Depth (along the optical axis) at which the ray through ``pixel`` (2,) meets flat ground
     ``camera_height_m`` below the camera centre (world y = c_y − height); NaN if it never does."""
     R, t = camera.R.to(pixel), camera.t.to(pixel)
-    ray = R.T @ camera.pixel_rays(pixel)  # world direction
+    ray = R.T @ camera.pixel_rays(camera.undistort(pixel))  # world direction
     if not float(ray[1]) < 0:
         return math.nan
     point = camera_centre(camera).to(pixel) + ray * (-camera_height_m / ray[1])
@@ -257,7 +257,7 @@ def blind_hypotheses(blob: torch.Tensor, distance: torch.Tensor, camera: Camera,
         raise ValueError("blind initialisation needs a non-empty blob")
     blob_box = torch.stack([cols.min(), rows.min(), cols.max(), rows.max()]).to(dtype=dtype, device=device)
     R, t, K = (camera.R.to(device, dtype), camera.t.to(device, dtype), camera.K.to(device, dtype))
-    ray = R.T @ camera.pixel_rays((blob_box[:2] + blob_box[2:]) / 2)  # world direction through the blob centre
+    ray = R.T @ camera.pixel_rays(camera.undistort((blob_box[:2] + blob_box[2:]) / 2))  # through the blob centre
     phi = torch.asin((-ray[1] / ray.norm()).clamp(-1, 1))  # elevation of the camera seen from the target
     grid = HypothesisGrid(model, cfg) if grid is None else grid
     alpha, theta, boxes = grid.alpha.to(device, dtype), grid.theta.to(device, dtype), grid.boxes(float(phi))
@@ -273,7 +273,7 @@ def blind_hypotheses(blob: torch.Tensor, distance: torch.Tensor, camera: Camera,
     side = f * model.template.window_m / ground if math.isfinite(ground) else None
     centre_px, side = blob_windows(boxes, blob_box, S, side)
     depth = f[0] * model.template.window_m / side[:, 0]
-    sensor = camera.pixel_rays(centre_px) * depth[:, None]  # (M, 3), z = depth
+    sensor = camera.pixel_rays(camera.undistort(centre_px)) * depth[:, None]  # (M, 3), z = depth
     position = (sensor - t) @ R  # world frame: Rᵀ (p_s − t)
     to_camera = camera_centre(camera).to(position) - position
     bearing = torch.atan2(to_camera[:, 0], to_camera[:, 2])  # of the camera, seen from the vehicle
