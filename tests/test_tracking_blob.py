@@ -97,3 +97,20 @@ def test_blob_tracker_reset_score_and_a_silhouette_before_any_blob():
     assert scores.shape == (5,) and torch.isfinite(scores).all() and tracker._blob_box is None
     row = tracker.step(mask=mask)
     assert row["lost"] == 0 and tracker.silhouette_at(row, mask.shape).any()
+
+
+def test_a_blob_no_view_explains_is_lost_and_the_blob_tracker_says_why(caplog):
+    """A hollow frame 120 x 60 px: every silhouette, laid on its box, is solid, so every frame is lost;
+    the warning speaks of the blob's box, not of a window size the blob tracker does not have."""
+    model = GenerativeShapeModel.from_checkpoint(CKPT)
+    tracker = BlobTracker(model, load_config(TrackerConfig, None, ["filter.particles=50"]), seed=0)
+    tracker.reset(torch.tensor([[1.5, 0.1, 0.5]], dtype=torch.float64).repeat(50, 1))
+    hollow = np.zeros((480, 640), dtype=bool)
+    hollow[200:260, 300:420] = True
+    hollow[204:256, 304:416] = False
+    with caplog.at_level("WARNING", logger="torch_atr.tracking.filter"):
+        rows = [tracker.step(mask=hollow) for _ in range(10)]
+    assert all(row["lost"] == 1 for row in rows)
+    said = [r.getMessage() for r in caplog.records if "no particle explains the blob" in r.getMessage()]
+    assert len(said) == 1 and "Each silhouette is laid on the blob's box (120 x 60 px)" in said[0]
+    assert "window" not in said[0]

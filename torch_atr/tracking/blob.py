@@ -31,7 +31,7 @@ from torch_atr.tracking.estimates import circular_mean, class_posterior
 from torch_atr.tracking.filter import FrameDistance, Tracker, TrackerConfig
 from torch_atr.tracking.initialise import best_hypotheses
 from torch_atr.tracking.motion import MotionConfig
-from torch_atr.tracking.observation import (blob_windows, cell_offsets, log_likelihood, observe_windows,
+from torch_atr.tracking.observation import (blob_windows, cell_offsets, log_likelihood, mask_box, observe_windows,
                                             silhouette_boxes)
 from torch_atr.tracking.resampling import effective_sample_size
 
@@ -115,6 +115,11 @@ class BlobTracker(Tracker):
         if self._blob_box is None:
             return torch.zeros(tuple(shape), dtype=torch.bool, device=self.device)
         return super().silhouette_at(row, shape)
+
+    def _unexplained_because(self, mask: np.ndarray, side: float) -> str:
+        u0, v0, u1, v1 = mask_box(mask)
+        return (f"Each silhouette is laid on the blob's box ({u1 - u0 + 1} x {v1 - v0 + 1} px): a vehicle unlike every "
+                f"vehicle the model was trained on cannot be explained")
 
     def _reset_views(self, particles: torch.Tensor) -> None:
         self.particles = wrap_views(particles)

@@ -553,16 +553,21 @@ class Tracker:
         """Say why the last ``_UNEXPLAINED_WARNING`` frames were lost although they had a blob: ``best``
         the best particle's log-likelihood, ``floor`` the one below which a frame is lost, ``side``
         the largest predicted window in pixels."""
-        u0, v0, u1, v1 = mask_box(mask)
         sigma = self.cfg.filter.sigma
         log.warning("frames %d-%d: no particle explains the blob (best log-likelihood %.0f; a frame is lost below "
                     "%.0f, a mean squared error above %.3g template units at filter.sigma=%g), so the track keeps its "
-                    "prediction. The blob spans %d x %d px, the largest predicted window %.0f px (the model's %g m): "
-                    "a vehicle longer than the window, or unlike every vehicle the model was trained on, cannot be "
-                    "explained; a smaller sigma makes that bound stricter (the default %g allows %.3g)",
+                    "prediction. %s; a smaller sigma makes that bound stricter (the default %g allows %.3g)",
                     self._frames - _UNEXPLAINED_WARNING + 1, self._frames, best, floor, -floor * 2 * sigma ** 2,
-                    sigma, u1 - u0 + 1, v1 - v0 + 1, side, self.model.template.window_m, FilterConfig.sigma,
+                    sigma, self._unexplained_because(mask, side), FilterConfig.sigma,
                     -floor * 2 * FilterConfig.sigma ** 2)
+
+    def _unexplained_because(self, mask: np.ndarray, side: float) -> str:
+        """The warning's reasons why no particle explains a blob (``mask``; ``side`` the largest
+        predicted window, pixels)."""
+        u0, v0, u1, v1 = mask_box(mask)
+        return (f"The blob spans {u1 - u0 + 1} x {v1 - v0 + 1} px, the largest predicted window {side:.0f} px (the "
+                f"model's {self.model.template.window_m:g} m): a vehicle longer than the window, or unlike every "
+                f"vehicle the model was trained on, cannot be explained")
 
     def _check_mask(self, mask) -> np.ndarray:
         """A user's mask as an (H, W) bool array (a tensor is taken too) of the camera's image size
