@@ -197,6 +197,10 @@ def test_video_errors(tmp_path):
     (tmp_path / "empty").mkdir()
     with pytest.raises(FileNotFoundError, match="empty: no image files"):
         open_sequence(f"video:{tmp_path / 'empty'}")
+    cv2.imwrite(str(tmp_path / "one.png"), np.zeros((H, W), np.uint8))
+    one = f"one.png: one image is not a sequence; give its folder (video:{tmp_path})"
+    with pytest.raises(ValueError, match=re.escape(one)):
+        open_sequence(f"video:{tmp_path / 'one.png'}")
     (tmp_path / "junk.avi").write_bytes(b"not a video at all")
     with pytest.raises(ValueError, match=re.escape(f"{tmp_path / 'junk.avi'}: OpenCV cannot open it as a video")):
         open_sequence(f"video:{tmp_path / 'junk.avi'}")

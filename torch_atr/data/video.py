@@ -89,6 +89,9 @@ class VideoSequence(Sequence):
             if not self._files:
                 raise FileNotFoundError(f"No files match the pattern {self.path!r}")
             self.name = p.parent.name or self.path
+        elif p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES:
+            raise InputError(f"{p}: one image is not a sequence; give its folder (video:{p.parent}) or a glob "
+                             f"(video:{p.parent / ('*' + p.suffix)})")
         elif p.is_file():
             h, w = self._open_video(p)
         else:
