@@ -74,6 +74,8 @@ def test_a_section_keeps_its_own_defaults_for_the_keys_not_given(tmp_path):
     ("model:\n  ridge: 1e300\n", r"model.ridge must be in \[0, 1000\]; got 1e\+300"),
     ("model:\n  init_width: 100\n", r"model.init_width must be in \[0.001, 4\]"),
     ("views:\n  azimuth_step_deg: 1e-9\n", "give 360000000000 x 5 = 1800000000000 views; expected at most 10000"),
+    ("views:\n  azimuth_step_deg: 2.2250738585e-313\n", "give more views than a float counts; expected at most 10000"),
+    ("views:\n  elevation_step_deg: 2.2250738585e-313\n", "give more views than a float counts"),  # were OverflowError
     ("views:\n  azimuth_step_deg: 7\n", r"views.azimuth_step_deg=7 must divide 360 \(e.g. 6 or 8\): 360/7 = 51.43 "
                                           r"azimuths would leave a step of 10° where they wrap"),
     ("seed: 1\nname: a\nseed: 2\n", r"key 'seed' repeated \(first on line 1\).*line 3"),

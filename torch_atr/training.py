@@ -58,6 +58,10 @@ class ViewGridConfig:
             raise ConfigError(f"views.elevation_step_deg must be in (0, 90]; got {self.elevation_step_deg}")
         if not 0 <= self.elevation_max_deg < 90:
             raise ConfigError(f"views.elevation_max_deg must be in [0, 90); got {self.elevation_max_deg}")
+        if not math.isfinite(360.0 / self.azimuth_step_deg * (self.elevation_max_deg / self.elevation_step_deg + 1)):
+            raise ConfigError(f"views: azimuth_step_deg={self.azimuth_step_deg:g} and elevation_step_deg="
+                              f"{self.elevation_step_deg:g} give more views than a float counts; expected at most "
+                              f"{MAX_VIEWS}")  # a step of 1e-313° (the counts below would be infinite)
         n_theta, n_phi = self.counts
         if n_theta * n_phi > MAX_VIEWS:
             raise ConfigError(f"views: azimuth_step_deg={self.azimuth_step_deg:g} and elevation_step_deg="
