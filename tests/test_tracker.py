@@ -620,6 +620,25 @@ def test_full_runs_at_1000_m_meet_the_bars(model, vehicle, aspect_bar):
     assert m["aspect_error_rad"] < aspect_bar and m["lost_frames"] == 0
 
 
+def test_convergence_leaves_out_a_bar_no_frame_can_be_measured_on(model):
+    """With SENSIAC's truth (aspect and class, no position) a track converges on the aspect and the
+    class alone: at the first of 10 frames in a row within 0.3 rad (frame 3 here, by hand); it was
+    never, as no frame could be within 1 m of an unknown position."""
+    from torch_atr.data.sequence import FrameTruth
+    from torch_atr.tracking.filter import TrackResult, truth_columns
+
+    tank = float(model.alphas[[i for i, n in enumerate(model.vehicle_names)
+                               if model.class_names[int(model.identity.labels[i])] == "tank"][0]])
+    rows = []
+    for i in range(20):
+        aspect = 0.5 + 0.1 * i
+        rows.append({"frame": i, "time_s": i / 30, "lost": 0, "x": 1.0, "z": 900.0, "alpha": tank, "class": "tank",
+                     "theta": aspect + (1.0 if i < 3 else 0.05), **truth_columns(
+                         FrameTruth(vehicle="T72", vehicle_class="tank", aspect=aspect, range_m=1000.0))})
+    assert math.isnan(rows[0]["true_x"]) and rows[0]["true_theta"] == pytest.approx(0.5)
+    assert run_summary(TrackResult(rows, [], 1.0), model, 60)["frames_to_convergence"] == 3
+
+
 def test_a_second_run_is_a_new_trackers_run(model):
     """Each run starts as a new Tracker with the same seed would: a sequence without a frame rate
     takes filter.fps again, not the last sequence's period, and the blind start does not reuse the
