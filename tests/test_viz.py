@@ -64,3 +64,33 @@ def test_track_figures_of_a_run_without_an_estimate_span_it_and_say_so():
     strip = viz.frame_strip_figure(shots, rows, "strip")
     assert [ax.get_title() for ax in strip.axes] == ["frame 0: no estimate", "frame 5: tank\nα = 0.30"]
     assert not viz.alpha_figure(rows, model, "one").axes[0].texts
+
+
+def _sensiac_like_rows(n: int = 12) -> list[dict]:
+    """Rows of a run whose truth (as SENSIAC's AGT files) has the aspect and class but no position
+    or elevation: true_x, true_z and true_phi NaN."""
+    return [{"frame": i, "time_s": i / 30, "lost": 0, "x": 1.0, "z": 900.0, "theta": 0.1 * i, "phi": 0.05,
+             "alpha": 0.05, "class": "tank", "true_x": math.nan, "true_z": math.nan, "true_theta": 0.1 * i,
+             "true_phi": math.nan, "true_class": "tank"} for i in range(n)]
+
+
+def test_view_figure_shows_what_truth_there_is_and_keeps_it_in_view():
+    """A truth without elevation is drawn as azimuth ticks, named so (it was a 'truth' key with
+    nothing drawn); a truth elevation above the estimate's stays inside the axes."""
+    legend = [t.get_text() for t in viz.view_figure(_sensiac_like_rows(), "sensiac").axes[0].get_legend().get_texts()]
+    assert legend == ["true azimuth (elevation unknown)", "estimate"]
+    rows = [{**row, "true_phi": math.radians(65.0)} for row in _sensiac_like_rows()]
+    fig = viz.view_figure(rows, "high")
+    assert [t.get_text() for t in fig.axes[0].get_legend().get_texts()] == ["truth", "estimate"]
+    assert fig.axes[0].get_ylim()[1] > 65.0
+
+
+def test_tensorboard_logs_errors_only_where_truth_and_estimate_are_known(tmp_path):
+    """SENSIAC-like rows: the aspect error every frame, no horizontal or range error (they were NaN)."""
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    from torch_atr.tracking.filter import TrackResult
+
+    viz.log_track_tensorboard(tmp_path, TrackResult(_sensiac_like_rows(), [], 1.0), {})
+    tags = EventAccumulator(str(tmp_path)).Reload().Tags()["scalars"]
+    assert "error/aspect_rad" in tags and "error/horizontal_m" not in tags and "error/range_m" not in tags

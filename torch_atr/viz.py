@@ -338,15 +338,18 @@ def view_figure(rows: list[dict], title: str):
     plt = pyplot()
     fig, ax = plt.subplots(figsize=(8, 4.5))
     t = column(rows, "time_s")
-    true_theta, true_phi = column(rows, "true_theta"), column(rows, "true_phi")
-    if np.isfinite(true_theta).any():
-        ax.plot(np.degrees(true_theta) % 360, np.degrees(true_phi), ".", ms=3, color="crimson", label="truth")
+    true_theta, true_phi = np.degrees(column(rows, "true_theta")) % 360, np.degrees(column(rows, "true_phi"))
+    if np.isfinite(true_phi).any():
+        ax.plot(true_theta, true_phi, ".", ms=3, color="crimson", label="truth")
+    elif np.isfinite(true_theta).any():  # an aspect without an elevation (SENSIAC's truth): ticks along the bottom
+        ax.plot(true_theta, np.full(true_theta.shape, 0.02), "|", ms=8, color="crimson",
+                transform=ax.get_xaxis_transform(), label="true azimuth (elevation unknown)")
     phi = np.degrees(column(rows, "phi"))
     theta = column(rows, "theta")
     sc = ax.scatter(np.degrees(theta) % 360, phi, c=t, s=8, cmap="viridis", label="estimate")
     if not np.isfinite(theta).any():
         _note_no_estimate(ax)
-    shown = np.concatenate([phi[np.isfinite(phi)], [-5.0, 50.0]])  # the training views span 0°-40°
+    shown = np.concatenate([phi[np.isfinite(phi)], true_phi[np.isfinite(true_phi)], [-5.0, 50.0]])  # training: 0°-40°
     ax.set(xlim=(0, 360), xticks=range(0, 361, 45), ylim=(shown.min() - 1, shown.max() + 1),
            xlabel="azimuth θ from the vehicle's front (degrees)", ylabel="elevation φ (degrees)",
            title=f"{title}: the view over the run")
@@ -424,11 +427,13 @@ def log_track_tensorboard(folder: str | Path, result, figures: dict) -> None:
                     writer.add_scalar(f"recognition/{name}", row[name], step)
             if "class" in row and row.get("true_class"):
                 writer.add_scalar("recognition/correct", float(row["class"] == row["true_class"]), step)
-            if "x" in row and "true_x" in row:  # a blob tracker (no camera) has no position
-                writer.add_scalar("error/horizontal_m", abs(row["x"] - row["true_x"]), step)
-                writer.add_scalar("error/range_m", abs(row["z"] - row["true_z"]), step)
-            if "theta" in row and "true_theta" in row:
-                writer.add_scalar("error/aspect_rad", float(wrapped_abs(row["theta"] - row["true_theta"])), step)
+            errors = {"error/horizontal_m": abs(row.get("x", math.nan) - row.get("true_x", math.nan)),
+                      "error/range_m": abs(row.get("z", math.nan) - row.get("true_z", math.nan)),
+                      "error/aspect_rad": float(wrapped_abs(row.get("theta", math.nan)
+                                                            - row.get("true_theta", math.nan)))}
+            for tag, error in errors.items():
+                if math.isfinite(error):  # where the truth and the estimate are known (SENSIAC's have no x, z)
+                    writer.add_scalar(tag, error, step)
         for name, fig in figures.items():
             writer.add_figure(name, fig, close=False)
 
