@@ -31,7 +31,8 @@ from torch_atr.training import trained_catalog, training_templates
 
 log = logging.getLogger("track")
 SETTLE_FRAMES = 60  # metrics.json's "settled" block: the frames after a blind start's first 2 s
-OUTPUTS = ("metrics.json", "estimates.csv", "config.yaml", "*.png", "overlay.mp4")  # a run's files, all replaced
+OUTPUTS = ("metrics.json", "estimates.csv", "config.yaml", *(f"{name}.png" for name in viz.TRACK_FIGURES),
+           "overlay.mp4")  # a run's files, all replaced; the folder's other files stay
 # The summary line's errors: label, metrics.json key, format, unit.
 ERRORS = (("horizontal", "horizontal_error_m", ".2f", "m"), ("range", "range_error_m", ".1f", "m"),
           ("aspect", "aspect_error_rad", ".2f", "rad"))

@@ -60,7 +60,8 @@ def main(argv: list[str] | None = None) -> dict:
     # The checkpoint's config says where it went and (absolute) which catalog Method IV re-renders.
     cfg = dataclasses.replace(cfg, checkpoint=str(checkpoint),
                               catalog=cfg.catalog if cfg.catalog == "train" else str(Path(cfg.catalog).resolve()))
-    with claimed_output_dir(out_dir, "run", replaces=("report.json", "model.pt", "*.png")):
+    figures = tuple(f"{name}.png" for name in viz.MODEL_FIGURES)  # the folder's other files stay
+    with claimed_output_dir(out_dir, "run", replaces=("report.json", "model.pt", *figures)):
         check_writable(checkpoint)
         return _train(cfg, vehicles, out_dir, checkpoint)
 

@@ -86,9 +86,11 @@ def test_an_existing_run_is_kept_unless_overwrite(run, tmp_path):
     # --overwrite replaces the whole run: no video or TensorBoard events of the old one stay behind.
     copy = tmp_path / "copy"
     shutil.copytree(out, copy)
+    (copy / "notes.png").write_bytes(b"the user's own")  # any other file of the folder stays
     track.main(["--sequence", SHORT, "--particles", "50", "--out", str(copy), "--overwrite", "--frames", "2"])
     names = {p.name for p in copy.iterdir()}
     assert "overlay.mp4" not in names and not any(n.startswith("events.out") for n in names)
+    assert (copy / "notes.png").read_bytes() == b"the user's own"
     assert json.loads((copy / "metrics.json").read_text())["frames"] == 2 and "frames.png" in names
     # A run that fails, on a value the tracker refuses or on a sequence midway, leaves the earlier run as it was.
     from torch_atr.data import open_sequence

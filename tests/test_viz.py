@@ -94,3 +94,20 @@ def test_tensorboard_logs_errors_only_where_truth_and_estimate_are_known(tmp_pat
     viz.log_track_tensorboard(tmp_path, TrackResult(_sensiac_like_rows(), [], 1.0), {})
     tags = EventAccumulator(str(tmp_path)).Reload().Tags()["scalars"]
     assert "error/aspect_rad" in tags and "error/horizontal_m" not in tags and "error/range_m" not in tags
+
+
+def test_the_figures_a_run_writes_are_the_named_ones(tmp_path):
+    """track.py and train.py replace only the figures named in viz (a user's own PNGs in the folder
+    stay), so every figure a run draws must be among those names."""
+    from torch_atr.tracking.filter import TrackResult
+
+    model = GenerativeShapeModel.from_checkpoint(CKPT)
+    rows = [{**row, "true_x": 0.5, "true_z": 900.0} for row in _sensiac_like_rows()]
+    blank = np.zeros((40, 50), dtype=bool)
+    shots = [{"frame": 0, "image": np.zeros((40, 50), np.uint8), "mask": blank, "silhouette": blank}]
+    assert set(viz.track_figures(TrackResult(rows, shots, 1.0), model, "t")) == set(viz.TRACK_FIGURES)
+    V = model.rbf.num_centres
+    masks = torch.zeros(model.core.num_vehicles, V, model.template.size_px, model.template.size_px, dtype=torch.bool)
+    theta, phi = model.rbf.centres_theta.double(), model.rbf.centres_phi.double()
+    names = list(viz.model_figures(model, masks, theta, phi, math.radians(12), math.radians(10)))
+    assert set(names) == set(viz.MODEL_FIGURES)

@@ -186,6 +186,12 @@ def _degrees(theta: float, phi: float) -> str:
     return f"{math.degrees(theta) % 360:.0f}°, {math.degrees(phi):.0f}°"
 
 
+# The figures each entry point may write, by name (a run's folder is theirs; other PNGs there are the user's).
+MODEL_FIGURES = ("reconstructions", "view_sweeps", "identity_sweeps_within_class", "identity_sweeps_between_classes",
+                 "identity_manifold")
+TRACK_FIGURES = ("alpha_over_time", "errors_over_time", "view_trajectory", "frames")
+
+
 @torch.no_grad()
 def model_figures(model, masks: torch.Tensor, theta: torch.Tensor, phi: torch.Tensor, step_theta: float,
                   step_phi: float) -> dict:
