@@ -109,6 +109,23 @@ def test_bad_override_and_missing_file(tmp_path):
     assert load_config(TrainConfig, None, ["model.ridge=0.1", "model.ridge=0.2"]).model.ridge == 0.2  # code's layers
 
 
+def test_a_mapping_for_a_section_sets_its_keys_and_keeps_the_others(tmp_path):
+    """model={ridge: 0.001} is model.ridge=0.001: the file's other model keys stay (the mapping
+    replaced the section, so pixel_rank and width_steps fell back to the defaults), and a key it sets
+    twice to two values is refused like any other."""
+    path = tmp_path / "tiny.yaml"
+    path.write_text("model:\n  pixel_rank: 8\n  width_steps: 0\n")
+    cfg = load_config(TrainConfig, path, ["model={ridge: 0.001}", "seed=3"])
+    assert (cfg.model.ridge, cfg.model.pixel_rank, cfg.model.width_steps) == (0.001, 8, 0)
+    nested = load_config(TrainConfig, path, ["model={ridge: 0.002, pixel_rank: 4}"])
+    assert (nested.model.ridge, nested.model.pixel_rank, nested.model.width_steps) == (0.002, 4, 0)
+    assert load_config(TrainConfig, path, ["model={}"]).model.pixel_rank == 8  # nothing set
+    with pytest.raises(ConfigError, match=r"both set model.ridge; give one"):
+        load_config(TrainConfig, path, ["model.ridge=0.1", "model={ridge: 0.2}"], unique=True)
+    with pytest.raises(ConfigError, match=r"model.colour"):
+        load_config(TrainConfig, path, ["model={colour: 1}"])
+
+
 def test_a_bad_override_is_reported_as_an_override_not_against_the_file(tmp_path):
     path = tmp_path / "good.yaml"
     path.write_text("name: a\n")

@@ -274,16 +274,18 @@ def load_config(cls: type[T], path: str | Path | None = None, overrides: list[st
         if not sep or not key.strip():
             raise ConfigError(f"{what} {item!r} is not of the form key=value")
         try:
-            value = _override_value(cls, key.strip(), raw)
-            _set_dotted(data, key.strip(), value)
+            leaves = _leaves(cls, key.strip(), _override_value(cls, key.strip(), raw))
+            for leaf, value in leaves:
+                _set_dotted(data, leaf, value)
         except yaml.YAMLError as exc:
             raise ConfigError(f"{what} {item!r}: not a YAML value: {' '.join(str(exc).split())}") from None
         except ConfigError as exc:
             raise ConfigError(f"{what} {item!r}: {exc}") from None
-        earlier = next((other for other, k, v in parsed if unique and k == key.strip() and v != value), None)
-        if earlier is not None:
-            raise ConfigError(f"{what}s {earlier!r} and {item!r} both set {key.strip()}; give one")
-        parsed.append((item, key.strip(), value))
+        for leaf, value in leaves:
+            earlier = next((other for other, k, v in parsed if unique and k == leaf and v != value), None)
+            if earlier is not None:
+                raise ConfigError(f"{what}s {earlier!r} and {item!r} both set {leaf}; give one")
+            parsed.append((item, leaf, value))
     try:
         return _build(cls, data)
     except ConfigError as exc:
@@ -302,13 +304,28 @@ def check_seed(key: str, seed: int) -> None:
         raise ConfigError(f"{key} must be in [0, 2**64 - 1]; got {seed}")
 
 
+def _key_type(cls: type, dotted: str) -> Any:
+    """The type of the dotted key in ``cls`` (a section's dataclass, or a field's type); None if unknown."""
+    tp: Any = cls
+    for part in dotted.split("."):
+        tp = typing.get_type_hints(tp).get(part) if dataclasses.is_dataclass(tp) else None
+    return tp
+
+
+def _leaves(cls: type, dotted: str, value: Any) -> list[tuple[str, Any]]:
+    """An override as (dotted key, value) pairs: a mapping given for a section stands for each of its
+    keys, merged into the section (``tracker={filter: {sigma: 0.05}}`` sets tracker.filter.sigma and
+    keeps the section's other values, as a file's section does)."""
+    if isinstance(value, dict) and dataclasses.is_dataclass(_key_type(cls, dotted)):
+        return [leaf for key, sub in value.items() for leaf in _leaves(cls, f"{dotted}.{key}", sub)]
+    return [(dotted, value)]
+
+
 def _override_value(cls: type, dotted: str, raw: str) -> Any:
     """An override's value: YAML, except for a text key (``out``, ``sequence``, ``name``), which
     takes ``raw`` as written (a path holding ``#`` or ``: ``, a name like ``2024``) unless it is
     quoted YAML, or ``null`` / ``~`` where the key may be null."""
-    tp: Any = cls
-    for part in dotted.split("."):
-        tp = typing.get_type_hints(tp).get(part) if dataclasses.is_dataclass(tp) else None
+    tp = _key_type(cls, dotted)
     arms = set(typing.get_args(tp)) if typing.get_origin(tp) in (typing.Union, types.UnionType) else {tp}
     if str not in arms or not arms <= {str, type(None)} or raw.strip()[:1] in ("'", '"'):
         return parse_yaml(raw)
