@@ -26,7 +26,7 @@ from torch_atr.model import GenerativeShapeModel
 from torch_atr.model.generative import load_checkpoint
 from torch_atr.tracking.blob import BlobTracker
 from torch_atr.tracking.filter import Tracker
-from torch_atr.tracking.job import TrackConfig, is_track_run, run_summary, write_run
+from torch_atr.tracking.job import CONVERGED_FRAMES, TrackConfig, is_track_run, run_summary, write_run
 from torch_atr.training import trained_catalog, training_templates
 
 log = logging.getLogger("track")
@@ -130,9 +130,10 @@ def truth_summary(metrics: dict) -> str:
                        if metrics[key] is not None)
     parts = [errors]
     if metrics["recognition_accuracy"] is not None:
-        converged = metrics["frames_to_convergence"]
+        converged, frames = metrics["frames_to_convergence"], metrics["first_frame"] + metrics["frames"]
         parts += [f"recognition {round(metrics['recognition_accuracy'], 3)}",
-                  "never converged" if converged is None else f"converged at frame {converged}"]
+                  f"converged at frame {converged}" if converged is not None else "never converged"
+                  if frames >= CONVERGED_FRAMES else f"too short to converge ({CONVERGED_FRAMES} frames in a row)"]
     return "; ".join(part for part in parts if part)
 
 

@@ -114,13 +114,15 @@ def test_an_existing_run_is_kept_unless_overwrite(run, tmp_path):
 
 def test_the_summary_names_what_the_truth_allows():
     full = {"horizontal_error_m": 0.371, "range_error_m": 28.46, "aspect_error_rad": 0.259,
-            "recognition_accuracy": 1.0, "frames_to_convergence": 1}
+            "recognition_accuracy": 1.0, "frames_to_convergence": 1, "first_frame": 0, "frames": 300}
     assert track.truth_summary(full) == ("horizontal 0.37 m, range 28.5 m, aspect 0.26 rad; recognition 1.0; "
                                          "converged at frame 1")  # the README's quick start
     positions = {**full, "aspect_error_rad": None, "recognition_accuracy": None, "frames_to_convergence": None}
     assert track.truth_summary(positions) == "horizontal 0.37 m, range 28.5 m"  # truth.csv of x, y, z only
-    classes = dict.fromkeys(full) | {"recognition_accuracy": 142 / 150}
+    classes = dict.fromkeys(full) | {"recognition_accuracy": 142 / 150, "first_frame": 0, "frames": 150}
     assert track.truth_summary(classes) == "recognition 0.947; never converged"  # not 0.9466666666666667
+    short = classes | {"first_frame": 2, "frames": 7}  # 9 frames: no 10 in a row to converge in
+    assert track.truth_summary(short) == "recognition 0.947; too short to converge (10 frames in a row)"
     assert track.truth_summary(dict.fromkeys(full)) == ""
 
 

@@ -28,6 +28,7 @@ METRICS_FORMAT = "torch_atr.track_metrics"  # metrics.json's "format": marks a r
 # A frame is "on target" for frames_to_convergence when all three hold (the tracker issue's bars).
 CONVERGED_HORIZONTAL_M = 1.0
 CONVERGED_ASPECT_RAD = 0.3
+CONVERGED_FRAMES = 10  # ... in this many frames in a row
 
 
 @dataclass(frozen=True)
@@ -81,7 +82,7 @@ def run_summary(result: TrackResult, model, settle_frames: int) -> dict:
             ok &= error < bound
     summary = {"format": METRICS_FORMAT, **track_metrics(rows, model)}
     summary["settled"] = track_metrics(rows, model, settle_frames) if len(rows) > settle_frames else None
-    summary["frames_to_convergence"] = frames_to_convergence(ok) if any(known) else None
+    summary["frames_to_convergence"] = frames_to_convergence(ok, CONVERGED_FRAMES) if any(known) else None
     summary["frames_per_second"] = result.frames_per_second
     return summary
 
