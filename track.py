@@ -130,10 +130,14 @@ def truth_summary(metrics: dict) -> str:
                        if metrics[key] is not None)
     parts = [errors]
     if metrics["recognition_accuracy"] is not None:
-        converged, frames = metrics["frames_to_convergence"], metrics["first_frame"] + metrics["frames"]
-        parts += [f"recognition {round(metrics['recognition_accuracy'], 3)}",
-                  f"converged at frame {converged}" if converged is not None else "never converged"
-                  if frames >= CONVERGED_FRAMES else f"too short to converge ({CONVERGED_FRAMES} frames in a row)"]
+        converged = metrics["frames_to_convergence"]
+        if converged is not None:
+            convergence = f"converged at frame {converged}"
+        elif metrics["first_frame"] + metrics["frames"] >= CONVERGED_FRAMES:
+            convergence = "never converged"
+        else:
+            convergence = f"too short to converge ({CONVERGED_FRAMES} frames in a row)"
+        parts += [f"recognition {round(metrics['recognition_accuracy'], 3)}", convergence]
     return "; ".join(part for part in parts if part)
 
 

@@ -738,7 +738,8 @@ class ForegroundSegmenter:
         # A positive rate learns only in the selective update below; −1 is OpenCV's automatic
         # rate on every whole frame.
         learn = cfg.learning_rate > 0 and self._frames % cfg.learning_interval == 0
-        rate, whole = min(cfg.learning_rate, 0.0), (0, *image.shape[:1], 0, *image.shape[1:])
+        (H, W), rate = image.shape, min(cfg.learning_rate, 0.0)
+        whole = (0, H, 0, W)
         fg_in = self._mog.regions_of(image, rate)
         # Region compared (class docstring): near the prediction first, unless every tile must see
         # the frame (learning needs the whole foreground; OpenCV's automatic rate counts frames).
