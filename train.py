@@ -10,8 +10,9 @@ reconstructions; log pictures to TensorBoard; write the checkpoint (atomically) 
 resolved config and the report.
 
 An existing checkpoint or run folder (<log_dir>/<name> with its report.json) is replaced only
-with --overwrite; a file or folder that is not ours is never replaced. User errors print one
-line, ``train.py: error: ...``, and exit with status 2.
+with --overwrite; a file or folder that is not ours is never replaced, nor a file the run writes
+itself (a checkpoint= at its report.json is refused). User errors print one line,
+``train.py: error: ...``, and exit with status 2.
 """
 
 from __future__ import annotations
@@ -31,15 +32,19 @@ from torch_atr.cli import REPO, console_logging, run_main
 from torch_atr.config import load_config
 from torch_atr.evaluation import (fit_alpha, identity_distances, per_class_mean, rbf_mapping_iou,
                                   reconstruction_iou)
-from torch_atr.io import atomic_write_text, check_output_dir, check_output_file, check_writable, claimed_output_dir
+from torch_atr.io import (RUN_CLAIM, atomic_write_text, check_output_dir, check_output_file, check_writable,
+                          claimed_output_dir)
 from torch_atr.model import GenerativeShapeModel
 from torch_atr.model.generative import is_checkpoint
 from torch_atr.model.rbf import RBFViewMapping
-from torch_atr.training import (REPORT_FORMAT, TrainConfig, check_templates, is_train_report, non_finite_keys,
-                                render_set)
+from torch_atr.training import (REPORT_FORMAT, TrainConfig, check_checkpoint_path, check_templates, is_train_report,
+                                non_finite_keys, render_set)
 from torch_atr.vehicles import CLASS_NAMES, load_catalog, load_catalog_folder
 
 log = logging.getLogger("train")
+FIGURES = tuple(f"{name}.png" for name in viz.MODEL_FIGURES)
+# What the run writes into its run folder besides a checkpoint there: never the checkpoint's path.
+RUN_FILES = ("report.json", *FIGURES, RUN_CLAIM, "events.out.tfevents.*")
 
 
 def main(argv: list[str] | None = None) -> dict:
@@ -52,6 +57,7 @@ def main(argv: list[str] | None = None) -> dict:
     args = parser.parse_intermixed_args(argv)  # flags may sit between the key=value overrides
     console_logging()
     cfg = load_config(TrainConfig, args.config, args.overrides, unique=True)
+    check_checkpoint_path(cfg.checkpoint_path, cfg.run_dir, RUN_FILES)
     # The training vehicles (the shipped split, or a folder of your own models): a bad catalog is
     # named first. Then refuse to replace outputs before spending minutes on training.
     vehicles = load_catalog("train") if cfg.catalog == "train" else load_catalog_folder(cfg.catalog)
@@ -60,8 +66,7 @@ def main(argv: list[str] | None = None) -> dict:
     # The checkpoint's config says where it went and (absolute) which catalog Method IV re-renders.
     cfg = dataclasses.replace(cfg, checkpoint=str(checkpoint),
                               catalog=cfg.catalog if cfg.catalog == "train" else str(Path(cfg.catalog).resolve()))
-    figures = tuple(f"{name}.png" for name in viz.MODEL_FIGURES)  # the folder's other files stay
-    with claimed_output_dir(out_dir, "run", replaces=("report.json", "model.pt", *figures)):
+    with claimed_output_dir(out_dir, "run", replaces=("report.json", "model.pt", *FIGURES)):  # others stay
         check_writable(checkpoint)
         return _train(cfg, vehicles, out_dir, checkpoint)
 

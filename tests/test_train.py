@@ -95,6 +95,16 @@ def test_the_checkpoint_goes_into_the_named_run_folder(tmp_path):
     assert torch.load(ckpt, weights_only=True)["extra"]["config"]["checkpoint"] == str(ckpt)
 
 
+@pytest.mark.parametrize("checkpoint", ["runs/test/report.json", "runs/test/view_sweeps.png",
+                                        "runs/test/.torch_atr_run", "runs/test/events.out.tfevents.1", "runs/test",
+                                        "runs"])
+def test_a_checkpoint_the_run_would_write_over_is_refused_before_anything_is_written(tmp_path, checkpoint):
+    """A checkpoint at the run's own report.json was replaced by the report without a word."""
+    with pytest.raises(ConfigError, match=rf"^checkpoint={re.escape(str(tmp_path / checkpoint))} is "):
+        _run(tmp_path, *TINY, checkpoint=checkpoint)
+    assert not (tmp_path / "runs").exists()
+
+
 def test_user_errors_print_one_line_and_exit_2(tmp_path):
     result = subprocess.run([sys.executable, str(REPO / "train.py"), "model.ridg=1", f"log_dir={tmp_path}"],
                             capture_output=True, text=True, cwd=tmp_path)

@@ -7,6 +7,7 @@ encoded by the clipped signed distance (METHOD.md "Templates").
 
 from __future__ import annotations
 
+import fnmatch
 import logging
 import math
 import os
@@ -153,6 +154,21 @@ class TrainConfig:
     def checkpoint_path(self) -> Path:
         """``checkpoint``, or <log_dir>/<name>/model.pt when it is null."""
         return Path(self.checkpoint) if self.checkpoint is not None else self.run_dir / "model.pt"
+
+
+def check_checkpoint_path(checkpoint: Path, run_dir: Path, run_files: tuple[str, ...]) -> None:
+    """Raise ConfigError naming the key ``checkpoint`` and its path when the run would write over its
+    own checkpoint there: ``checkpoint`` is the run folder ``run_dir``, a folder above it, or one of
+    the files the run writes into it (``run_files``: names or glob patterns, ``events.out.tfevents.*``)."""
+    path, folder = checkpoint.resolve(), run_dir.resolve()
+    default = f"(null: {run_dir / 'model.pt'})"
+    if path == folder or path in folder.parents:
+        where = "the run folder" if path == folder else "a folder above the run folder"
+        raise ConfigError(f"checkpoint={checkpoint} is {where} {run_dir}; the checkpoint must be a file of its own "
+                          f"{default}")
+    if path.parent == folder and any(fnmatch.fnmatchcase(path.name, pattern) for pattern in run_files):
+        raise ConfigError(f"checkpoint={checkpoint} is the run's own {path.name} in {run_dir}, which the run writes "
+                          f"over; give the checkpoint another path {default}")
 
 
 def is_train_report(path: Path) -> bool:
