@@ -1,14 +1,19 @@
 """Sequence abstraction, open_sequence and our folder format: round trips and malformed input."""
 
+import fcntl
 import json
 import logging
 import math
 import os
 import re
+import signal
 import stat
 import struct
+import subprocess
+import sys
 import time
 import types
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -201,6 +206,102 @@ def test_save_crash_leaves_nothing(tmp_path):
     with pytest.raises(RuntimeError, match="disk on fire"):
         save_sequence(seq, tmp_path / "s", progress=False)
     assert list(tmp_path.iterdir()) == []
+
+
+_KILLED_SAVE = """
+import os, signal, sys
+from pathlib import Path
+import numpy as np
+from torch_atr.data import ArraySequence, save_sequence
+
+target, when = Path(sys.argv[1]), sys.argv[2]
+
+
+class KilledAtFrame2(ArraySequence):
+    def _read_frame(self, i):
+        if when == "writing" and i == 2:
+            os.kill(os.getpid(), signal.SIGKILL)
+        return super()._read_frame(i)
+
+
+def replace_then_die(src, dst, real=os.replace):
+    real(src, dst)
+    if Path(src) == target:  # the earlier sequence was just moved aside, the new one not yet in
+        os.kill(os.getpid(), signal.SIGKILL)
+
+
+os.replace = replace_then_die
+save_sequence(KilledAtFrame2(np.full((4, 3, 4), 9, np.uint8)), target, progress=False, overwrite=True)
+"""
+
+
+@pytest.mark.parametrize("when", ["writing", "swapping"])
+def test_the_next_save_removes_what_a_killed_save_left(tmp_path, when):
+    """A save killed (SIGKILL: no clean-up runs) while writing its frames, or between moving the
+    earlier sequence aside and renaming the new one in, leaves a hidden folder beside the target;
+    the next save of that target removes it."""
+    target = tmp_path / "s"
+    save_sequence(ListSequence([np.full((3, 4), 5, np.uint8)]), target, progress=False)
+    repo = Path(__file__).resolve().parents[1]
+    child = subprocess.run([sys.executable, "-c", _KILLED_SAVE, str(target), when], cwd=repo,
+                           env={**os.environ, "PYTHONPATH": str(repo)}, capture_output=True, text=True)
+    assert child.returncode == -signal.SIGKILL, child.stderr
+    left = [p for p in tmp_path.iterdir() if p.name != "s"]
+    assert left and all(p.name.startswith(".s.") and p.is_dir() for p in left)
+    if when == "writing":  # the earlier sequence is untouched
+        assert len(left) == 1 and open_sequence(str(target)).frame(0)[0, 0] == 5
+    else:  # the new sequence and, moved aside, the earlier one are in leftovers; the target is gone
+        aside = [p / "s" for p in left if (p / "s").is_dir()]
+        assert len(left) == 2 and len(aside) == 1 and not target.exists()
+        assert open_sequence(str(aside[0])).frame(0)[0, 0] == 5
+    save_sequence(ListSequence([np.full((3, 4), 7, np.uint8)]), target, progress=False, overwrite=True)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["s"]
+    assert open_sequence(str(target)).frame(0)[0, 0] == 7
+
+
+def test_a_save_removes_only_unheld_leftovers_of_its_own_target(tmp_path):
+    """What a live save holds (its flock), another target's leftovers, look-alikes holding other
+    things, links and older temporary names stay; an unheld leftover of the target goes."""
+    seq = ListSequence([np.zeros((3, 4), np.uint8)])
+    dead = [tmp_path / ".s.dead0001.saving", tmp_path / ".s.dead0002.superseded"]
+    live = tmp_path / ".s.live0001.saving"
+    kept = [tmp_path / ".other.dead0001.saving", tmp_path / ".s.dead01.saving", tmp_path / ".s.dead0001.tmp",
+            tmp_path / ".s.notes001.saving", tmp_path / ".s.notes002.superseded", live]
+    for p in dead + kept:
+        (p / "frames").mkdir(parents=True)
+    (dead[1] / "frames").rmdir()
+    (dead[1] / "s" / "frames").mkdir(parents=True)  # the sequence a killed save was replacing
+    (tmp_path / ".s.notes001.saving" / "notes.txt").write_text("mine")
+    (tmp_path / ".s.file0001.saving").write_text("a file")
+    (tmp_path / ".s.link0001.saving").symlink_to(tmp_path / ".s.dead01.saving")
+    kept += [tmp_path / ".s.file0001.saving", tmp_path / ".s.link0001.saving"]
+    fd = os.open(live, os.O_RDONLY)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX)  # as a live save holds its folders
+        save_sequence(seq, tmp_path / "s", progress=False)
+    finally:
+        os.close(fd)
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(["s"] + [p.name for p in kept])
+    assert (tmp_path / ".s.notes001.saving" / "notes.txt").read_text() == "mine"
+
+
+def test_a_failed_swap_puts_the_earlier_sequence_back(tmp_path, monkeypatch):
+    target = tmp_path / "s"
+    save_sequence(ListSequence([np.full((3, 4), 5, np.uint8)]), target, progress=False)
+    real, failed = os.replace, []
+
+    def replace(src, dst):  # the rename of the new sequence onto the target fails, once
+        if Path(dst) == target and not failed:
+            failed.append(src)
+            raise OSError(28, "No space left on device")
+        real(src, dst)
+
+    monkeypatch.setattr(os, "replace", replace)
+    with pytest.raises(OSError, match="No space left"):
+        save_sequence(ListSequence([np.full((3, 4), 7, np.uint8)]), target, progress=False, overwrite=True)
+    monkeypatch.setattr(os, "replace", real)
+    assert failed and sorted(p.name for p in tmp_path.iterdir()) == ["s"]
+    assert open_sequence(str(target)).frame(0)[0, 0] == 5
 
 
 def test_save_rejects_mixed_frames(tmp_path):

@@ -12,13 +12,16 @@
 
 :func:`save_sequence` writes the folder into a temporary folder beside the target and renames
 it into place at the end, so a crash leaves no half-written sequence; it replaces only an empty
-folder or (with ``overwrite=True``) an earlier sequence folder. :class:`FolderSequence`
-reads it lazily: opening checks the file list and parses the small CSV, frames are read on demand.
+folder or (with ``overwrite=True``) an earlier sequence folder. A save that was killed leaves its
+hidden temporary folder (``.NAME.XXXXXXXX.saving`` or ``.NAME.XXXXXXXX.superseded``), which the
+next save of the same folder removes. :class:`FolderSequence` reads it lazily: opening checks the
+file list and parses the small CSV, frames are read on demand.
 """
 
 from __future__ import annotations
 
 import csv
+import fcntl
 import io
 import json
 import logging
@@ -45,6 +48,10 @@ FORMAT = "torch_atr.sequence"
 FORMAT_VERSION = 1
 _FRAME_RE = re.compile(r"\d{6,}\.png")
 FRAME_RULE = "(H, W) uint8/uint16 or (H, W, 3) uint8"
+_TEMP_CHARS = "[a-z0-9_]{8}"  # tempfile's random part
+_WRITING = ".saving"  # .NAME.XXXXXXXX.saving: a save's new sequence until it is renamed to NAME
+_SUPERSEDED = ".superseded"  # .NAME.XXXXXXXX.superseded: holds NAME, the sequence a save replaces, until deleted
+_WRITTEN = frozenset({"frames", "truth.csv", "camera.json", "meta.json"})  # what a save writes in its folder
 
 
 def _is_stored_frame(shape: tuple[int, ...], dtype: str) -> bool:
@@ -235,6 +242,14 @@ def save_sequence(seq: Sequence, folder: str | os.PathLike, progress: bool = Tru
     beside ``folder`` and renamed into place at the end; the folder gets the mode a new folder
     gets (0o777 less the umask). What :class:`FolderSequence` would refuse to read (an fps or a
     camera height out of range, an infinite truth value) is refused before anything is written.
+
+    A save that is killed (no clean-up runs) leaves its temporary folder behind, and one killed
+    while swapping leaves the sequence it was replacing in a hidden folder beside ``folder`` (see
+    the module docstring). Each save holds an exclusive ``flock`` on the folders it writes until it
+    ends, so those nobody holds are a killed save's: this save removes the temporary folders of
+    earlier saves of ``folder`` before it writes, and the replaced sequences once its own sequence
+    is in place (the sequences a save with ``overwrite=True`` was asked to replace). A folder that
+    holds anything a save does not write is left alone.
     """
     folder = Path(folder).expanduser()
     if folder.name in ("", ".", ".."):
@@ -258,7 +273,8 @@ def save_sequence(seq: Sequence, folder: str | os.PathLike, progress: bool = Tru
                 raise FileExistsError(f"{folder} is not a sequence folder (no meta.json with format "
                                       f"{FORMAT!r}); refusing to replace it even with overwrite=True")
     folder.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{folder.name}.", suffix=".tmp", dir=folder.parent))
+    _remove_left_by_killed_saves(folder, _WRITING, _WRITTEN)
+    tmp, lock = _held_folder(folder, _WRITING)
     try:
         umask = os.umask(0)
         os.umask(umask)
@@ -287,6 +303,9 @@ def save_sequence(seq: Sequence, folder: str | os.PathLike, progress: bool = Tru
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
+    finally:
+        os.close(lock)
+    _remove_left_by_killed_saves(folder, _SUPERSEDED, frozenset({folder.name}))
     logger.info("saved %d frames of %s to %s", n, seq.name, folder)
     return folder
 
@@ -312,14 +331,65 @@ def _is_sequence_folder(folder: Path) -> bool:
 
 
 def _swap_in(tmp: Path, folder: Path) -> None:
-    """Rename ``tmp`` to ``folder``, moving an existing ``folder`` aside first and deleting it after."""
+    """Rename ``tmp`` to ``folder``. An existing ``folder`` is first moved into a held
+    ``.NAME.XXXXXXXX.superseded`` folder, put back if the rename fails, and deleted after it."""
     if not folder.exists():
         os.replace(tmp, folder)
         return
-    old = Path(tempfile.mkdtemp(prefix=f".{folder.name}.", suffix=".old.tmp", dir=folder.parent))
-    os.replace(folder, old / folder.name)
-    os.replace(tmp, folder)
-    shutil.rmtree(old)
+    old, lock = _held_folder(folder, _SUPERSEDED)
+    try:
+        os.replace(folder, old / folder.name)
+        try:
+            os.replace(tmp, folder)
+        except BaseException:
+            os.replace(old / folder.name, folder)
+            old.rmdir()
+            raise
+        shutil.rmtree(old)
+    finally:
+        os.close(lock)
+
+
+def _held_folder(folder: Path, kind: str) -> tuple[Path, int]:
+    """A new empty folder ``.NAME.XXXXXXXX{kind}`` beside ``folder`` and an open descriptor that
+    holds an exclusive ``flock`` on it until the caller closes it. The kernel drops the lock when
+    the process ends, however it ends, so one that nobody holds was left by a killed save
+    (:func:`_remove_left_by_killed_saves`)."""
+    path = Path(tempfile.mkdtemp(prefix=f".{folder.name}.", suffix=kind, dir=folder.parent))
+    fd = os.open(path, os.O_RDONLY | os.O_DIRECTORY)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX)
+    except OSError:  # a file system that cannot lock folders (NFS): nor can a later save, which keeps it
+        pass
+    return path, fd
+
+
+def _remove_left_by_killed_saves(folder: Path, kind: str, holds: frozenset[str]) -> None:
+    """Delete the ``.NAME.XXXXXXXX{kind}`` folders beside ``folder`` (see :func:`_held_folder`) that
+    no live save holds and that hold nothing but entries named in ``holds``: those that killed saves
+    of ``folder`` left. Anything else (a file or link of that name, a folder with other entries, one
+    the file system cannot lock) stays; one that cannot be removed is logged, not raised."""
+    pattern = re.compile(rf"\.{re.escape(folder.name)}\.{_TEMP_CHARS}{re.escape(kind)}")
+    for candidate in folder.parent.iterdir():
+        if not pattern.fullmatch(candidate.name):
+            continue
+        try:
+            fd = os.open(candidate, os.O_RDONLY | os.O_DIRECTORY | os.O_NOFOLLOW)
+        except OSError:  # not a folder, a link, not ours to read, or gone
+            continue
+        try:
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+                stale = {entry.name for entry in candidate.iterdir()} <= holds
+            except OSError:  # a live save holds it (or the file system cannot lock folders), or not ours to list
+                stale = False
+            if stale:
+                shutil.rmtree(candidate)
+                logger.info("removed %s, left by a save of %s that was killed", candidate, folder)
+        except OSError as exc:
+            logger.warning("could not remove %s, left by a save of %s that was killed: %s", candidate, folder, exc)
+        finally:
+            os.close(fd)
 
 
 register_scheme("folder", FolderSequence)
