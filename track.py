@@ -7,8 +7,8 @@
 With no arguments it tracks a built-in simulated sequence (the held-out T-72 at 1000 m, 300
 frames) with the shipped checkpoint. Steps: open the sequence and the model; warm up the
 background model; initialise the particles (blind from the first blob, or from the truth);
-run the particle filter over the frames; write ``estimates.csv``, ``metrics.json``,
-``config.yaml`` and the figures into the run folder (README, "Command line").
+run the particle filter over the frames; write ``estimates.csv``, ``config.yaml``, the figures
+and last ``metrics.json``, which marks the run folder finished (README, "Command line").
 """
 
 from __future__ import annotations
@@ -26,7 +26,8 @@ from torch_atr.model import GenerativeShapeModel
 from torch_atr.model.generative import load_checkpoint
 from torch_atr.tracking.blob import BlobTracker
 from torch_atr.tracking.filter import Tracker
-from torch_atr.tracking.job import CONVERGED_FRAMES, TrackConfig, is_track_run, run_summary, write_run
+from torch_atr.tracking.job import (CONVERGED_FRAMES, TrackConfig, is_track_run, run_summary, write_metrics,
+                                    write_run)
 from torch_atr.training import trained_catalog, training_templates
 
 log = logging.getLogger("track")
@@ -96,14 +97,16 @@ def _track(cfg: TrackConfig, model: GenerativeShapeModel, tracker: Tracker | Blo
     result = tracker.run(sequence, cfg.frames)
     metrics = run_summary(result, model, SETTLE_FRAMES)
 
-    # 3. The run folder: estimates, metrics, config and figures (TensorBoard and video on request).
-    write_run(out, cfg, result, metrics)
+    # 3. The run folder: estimates, config and figures (TensorBoard and video on request), then the
+    # metrics, which mark it finished: a run that fails or is killed before reads as interrupted.
+    write_run(out, cfg, result)
     figures = viz.track_figures(result, model, sequence.name)
     viz.save_figures(figures, out)
     if cfg.tensorboard:
         viz.log_track_tensorboard(out, result, figures)
     if cfg.video:
         viz.write_overlay_video(out / "overlay.mp4", tracker, sequence, result, cfg.frames)
+    write_metrics(out, metrics)
 
     log.info("%s: %d frames at %.1f frames/s, %d lost", sequence.name, metrics["frames"],
              metrics["frames_per_second"], metrics["lost_frames"])

@@ -112,6 +112,24 @@ def test_an_existing_run_is_kept_unless_overwrite(run, tmp_path):
         track.main(["--sequence", SHORT, "--out", str(foreign / "notes.txt" / "sub")])
 
 
+def test_a_run_whose_figures_fail_does_not_look_finished(tmp_path, monkeypatch):
+    """metrics.json marks a finished run: it was written before the figures, so a run that failed (or
+    was killed) drawing them looked finished."""
+    from torch_atr.io import check_output_dir
+    from torch_atr.tracking.job import is_track_run
+
+    def no_space(figures, folder):
+        raise OSError(28, f"cannot write {folder / 'frames.png'}: No space left on device")
+
+    monkeypatch.setattr(track.viz, "save_figures", no_space)
+    out = tmp_path / "run"
+    with pytest.raises(OSError, match="No space left"):
+        track.main(["--sequence", SHORT, "--particles", "50", "--frames", "2", "--out", str(out)])
+    assert (out / "estimates.csv").is_file() and not (out / "metrics.json").exists()
+    with pytest.raises(OSError, match=r"holds an interrupted tracking run \(no metrics.json\)"):
+        check_output_dir(out, False, "metrics.json", is_track_run, "tracking run")
+
+
 def test_the_summary_names_what_the_truth_allows():
     full = {"horizontal_error_m": 0.371, "range_error_m": 28.46, "aspect_error_rad": 0.259,
             "recognition_accuracy": 1.0, "frames_to_convergence": 1, "first_frame": 0, "frames": 300}

@@ -1,7 +1,8 @@
 """``track.py``'s job: its typed config, the metrics of a run and the files it writes.
 
 Outputs of a run folder (README, "Command line"): ``estimates.csv`` (one row per frame),
-``metrics.json``, ``config.yaml`` (the resolved config) and PNG figures, each written atomically.
+``config.yaml`` (the resolved config), PNG figures and, last, ``metrics.json``, each written
+atomically.
 """
 
 from __future__ import annotations
@@ -95,8 +96,14 @@ def is_track_run(path: Path) -> bool:
         return False
 
 
-def write_run(folder: Path, cfg: TrackConfig, result: TrackResult, metrics: dict) -> None:
-    """``estimates.csv``, ``metrics.json`` and ``config.yaml`` in ``folder``, each atomically."""
+def write_run(folder: Path, cfg: TrackConfig, result: TrackResult) -> None:
+    """``estimates.csv`` and ``config.yaml`` in ``folder``, each atomically; ``metrics.json`` comes
+    last (:func:`write_metrics`)."""
     atomic_write_csv(result.rows, folder / "estimates.csv")
-    atomic_write_text(json.dumps(metrics, indent=2) + "\n", folder / "metrics.json")
     atomic_write_text(yaml.safe_dump(dataclasses.asdict(cfg), sort_keys=False), folder / "config.yaml")
+
+
+def write_metrics(folder: Path, metrics: dict) -> None:
+    """``metrics.json`` in ``folder``, atomically: the mark of a finished run (:func:`is_track_run`),
+    so written after every other output; a run killed or failed before it reads as interrupted."""
+    atomic_write_text(json.dumps(metrics, indent=2) + "\n", folder / "metrics.json")
