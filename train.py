@@ -33,7 +33,7 @@ from torch_atr.config import load_config
 from torch_atr.evaluation import (fit_alpha, identity_distances, per_class_mean, rbf_mapping_iou,
                                   reconstruction_iou)
 from torch_atr.io import (RUN_CLAIM, atomic_write_text, check_output_dir, check_output_file, check_writable,
-                          claimed_output_dir)
+                          claimed_output_dir, created_folders)
 from torch_atr.model import GenerativeShapeModel
 from torch_atr.model.generative import is_checkpoint
 from torch_atr.model.rbf import RBFViewMapping
@@ -66,7 +66,9 @@ def main(argv: list[str] | None = None) -> dict:
     # The checkpoint's config says where it went and (absolute) which catalog Method IV re-renders.
     cfg = dataclasses.replace(cfg, checkpoint=str(checkpoint),
                               catalog=cfg.catalog if cfg.catalog == "train" else str(Path(cfg.catalog).resolve()))
-    with claimed_output_dir(out_dir, "run", replaces=("report.json", "model.pt", *FIGURES)):  # others stay
+    # A run that fails leaves none of the empty folders it made, for the checkpoint or the run.
+    replaces = ("report.json", "model.pt", *FIGURES)  # the folder's other files stay
+    with created_folders(checkpoint.parent), claimed_output_dir(out_dir, "run", replaces=replaces):
         check_writable(checkpoint)
         return _train(cfg, vehicles, out_dir, checkpoint)
 

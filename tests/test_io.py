@@ -8,7 +8,7 @@ from pathlib import Path
 import pytest
 
 from torch_atr.io import (RUN_CLAIM, OutputExistsError, atomic_path, atomic_write_csv, atomic_write_text,
-                          check_output_dir, check_output_file, check_writable, claimed_output_dir)
+                          check_output_dir, check_output_file, check_writable, claimed_output_dir, created_folders)
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -219,6 +219,29 @@ def test_a_run_that_fails_before_writing_leaves_the_earlier_run_as_it_was(tmp_pa
             (run / "figure.png").write_text("new")
             raise ValueError("late")
     assert {p.name for p in run.iterdir()} == {RUN_CLAIM, "figure.png"}
+
+
+def test_a_failed_run_removes_the_empty_folders_it_created_and_no_other(tmp_path):
+    """--out runs/a/b/c of a run that failed left runs/a/b behind (only c went)."""
+    (tmp_path / "runs").mkdir()
+    with pytest.raises(ValueError):
+        with claimed_output_dir(tmp_path / "runs/a/b/c", "run"):
+            raise ValueError("a bad frame, found by the work")
+    assert [p.name for p in tmp_path.rglob("*")] == ["runs"]  # runs was there before: it stays
+    with pytest.raises(OSError, match=r"cannot write the run into .*/x{300}: "):  # made runs/new, then failed
+        with claimed_output_dir(tmp_path / "runs/new" / ("x" * 300), "run"):
+            pass
+    assert [p.name for p in tmp_path.rglob("*")] == ["runs"]
+    with pytest.raises(KeyboardInterrupt):  # a folder that is not empty stays, and those above it
+        with created_folders(tmp_path / "runs/a/b/c") as made:
+            made.mkdir(parents=True)
+            (tmp_path / "runs/a/notes.txt").write_text("the user's, written meanwhile")
+            raise KeyboardInterrupt
+    assert sorted(p.relative_to(tmp_path).as_posix() for p in tmp_path.rglob("*")) == ["runs", "runs/a",
+                                                                                       "runs/a/notes.txt"]
+    with created_folders(tmp_path / "ckpt/new") as made:  # a run that succeeds keeps them
+        made.mkdir(parents=True)
+    assert made.is_dir()
 
 
 def test_files_a_killed_run_set_aside_go_at_the_next_claim(tmp_path):

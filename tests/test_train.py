@@ -223,9 +223,10 @@ def test_a_vehicle_of_the_wrong_size_is_named_before_training(tmp_path):
                                    r"too big for a vehicle \(at most 100 m")]:  # centimetres read as metres: at loading
         manifest.write_text(good.replace("length: 4.88, name: camry", f"scale: {scale}, name: camry"))
         with pytest.raises(ValueError, match=message):
-            train.main(["--config", str(REPO / "configs/default.yaml"), f"catalog={folder}", f"log_dir={tmp_path}",
-                        *TINY])
-        assert not any(tmp_path.glob("default*")), "nothing written for a run that never trained"
+            train.main(["--config", str(REPO / "configs/default.yaml"), f"catalog={folder}",
+                        f"log_dir={tmp_path / 'logs/a'}", f"checkpoint={tmp_path / 'ckpt/new/model.pt'}", *TINY])
+        # Nothing written for a run that never trained, nor any of the folders it made (it left logs/a, ckpt/new).
+        assert sorted(p.name for p in tmp_path.iterdir()) == ["mine"]
 
 
 def test_bad_config_key_and_type_are_named(tmp_path):

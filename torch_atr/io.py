@@ -236,13 +236,14 @@ def claimed_output_dir(folder: Path, what: str, replaces: tuple[str, ...] = ()) 
     TensorBoard event files (or TensorBoard shows two runs as one) are set aside (renamed
     ``.NAME.replaced``) and deleted when the block ends; other files in the folder stay. If the
     block raises before anything was written (say a bad frame or value the work found), they come
-    back and a claim it made (and a folder it created) goes: the earlier run is as it was. Files
-    set aside by a killed run are deleted.
+    back and a claim it made (and the folders it created, ``folder`` and any above it) goes: the
+    earlier run is as it was. Files set aside by a killed run are deleted.
     """
-    created, claimed = not folder.exists(), (folder / RUN_CLAIM).exists()
+    made, claimed = _missing_folders(folder), (folder / RUN_CLAIM).exists()
     try:
         atomic_write_text(json.dumps({"format": RUN_CLAIM, "what": what}) + "\n", folder / RUN_CLAIM)
     except OSError as exc:
+        _remove_empty(made)
         raise OSError(exc.errno, f"cannot write the {what} into {folder}: {exc.strerror}") from None
     for left in folder.glob(f".*{_SET_ASIDE}"):
         left.unlink(missing_ok=True)
@@ -265,14 +266,49 @@ def claimed_output_dir(folder: Path, what: str, replaces: tuple[str, ...] = ()) 
                 os.replace(kept, old)
             if not claimed:
                 (folder / RUN_CLAIM).unlink(missing_ok=True)
-            if created and all(_is_stale_temp(entry) for entry in folder.iterdir()):
+            if made and all(_is_stale_temp(entry) for entry in folder.iterdir()):
                 for entry in folder.iterdir():
                     entry.unlink()
-                folder.rmdir()
+                _remove_empty(made)
         raise
     finally:
         for _, kept in aside:
             kept.unlink(missing_ok=True)
+
+
+def _missing_folders(folder: Path) -> list[Path]:
+    """``folder`` and the folders above it that do not exist (a run would create them), deepest first."""
+    missing = []
+    for path in (folder, *folder.parents):
+        if path.exists():
+            break
+        missing.append(path)
+    return missing
+
+
+def _remove_empty(folders: list[Path]) -> None:
+    """Remove each of ``folders`` (deepest first) while it is empty; stop at the first that is not (or
+    that may not be removed): those above it are not empty either."""
+    for path in folders:
+        try:
+            path.rmdir()
+        except OSError:
+            if os.path.isdir(path):  # not empty: kept (one never created, by a write that failed, is passed)
+                break
+
+
+@contextmanager
+def created_folders(folder: str | os.PathLike) -> Iterator[Path]:
+    """Yield ``folder``; if the block raises, remove it and the folders above it that did not exist
+    when the block began, each only while empty (a failed run leaves none of the empty folders it
+    made, and never removes one that was there before)."""
+    folder = Path(folder)
+    made = _missing_folders(folder)
+    try:
+        yield folder
+    except BaseException:
+        _remove_empty(made)
+        raise
 
 
 def _listing(folder: Path, skip: list[Path]) -> dict[str, tuple[int, int]]:
