@@ -1,12 +1,15 @@
 import re
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 
 from torch_atr.cli import run_main
 from torch_atr.config import ConfigError
 from torch_atr.io import OutputExistsError
+
+REPO = Path(__file__).resolve().parents[1]
 
 
 @pytest.mark.parametrize("error", [ConfigError("cfg.yaml: seed:\n  expected an integer"), FileNotFoundError("x.arf"),
@@ -20,6 +23,31 @@ def test_user_errors_become_one_line_and_status_2(capsys, error):
     assert info.value.code == 2
     err = capsys.readouterr().err
     assert err == f"track.py: error: {' '.join(str(error).split())}\n"
+
+
+@pytest.mark.parametrize("error, message", [
+    (PermissionError(13, "Permission denied", "runs/x/metrics.json"), "runs/x/metrics.json: Permission denied"),
+    (OSError(18, "Invalid cross-device link", "a.tmp", None, "b"), "a.tmp -> b: Invalid cross-device link"),
+    (OSError(13, "cannot write runs/x/metrics.json: Permission denied"),  # our io's, the file named already
+     "cannot write runs/x/metrics.json: Permission denied"),
+    (IsADirectoryError(21, "Is a directory", b"configs"), "configs: Is a directory"),
+])
+def test_os_errors_read_without_their_errno(capsys, error, message):
+    """The line read "[Errno 13] Permission denied: 'runs/x/metrics.json'"."""
+    def main(argv):
+        raise error
+
+    with pytest.raises(SystemExit):
+        run_main(main, [], prog="track.py")
+    assert capsys.readouterr().err == f"track.py: error: {message}\n"
+
+
+def test_an_unwritable_run_folder_is_one_plain_line(tmp_path):
+    (tmp_path / "file").write_text("not a folder")
+    result = subprocess.run([sys.executable, str(REPO / "train.py"), f"log_dir={tmp_path / 'file'}"],
+                            capture_output=True, text=True, cwd=tmp_path)
+    assert result.returncode == 2
+    assert result.stderr == f"train.py: error: cannot write the run into {tmp_path}/file/default: Not a directory\n"
 
 
 def test_success_returns_and_bugs_keep_their_traceback():

@@ -11,6 +11,7 @@ which never land inside a progress bar. :func:`in_repo` finds the repository's d
 from __future__ import annotations
 
 import logging
+import os
 import sys
 from pathlib import Path
 from typing import Callable
@@ -30,6 +31,19 @@ def in_repo(path: str | Path) -> Path:
     return p if p.is_absolute() or p.exists() or not (REPO / p).exists() else REPO / p
 
 
+def error_text(exc: BaseException) -> str:
+    """``exc``'s message on one line. An OSError's leaves out Python's ``[Errno N]`` prefix: its reason,
+    after the file(s) it names the way a shell tool puts it (``runs/x/metrics.json: Permission
+    denied``; ``a -> b: Invalid cross-device link``)."""
+    if isinstance(exc, OSError) and exc.errno is not None and exc.strerror:
+        files = [os.fsdecode(f) if isinstance(f, (bytes, os.PathLike)) else str(f)
+                 for f in (exc.filename, exc.filename2) if f is not None]
+        text = f"{' -> '.join(files)}: {exc.strerror}" if files else exc.strerror
+    else:
+        text = str(exc)
+    return " ".join(text.split()) or type(exc).__name__
+
+
 def run_main(main: Callable[[list[str] | None], object], argv: list[str] | None = None,
              prog: str | None = None) -> None:
     """Call ``main(argv)``; on a user error print ``PROG: error: MESSAGE`` (one line) to stderr and
@@ -42,8 +56,7 @@ def run_main(main: Callable[[list[str] | None], object], argv: list[str] | None 
     try:
         main(argv)
     except USER_ERRORS as exc:
-        message = " ".join(str(exc).split()) or type(exc).__name__
-        print(f"{prog}: error: {message}", file=sys.stderr)
+        print(f"{prog}: error: {error_text(exc)}", file=sys.stderr)
         raise SystemExit(2) from None
     except KeyboardInterrupt:
         print(f"\n{prog}: interrupted", file=sys.stderr)

@@ -244,7 +244,9 @@ def claimed_output_dir(folder: Path, what: str, replaces: tuple[str, ...] = ()) 
         atomic_write_text(json.dumps({"format": RUN_CLAIM, "what": what}) + "\n", folder / RUN_CLAIM)
     except OSError as exc:
         _remove_empty(made)
-        raise OSError(exc.errno, f"cannot write the {what} into {folder}: {exc.strerror}") from None
+        if exc.errno is None:
+            raise
+        raise OSError(exc.errno, f"cannot write the {what} into {folder}: {os.strerror(exc.errno)}") from None
     for left in folder.glob(f".*{_SET_ASIDE}"):
         left.unlink(missing_ok=True)
     olds = sorted({p for pattern in (*replaces, "events.out.tfevents.*") for p in folder.glob(pattern) if p.is_file()})

@@ -20,6 +20,7 @@ import torch
 from tqdm import tqdm
 
 from torch_atr._checks import check_shape
+from torch_atr.cli import error_text
 from torch_atr.config import ConfigError, ModelConfig, TemplateConfig, check_seed
 from torch_atr.render import render_templates
 from torch_atr.shape import signed_distance
@@ -252,7 +253,7 @@ def training_templates(model, catalog: str = "train") -> torch.Tensor:
         vehicles = load_catalog("train") if catalog == "train" else load_catalog_folder(catalog)
     except FileNotFoundError as exc:
         raise FileNotFoundError(f"Method IV re-renders the training vehicles from the catalog the checkpoint names: "
-                                f"{exc}") from None
+                                f"{error_text(exc)}") from None
     catalog_vehicles = {v.name: v for v in vehicles}
     missing = [name for name in model.vehicle_names if name not in catalog_vehicles]
     if missing:
