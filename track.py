@@ -14,6 +14,7 @@ and last ``metrics.json``, which marks the run folder finished (README, "Command
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import logging
 from pathlib import Path
 
@@ -26,8 +27,8 @@ from torch_atr.model import GenerativeShapeModel
 from torch_atr.model.generative import load_checkpoint
 from torch_atr.tracking.blob import BlobTracker
 from torch_atr.tracking.filter import Tracker
-from torch_atr.tracking.job import (CONVERGED_FRAMES, TrackConfig, is_track_run, run_summary, write_metrics,
-                                    write_run)
+from torch_atr.tracking.job import (CONVERGED_FRAMES, TrackConfig, absolute_spec, is_track_run, run_summary,
+                                    write_metrics, write_run)
 from torch_atr.training import trained_catalog, training_templates
 
 log = logging.getLogger("track")
@@ -73,6 +74,9 @@ def main(argv: list[str] | None = None) -> dict:
     # tracker refuses before the folder is claimed.
     model, extra = load_checkpoint(in_repo(cfg.checkpoint), map_location=cfg.device)
     sequence = open_sequence(cfg.sequence)
+    # config.yaml names the files read by absolute paths: it reproduces the run from any folder.
+    cfg = dataclasses.replace(cfg, checkpoint=str(in_repo(cfg.checkpoint).resolve()),
+                              sequence=absolute_spec(cfg.sequence))
     out = check_output_dir(cfg.out, args.overwrite, "metrics.json", is_track_run, "tracking run")
     tracker = make_tracker(cfg, model, trained_catalog(extra), sequence)
     with claimed_output_dir(out, "tracking run", replaces=OUTPUTS):

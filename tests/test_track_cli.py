@@ -130,6 +130,45 @@ def test_a_run_whose_figures_fail_does_not_look_finished(tmp_path, monkeypatch):
         check_output_dir(out, False, "metrics.json", is_track_run, "tracking run")
 
 
+def test_config_yaml_reproduces_the_run_from_any_folder(tmp_path, monkeypatch):
+    """config.yaml kept the relative --sequence and --checkpoint: from another folder it named nothing."""
+    import yaml
+
+    from torch_atr.data import open_sequence
+    from torch_atr.data.folder import save_sequence
+
+    data = tmp_path / "data"
+    save_sequence(open_sequence(SHORT), data / "clip", progress=False)
+    shutil.copy(REPO / "checkpoints" / "default.pt", data / "model.pt")
+    monkeypatch.chdir(data)
+    first = track.main(["--sequence", "clip", "--checkpoint", "model.pt", "--particles", "50", "--frames", "2",
+                        "--out", "run"])
+    saved = yaml.safe_load((data / "run" / "config.yaml").read_text())
+    assert (saved["sequence"], saved["checkpoint"]) == (str(data / "clip"), str(data / "model.pt"))
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    monkeypatch.chdir(elsewhere)
+    again = track.main(["--config", str(data / "run" / "config.yaml"), "--out", "again"])
+    assert again["horizontal_error_m"] == first["horizontal_error_m"] and again["frames"] == 2
+
+
+def test_absolute_spec_makes_the_files_a_spec_reads_absolute(tmp_path, monkeypatch):
+    from torch_atr.tracking.job import absolute_spec
+
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "tank.obj").write_text("")
+    assert absolute_spec("clips/a") == str(tmp_path / "clips/a")
+    assert absolute_spec("folder:clips/a") == f"folder:{tmp_path / 'clips/a'}"
+    assert absolute_spec("video:shots/*.png, calib=cam.json,fps=30") == (f"video:{tmp_path / 'shots/*.png'},"
+                                                                         f"calib={tmp_path / 'cam.json'},fps=30")
+    assert absolute_spec("sensiac:~/arf/a.arf,layout=trailer40") == (f"sensiac:{Path.home().resolve() / 'arf/a.arf'},"
+                                                                     f"layout=trailer40")
+    assert absolute_spec(SHORT) == SHORT  # a catalog name, not a path
+    assert absolute_spec("synthetic:vehicle=tank.obj,range=900") == (f"synthetic:vehicle={tmp_path / 'tank.obj'},"
+                                                                     f"range=900")
+    assert absolute_spec("mine:relative/x") == "mine:relative/x"  # another scheme's spec: as given
+
+
 def test_the_summary_names_what_the_truth_allows():
     full = {"horizontal_error_m": 0.371, "range_error_m": 28.46, "aspect_error_rad": 0.259,
             "recognition_accuracy": 1.0, "frames_to_convergence": 1, "first_frame": 0, "frames": 300}

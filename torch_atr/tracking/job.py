@@ -10,6 +10,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import os
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -17,7 +18,7 @@ import numpy as np
 import yaml
 
 from torch_atr.config import ConfigError, check_seed
-from torch_atr.data.sequence import read_json_object
+from torch_atr.data.sequence import parse_spec_options, read_json_object
 from torch_atr.evaluation import (best_matches, frames_to_convergence, recognition_accuracy, tracking_errors,
                                   wrapped_abs)
 from torch_atr.io import atomic_write_csv, atomic_write_text
@@ -54,6 +55,38 @@ class TrackConfig:
             raise ConfigError("sequence must be a sequence spec; got an empty string")
         for key in ("checkpoint", "out"):  # ~ as a shell would, for paths from config files
             object.__setattr__(self, key, os.path.expanduser(getattr(self, key)))
+
+
+_SCHEME = re.compile(r"([A-Za-z][A-Za-z0-9_]+):(.*)", re.DOTALL)  # "scheme:rest", as open_sequence splits a spec
+
+
+def _absolute(path: str) -> str:
+    """``path`` (``~`` expanded) as an absolute path, symbolic links resolved; a glob's pattern kept."""
+    return str(Path(path).expanduser().resolve())
+
+
+def absolute_spec(spec: str) -> str:
+    """The open_sequence ``spec`` with the files it reads as absolute paths, so that it opens the same
+    sequence from any folder: a folder (bare or ``folder:``), the file or glob and ``calib=`` of
+    ``video:`` and ``sensiac:``, and a ``synthetic:`` ``vehicle=`` that is a file. A built-in name
+    (``synthetic:vehicle=t_72,...``) and a spec of any other scheme stay as given."""
+    m = _SCHEME.fullmatch(spec)
+    if m is None:
+        return _absolute(spec)
+    scheme, rest = m.groups()
+    if scheme.lower() == "folder":
+        return f"{scheme}:{_absolute(rest)}"
+    if scheme.lower() in ("video", "sensiac"):
+        target, options = parse_spec_options(rest)
+        options = {k: _absolute(v) if k == "calib" else v for k, v in options.items()}
+        return ",".join([f"{scheme}:{_absolute(target)}", *(f"{k}={v}" for k, v in options.items())])
+    if scheme.lower() == "synthetic":
+        _, options = parse_spec_options(rest, has_target=False)
+        vehicle = options.get("vehicle", "")
+        if Path(vehicle).is_file():  # a file, as the simulator reads it (no ~); else a catalog name
+            options["vehicle"] = str(Path(vehicle).resolve())
+        return f"{scheme}:" + ",".join(f"{k}={v}" for k, v in options.items())
+    return spec
 
 
 def track_metrics(rows: list[dict], model, first: int = 0) -> dict:
