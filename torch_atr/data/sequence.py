@@ -198,7 +198,7 @@ Opener = Callable[[str], Sequence]
 _SCHEMES: dict[str, Opener] = {}
 _BUILT_IN_ON_USE = ("synthetic",)  # schemes of modules here that register when first used (the simulator)
 _SCHEME_RE = re.compile(r"[a-z][a-z0-9_]+")
-_SPEC_RE = re.compile(r"([A-Za-z][A-Za-z0-9_]+):(.*)", re.DOTALL)
+SPEC_RE = re.compile(r"([A-Za-z][A-Za-z0-9_]+):(.*)", re.DOTALL)  # "scheme:rest" (absolute_spec splits specs so too)
 
 
 def register_scheme(name: str, opener: Opener, replace: bool = False) -> None:
@@ -232,7 +232,7 @@ def open_sequence(spec: str | os.PathLike) -> Sequence:
         return _SCHEMES["folder"](os.fspath(spec))
     if not isinstance(spec, str) or not spec.strip():
         raise InputError(f"Expected a sequence spec string; got {show(spec)}")
-    m = _SPEC_RE.fullmatch(spec)
+    m = SPEC_RE.fullmatch(spec)
     if m is None:
         scheme, rest = "folder", spec  # FolderSequence expands a ~, as it does after "folder:"
     else:

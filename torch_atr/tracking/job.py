@@ -10,7 +10,6 @@ from __future__ import annotations
 import dataclasses
 import json
 import os
-import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -18,7 +17,7 @@ import numpy as np
 import yaml
 
 from torch_atr.config import ConfigError, check_seed
-from torch_atr.data.sequence import parse_spec_options, read_json_object
+from torch_atr.data.sequence import SPEC_RE, parse_spec_options, read_json_object
 from torch_atr.evaluation import (best_matches, frames_to_convergence, recognition_accuracy, tracking_errors,
                                   wrapped_abs)
 from torch_atr.io import atomic_write_csv, atomic_write_text
@@ -57,9 +56,6 @@ class TrackConfig:
             object.__setattr__(self, key, os.path.expanduser(getattr(self, key)))
 
 
-_SCHEME = re.compile(r"([A-Za-z][A-Za-z0-9_]+):(.*)", re.DOTALL)  # "scheme:rest", as open_sequence splits a spec
-
-
 def _absolute(path: str) -> str:
     """``path`` (``~`` expanded) as an absolute path, symbolic links resolved; a glob's pattern kept."""
     return str(Path(path).expanduser().resolve())
@@ -70,7 +66,7 @@ def absolute_spec(spec: str) -> str:
     sequence from any folder: a folder (bare or ``folder:``), the file or glob and ``calib=`` of
     ``video:`` and ``sensiac:``, and a ``synthetic:`` ``vehicle=`` that is a file. A built-in name
     (``synthetic:vehicle=t_72,...``) and a spec of any other scheme stay as given."""
-    m = _SCHEME.fullmatch(spec)
+    m = SPEC_RE.fullmatch(spec)
     if m is None:
         return _absolute(spec)
     scheme, rest = m.groups()
