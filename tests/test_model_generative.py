@@ -1,5 +1,6 @@
 """The generative model (eq. 4.18) on synthetic signed-distance templates, and its checkpoints."""
 
+import copy
 import math
 
 import numpy as np
@@ -343,6 +344,40 @@ def test_fit_rejects_bad_inputs(data):
     with pytest.raises(ValueError, match=r"Expected finite templates; 1 value\(s\) are NaN or infinite"):
         GenerativeShapeModel.fit(bad, data["theta"], data["phi"], NAMES, CLASSES, ["car", "tank"], TEMPLATE)
 
+
+
+
+@pytest.mark.parametrize("key, message", [
+    ("theta", r"Expected theta to be finite radians; 1 value\(s\) are NaN or infinite"),
+    ("phi", r"Expected phi to be finite radians; 1 value"),
+    ("centres", r"Expected centres_theta to be finite radians; 1 value"),
+    ("val_theta", r"Expected val_theta to be finite radians; 1 value"),
+    ("val_phi", r"Expected val_phi to be finite radians; 1 value"),
+    ("val", r"Expected finite val templates; vehicle 0 has 1 NaN or infinite value\(s\)"),
+])
+def test_fit_rejects_non_finite_views_and_validation_templates(data, key, message):
+    # A NaN view made eigh fail to converge (LinAlgError); a NaN validation template made every width NaN.
+    inputs = {name: data[name].clone() for name in ("theta", "phi", "val_theta", "val_phi", "val")}
+    inputs["centres"] = data["theta"].clone()
+    inputs[key].view(-1)[1] = math.inf if key == "phi" else math.nan
+    with pytest.raises(ValueError, match=message):
+        GenerativeShapeModel.fit(data["templates"], inputs["theta"], inputs["phi"], NAMES, CLASSES, ["car", "tank"],
+                                 TEMPLATE, ModelConfig(pixel_rank=None, ridge=1e-9, width_steps=2),
+                                 centres=(inputs["centres"], data["phi"]), val_templates=inputs["val"],
+                                 val_theta=inputs["val_theta"], val_phi=inputs["val_phi"])
+
+
+@pytest.mark.parametrize("key", ["theta", "val_theta", "train", "val"])
+def test_fine_tune_widths_rejects_non_finite_inputs(model, data, key):
+    inputs = {"theta": data["theta"].clone(), "val_theta": data["val_theta"].clone(),
+              "train": data["templates"].flatten(2).clone(), "val": data["val"].flatten(2).clone()}
+    inputs[key].view(-1)[-1] = math.nan
+    rbf = copy.deepcopy(model.rbf)
+    before = rbf.log_width.detach().clone()
+    with pytest.raises(ValueError, match=rf"{key}.* NaN or infinite"):
+        fine_tune_widths(rbf, inputs["train"], inputs["theta"], data["phi"], inputs["val"], inputs["val_theta"],
+                         data["val_phi"], 2, 0.01)
+    assert torch.equal(rbf.log_width.detach(), before)  # refused before any step
 
 def test_model_config_from_yaml_and_overrides(tmp_path):
     path = tmp_path / "model.yaml"

@@ -160,7 +160,7 @@ class GenerativeShapeModel(nn.Module):
         wide = templates.to(torch.float64)
 
         def as_wide(name: str, x) -> torch.Tensor:
-            return as_float_tensor(name, x, like=wide).to(wide)
+            return _finite_radians(name, as_float_tensor(name, x, like=wide).to(wide))
 
         theta, phi = as_wide("theta", theta), as_wide("phi", phi)
         check_shape("theta", theta, (V,))
@@ -559,6 +559,15 @@ def load_checkpoint(path: str | os.PathLike, map_location=None) -> tuple[Generat
     return model, extra
 
 
+def _finite_radians(name: str, x: torch.Tensor) -> torch.Tensor:
+    """``x`` itself, or ValueError naming it when it holds NaN or inf (views of the fit: a NaN made
+    ``eigh`` fail to converge, or every kernel width NaN)."""
+    if not bool(x.isfinite().all()):
+        raise ValueError(f"Expected {name} to be finite radians; {int((~x.isfinite()).sum())} value(s) are NaN or "
+                         f"infinite")
+    return x
+
+
 def _fit_core_and_identity(rbf: RBFViewMapping, Y: torch.Tensor, theta: torch.Tensor, phi: torch.Tensor,
                            ridge: float, pixel_rank: int | None, labels: torch.Tensor,
                            order: torch.Tensor) -> tuple[TensorCore, IdentityManifold]:
@@ -598,16 +607,21 @@ def fine_tune_widths(rbf: RBFViewMapping, train: torch.Tensor, theta, phi, val: 
     if not isinstance(rbf, RBFViewMapping):
         raise ValueError(f"Expected an RBFViewMapping; got {type(rbf).__name__}")
     like = rbf.log_width
-    theta, phi, val_theta, val_phi = (as_float_tensor(name, x, like=like).to(like) for name, x in
-                                      (("theta", theta), ("phi", phi), ("val_theta", val_theta), ("val_phi", val_phi)))
+    theta, phi, val_theta, val_phi = (_finite_radians(name, as_float_tensor(name, x, like=like).to(like))
+                                      for name, x in (("theta", theta), ("phi", phi), ("val_theta", val_theta),
+                                                      ("val_phi", val_phi)))
     check_shape("train", train, ("K", theta.shape[0], "d"))
     check_shape("val", val, (train.shape[0], val_theta.shape[0], train.shape[2]))
     with torch.no_grad():  # one vehicle at a time, so no widened copy of the templates is made
         G = torch.zeros(theta.shape[0], theta.shape[0], dtype=like.dtype, device=like.device)  # Σₖ Yᵏ Yᵏᵀ
         E = torch.zeros(theta.shape[0], val_theta.shape[0], dtype=like.dtype, device=like.device)  # Σₖ Yᵏ Valᵏᵀ
         val_energy = torch.zeros((), dtype=like.dtype, device=like.device)
-        for Yk, Vk in zip(train, val):
+        for k, (Yk, Vk) in enumerate(zip(train, val)):
             Yk, Vk = Yk.to(like), Vk.to(like)
+            for name, x in (("train", Yk), ("val", Vk)):  # a NaN made every width NaN
+                if not bool(x.isfinite().all()):
+                    raise ValueError(f"Expected finite {name} templates; vehicle {k} has "
+                                     f"{int((~x.isfinite()).sum())} NaN or infinite value(s)")
             G += Yk @ Yk.T
             E += Yk @ Vk.T
             val_energy += Vk.square().sum()
