@@ -339,6 +339,10 @@ def test_fit_rejects_bad_inputs(data):
         with pytest.raises(ValueError, match=r"vehicle_classes as indices into class_names; got names \['car'"):
             GenerativeShapeModel.fit(data["templates"], data["theta"], data["phi"], NAMES, names, ["car", "tank"],
                                      TEMPLATE)
+    for classes in (np.array([0.4, 0, 1.9, 1, 0, 1]), torch.tensor([0, 0, 1, 1, 0, math.nan]), [True, False] * 3):
+        with pytest.raises(ValueError, match=r"vehicle_classes as whole indices into class_names; got \["):
+            GenerativeShapeModel.fit(data["templates"], data["theta"], data["phi"], NAMES, classes, ["car", "tank"],
+                                     TEMPLATE)
     bad = data["templates"].clone()
     bad[1, 2, 3, 4] = math.nan
     with pytest.raises(ValueError, match=r"Expected finite templates; 1 value\(s\) are NaN or infinite"):

@@ -151,8 +151,11 @@ class GenerativeShapeModel(nn.Module):
             raise ValueError(f"Expected vehicle_classes as indices into class_names; got names "
                              f"{[str(c) for c in vehicle_classes][:3]}... "
                              f"(e.g. [class_names.index(c) for c in classes])")
-        labels = torch.as_tensor(vehicle_classes, dtype=torch.long, device=templates.device)
+        given = torch.as_tensor(vehicle_classes, device=templates.device)
+        labels = given.to(torch.long)  # casting alone truncated 1.9 to class 1
         check_shape("vehicle_classes", labels, (K,))
+        if given.dtype == torch.bool or not torch.equal(labels.to(given.dtype), given):
+            raise ValueError(f"Expected vehicle_classes as whole indices into class_names; got {given.tolist()}")
         if not 0 <= labels.min() <= labels.max() < len(class_names):
             raise ValueError(f"vehicle classes {labels.tolist()} out of range for {len(class_names)} class names")
         if len(vehicle_names) != K:
