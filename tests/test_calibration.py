@@ -10,7 +10,7 @@ import torch
 from torch_atr.calibration import (_canonical_order, calibrate_checkerboard, camera_from_focal, draw_cubes,
                                    find_checkerboard, floor_pose, focal_from_target)
 from torch_atr.camera import Camera
-from torch_atr.data.checkerboard import render_checkerboard
+from torch_atr.data.checkerboard import calibration_poses, render_checkerboard
 
 # ---------------------------------------------------------------- IR: focal length from targets
 
@@ -257,6 +257,21 @@ def test_a_long_focal_length_camera_with_tilted_boards_is_calibrated():
         images.append(render_checkerboard(camera, PATTERN, square, R, t, generator=generator))
     fitted, rms = calibrate_checkerboard(images, PATTERN, square)
     assert rms < 0.3 and abs(fitted.fx / f - 1) < 0.05 and abs(fitted.fy / f - 1) < 0.05
+
+
+def test_calibration_poses_hold_an_unmirrored_board_whose_corners_are_found_where_they_project():
+    """The poses had det R = +1 in the sensor-like world: a mirrored board, whose corners were found
+    170-220 px from where the pose put corners 0, 1, ... (the detector labels a real board)."""
+    camera = Camera(800.0, 800.0, 319.5, 239.5, 640, 480)  # world = sensor frame
+    generator = torch.Generator().manual_seed(0)
+    flip_y = np.diag([1.0, -1.0, 1.0])  # sensor frame (y up) -> OpenCV's camera frame (y down)
+    for R, t in calibration_poses(camera, PATTERN, SQUARE, count=4):
+        assert torch.linalg.det(R).item() == pytest.approx(-1.0)  # right-handed board, left-handed world
+        found = find_checkerboard(render_checkerboard(camera, PATTERN, SQUARE, R, t, generator=generator), PATTERN)
+        assert found is not None
+        p_cv = (CORNERS @ R.numpy().T + t.numpy()) @ flip_y
+        expected, _ = cv2.projectPoints(p_cv, np.zeros(3), np.zeros(3), camera.K.numpy(), None)
+        assert np.abs(found - expected.reshape(-1, 2)).max() < 0.5
 
 
 def _angle_deg(Ra: np.ndarray, Rb: np.ndarray) -> float:

@@ -100,7 +100,8 @@ def calibration_poses(camera: Camera, pattern: tuple[int, int], square_m: float,
     size = torch.tensor([(cols - 1) * square_m, (rows - 1) * square_m, 0.0], dtype=torch.float64)
     distance = 2.0 * camera.fx * float(size[0]) / camera.width  # the board spans half the width
     half_w, half_h = camera.width / 4 / camera.fx * distance, camera.height / 4 / camera.fy * distance
-    flip = torch.diag(torch.tensor([1.0, -1.0, -1.0], dtype=torch.float64))  # board Z towards the camera, sensor-like
+    # board X right, Y up, Z towards the camera: det −1, a right-handed board in the left-handed sensor frame
+    flip = torch.diag(torch.tensor([1.0, 1.0, -1.0], dtype=torch.float64))
     cam_R, cam_t = camera.R.to(torch.float64), camera.t.to(torch.float64)
     poses = []
     for k in range(count):
