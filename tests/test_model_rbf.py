@@ -69,6 +69,17 @@ def test_init_width_validation():
         RBFViewMapping(torch.zeros(1), torch.zeros(1))
 
 
+
+def test_centres_of_two_float_dtypes_give_one_dtype():
+    # float32 θ with float64 φ made a float32 centres_theta beside float64 centres_phi and log_width.
+    theta, phi = _grid(6, [0.0, 20.0])
+    for t, p, dtype in ((theta.float(), phi, torch.float64), (theta, phi.float(), torch.float64),
+                        (theta.float(), phi.tolist(), torch.float32)):
+        assert {v.dtype for v in RBFViewMapping(t, p).state_dict().values()} == {dtype}
+    rbf = RBFViewMapping(theta.float(), phi)
+    reference = RBFViewMapping(theta.float().double(), phi)
+    torch.testing.assert_close(rbf(theta, phi), reference(theta, phi), rtol=0, atol=0)
+
 def _lstsq_reference(psi: np.ndarray, Y: np.ndarray, ridge: float) -> np.ndarray:
     """Per-vehicle ridge regression as ordinary least squares on [Ψ; √λ I] b = [y; 0]."""
     V, P = psi.shape

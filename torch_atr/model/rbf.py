@@ -77,7 +77,8 @@ class RBFViewMapping(nn.Module):
     """Ψ(Θ) with Nc Gaussian centres Υₗ on the view hemisphere and learnable widths (eq. 4.12-4.13).
 
     Args:
-        centres_theta, centres_phi: (Nc,) centre azimuths and elevations, radians (buffers).
+        centres_theta, centres_phi: (Nc,) centre azimuths and elevations, radians (buffers, in their
+            promoted float dtype, on centres_theta's device).
         init_width: initial kernel width sₗ (chord length, same for all centres); default the mean
             nearest-neighbour chord distance between the centres.
 
@@ -88,6 +89,9 @@ class RBFViewMapping(nn.Module):
         super().__init__()
         centres_theta = as_float_tensor("centres_theta", centres_theta)
         centres_phi = as_float_tensor("centres_phi", centres_phi, like=centres_theta)
+        # One dtype and device for both (float32 θ with float64 φ left buffers of two dtypes, which save refused).
+        dtype = torch.promote_types(centres_theta.dtype, centres_phi.dtype)
+        centres_theta, centres_phi = centres_theta.to(dtype), centres_phi.to(centres_theta.device, dtype)
         check_shape("centres_theta", centres_theta, ("Nc",))
         check_shape("centres_phi", centres_phi, (centres_theta.shape[0],))
         self.register_buffer("centres_theta", centres_theta.clone())
