@@ -87,6 +87,23 @@ def test_pixel_rays_invert_project_without_distortion():
     torch.testing.assert_close(uv_again, grid, rtol=0, atol=1e-9)
 
 
+def test_undistort_matches_cv2_for_any_batch_shape_and_takes_no_points():
+    """No points (a frame without detections) raised AttributeError: cv2 returns None for them."""
+    cam = _camera()
+    uv = torch.tensor([[0.0, 0.0], [639.0, 511.0], [17.5, 301.0], [322.5, 251.25]], dtype=torch.float64)
+    for batch in (uv, uv.reshape(2, 2, 2), uv[0]):
+        out = cam.undistort(batch)
+        assert out.shape == batch.shape
+        x = (out[..., 0] - K_CV[0, 2]) / K_CV[0, 0]  # OpenCV's normalised coordinates, y down
+        y = (out[..., 1] - K_CV[1, 2]) / K_CV[1, 1]
+        rays = torch.stack([x, y, torch.ones_like(x)], -1).reshape(-1, 3).numpy()
+        again, _ = cv2.projectPoints(rays, np.zeros(3), np.zeros(3), K_CV, DIST_CV)  # distorts them back
+        np.testing.assert_allclose(again.reshape(batch.shape), batch.numpy(), atol=1e-9)
+    for empty in (torch.zeros(0, 2), torch.zeros(3, 0, 2, dtype=torch.float64)):
+        out = cam.undistort(empty)
+        assert out.shape == empty.shape and out.dtype == empty.dtype
+
+
 def test_points_behind_the_camera_are_nan():
     cam = _camera()
     p_sensor = torch.tensor([[0.0, 0.0, -1.0], [1.0, 1.0, 0.0], [0.2, 0.1, 3.0]], dtype=torch.float64)

@@ -134,7 +134,7 @@ class Camera(nn.Module):
         uv = as_float_tensor("uv", uv, like=self.K)
         if uv.shape[-1:] != (2,):
             raise ValueError(f"Expected uv to have shape (..., 2); got {tuple(uv.shape)}")
-        if not bool(self.dist.any()):
+        if not bool(self.dist.any()) or uv.numel() == 0:  # cv2 returns None for no points
             return uv
         K, dist = self.K.detach().cpu().double().numpy(), self.dist.detach().cpu().double().numpy()
         points = uv.detach().cpu().double().reshape(-1, 1, 2).numpy()
