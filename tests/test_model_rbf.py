@@ -105,6 +105,19 @@ def test_fit_matches_numpy_lstsq(n_centres_theta):
     np.testing.assert_allclose(B.detach().numpy(), ref, rtol=1e-7, atol=1e-9)
 
 
+
+def test_fit_takes_templates_of_another_float_dtype():
+    # float32 templates (as rendered) on float64 centres (as train.py's grid) raised a matmul dtype RuntimeError.
+    theta, phi = _grid(12, [0, 20])
+    g = torch.Generator().manual_seed(4)
+    Y = torch.rand(2, theta.shape[0], 6, generator=g, dtype=torch.float64)
+    rbf = RBFViewMapping(theta, phi)
+    expected = rbf.fit(theta, phi, Y, 1e-3)
+    torch.testing.assert_close(rbf.fit(theta, phi, Y.float(), 1e-3), expected, rtol=0, atol=1e-6)
+    narrow = RBFViewMapping(theta.float(), phi.float()).fit(theta, phi, Y, 1e-3)
+    assert narrow.dtype == torch.float32
+    torch.testing.assert_close(narrow, expected.float(), rtol=1e-4, atol=1e-4)
+
 def test_fit_interpolates_training_views_at_zero_ridge():
     theta, phi = _grid(12, [0, 20, 40])
     rbf = RBFViewMapping(theta, phi)

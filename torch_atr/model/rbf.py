@@ -136,10 +136,10 @@ class RBFViewMapping(nn.Module):
         Minimises Σₖ ‖Yᵏᵀ − Bᵏ Ψᵀ‖² + λ‖Bᵏ‖² in closed form, B = Yᵀ Ψ (ΨᵀΨ + λI)⁻¹, with one
         factorisation shared by all K vehicles; differentiable with respect to the widths.
 
-        theta, phi: (V,) training views, radians; Y: (K, V, d) flattened templates; ridge: λ >= 0.
-        Returns B: (K, d, Nc + 4).
+        theta, phi: (V,) training views, radians; Y: (K, V, d) flattened templates, any float dtype;
+        ridge: λ >= 0. Returns B: (K, d, Nc + 4) in the centres' dtype and device.
         """
         check_shape("theta", theta, ("V",))
         check_shape("Y", Y, (None, theta.shape[0], None))
         W = ridge_hat(self(theta, phi), ridge)  # (V, P)
-        return Y.transpose(1, 2) @ W  # (K, d, P), contiguous
+        return Y.transpose(1, 2).to(W) @ W  # (K, d, P), contiguous; float32 Y on float64 centres was a RuntimeError
