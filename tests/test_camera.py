@@ -200,7 +200,7 @@ def test_from_opencv_refuses_distortion_terms_it_cannot_keep():
         cam = Camera.from_opencv(K_CV, dist, RVEC, TVEC, 640, 512)
         ref, _ = cv2.projectPoints(pts, RVEC, TVEC, K_CV, dist)
         np.testing.assert_allclose(cam.project(torch.from_numpy(pts))[0].numpy(), ref.reshape(-1, 2), atol=1e-6)
-    for dist in (DIST_CV[:4], DIST_CV[:5], np.zeros(0)):  # 4 or 5 coefficients, or none: padded with zeros
-        cam = Camera.from_opencv(K_CV, dist, RVEC, TVEC, 640, 512)
-        ref, _ = cv2.projectPoints(pts, RVEC, TVEC, K_CV, dist if dist.size else None)
+    for dist in (DIST_CV[:4], DIST_CV[:5], np.zeros(0), None):  # 4 or 5 coefficients, or none: padded with zeros
+        cam = Camera.from_opencv(K_CV, dist, RVEC, TVEC, 640, 512)  # None was a NaN k1: "dist to be finite"
+        ref, _ = cv2.projectPoints(pts, RVEC, TVEC, K_CV, dist if dist is not None and dist.size else None)
         np.testing.assert_allclose(cam.project(torch.from_numpy(pts))[0].numpy(), ref.reshape(-1, 2), atol=1e-6)

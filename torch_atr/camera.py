@@ -160,16 +160,16 @@ class Camera(nn.Module):
         """Build from OpenCV calibration results (K (3, 3), dist, rvec (3,), tvec (3,)).
 
         ``dist`` holds OpenCV's coefficients in its order (k1, k2, p1, p2, k3, k4, ...); fewer than
-        5 are padded with zeros. This camera has k1, k2, p1, p2, k3 only, so more than 5 are taken
-        only when every one beyond the 5th is zero; otherwise ValueError, since dropping them would
-        move the projected pixels.
+        5 (none, or None as OpenCV takes it) are padded with zeros. This camera has k1, k2, p1, p2,
+        k3 only, so more than 5 are taken only when every one beyond the 5th is zero; otherwise
+        ValueError, since dropping them would move the projected pixels.
         """
         import cv2
 
         R_cv, _ = cv2.Rodrigues(np.asarray(rvec, dtype=np.float64).reshape(3, 1))
         t_cv = np.asarray(tvec, dtype=np.float64).reshape(3)
         K = np.asarray(K, dtype=np.float64)
-        dist = np.asarray(dist, dtype=np.float64).ravel()
+        dist = np.zeros(0) if dist is None else np.asarray(dist, dtype=np.float64).ravel()  # None: no distortion
         extra = {f"dist[{i}]": float(v) for i, v in enumerate(dist[5:], start=5) if v != 0}
         if extra:
             raise ValueError(f"Expected at most 5 distortion coefficients (k1, k2, p1, p2, k3: all this camera "
