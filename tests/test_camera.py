@@ -187,6 +187,23 @@ def test_the_constructor_checks_what_from_dict_checks(args, kwargs, message):
     assert (cam.fx, cam.width, cam.height) == (500.0, 640, 480)
 
 
+@pytest.mark.parametrize("K, rvec, tvec, message", [
+    (K_CV[:2], RVEC, TVEC, r"K to have shape \(3, 3\); got \(2, 3\)"),  # was taken: fx, fy, cx, cy are in it
+    (K_CV.ravel(), RVEC, TVEC, r"K to have shape \(3, 3\); got \(9,\)"),  # was IndexError
+    (K_CV + [[0, 40.0, 0], [0, 0, 0], [0, 0, 0]], RVEC, TVEC, r"no skew\); got \[\[820\.0, 40\.0"),  # was dropped
+    (K_CV * 2, RVEC, TVEC, r"\[0, 0, 1\]\] \(this camera has no skew\); got .*\[0\.0, 0\.0, 2\.0\]\]"),
+    (K_CV, cv2.Rodrigues(RVEC)[0], TVEC, r"rvec to hold 3 numbers .*got shape \(3, 3\)"),  # a rotation matrix
+    (K_CV, RVEC, TVEC[:2], r"tvec to hold 3 numbers .*got shape \(2,\)"),
+])
+def test_from_opencv_names_a_matrix_it_cannot_take(K, rvec, tvec, message):
+    """A (2, 3) K was read as fx, fy, cx, cy and a skew dropped, silently; a flat K or a rotation
+    matrix for rvec raised numpy's IndexError or reshape error, naming neither."""
+    with pytest.raises(ValueError, match=message):
+        Camera.from_opencv(K, DIST_CV, rvec, tvec, 640, 512)
+    cam = Camera.from_opencv(K_CV, DIST_CV, RVEC.reshape(3, 1), TVEC.reshape(1, 3), 640, 512)  # OpenCV's shapes
+    torch.testing.assert_close(cam.R, _camera().R, rtol=0, atol=0)
+
+
 def test_from_opencv_refuses_distortion_terms_it_cannot_keep():
     """8 rational or 12 thin-prism coefficients were cut to 5 silently: 215 px off cv2.projectPoints."""
     pts = _points_in_front(50, seed=4)

@@ -162,13 +162,23 @@ class Camera(nn.Module):
         ``dist`` holds OpenCV's coefficients in its order (k1, k2, p1, p2, k3, k4, ...); fewer than
         5 (none, or None as OpenCV takes it) are padded with zeros. This camera has k1, k2, p1, p2,
         k3 only, so more than 5 are taken only when every one beyond the 5th is zero; otherwise
-        ValueError, since dropping them would move the projected pixels.
+        ValueError, since dropping them would move the projected pixels. So is a K other than
+        [[fx, 0, cx], [0, fy, cy], [0, 0, 1]]: this camera has no skew.
         """
         import cv2
 
-        R_cv, _ = cv2.Rodrigues(np.asarray(rvec, dtype=np.float64).reshape(3, 1))
-        t_cv = np.asarray(tvec, dtype=np.float64).reshape(3)
-        K = np.asarray(K, dtype=np.float64)
+        K, rvec, tvec = (np.asarray(v, dtype=np.float64) for v in (K, rvec, tvec))
+        for name, value in (("rvec", rvec), ("tvec", tvec)):
+            if value.size != 3:
+                raise ValueError(f"Expected {name} to hold 3 numbers (shape (3,), (3, 1) or (1, 3)); "
+                                 f"got shape {value.shape}")
+        if K.shape != (3, 3):
+            raise ValueError(f"Expected K to have shape (3, 3); got {K.shape}")
+        if K[0, 1] != 0 or K[1, 0] != 0 or K[2].tolist() != [0.0, 0.0, 1.0]:
+            raise ValueError(f"Expected K = [[fx, 0, cx], [0, fy, cy], [0, 0, 1]] (this camera has no skew); "
+                             f"got {K.tolist()}")
+        R_cv, _ = cv2.Rodrigues(rvec.reshape(3, 1))
+        t_cv = tvec.reshape(3)
         dist = np.zeros(0) if dist is None else np.asarray(dist, dtype=np.float64).ravel()  # None: no distortion
         extra = {f"dist[{i}]": float(v) for i, v in enumerate(dist[5:], start=5) if v != 0}
         if extra:
