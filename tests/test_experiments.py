@@ -65,6 +65,18 @@ def test_other_configs_and_foreign_folders_are_refused(run, tmp_path):
     assert os.listdir(foreign) == ["notes.txt"]
 
 
+def test_another_seed_or_start_is_refused_not_added_beside_the_run(run):
+    """The result files are named by seed and start: another seed's found none of its own and ran,
+    mixing two runs in one folder and replacing the first's report."""
+    out, _ = run
+    before = sorted(os.listdir(out / "sequences"))
+    report = (out / "report.md").read_text()
+    for other in (["--seed", "1"], ["--init", "truth"]):
+        with pytest.raises(ValueError, match="another configuration; use another --out"):
+            main([*QUICK, *other, "--out", str(out)])
+    assert sorted(os.listdir(out / "sequences")) == before and (out / "report.md").read_text() == report
+
+
 def _frames_with_vehicle_in_view(vehicle: str, cfg: SensiacLikeConfig, range_m: float) -> np.ndarray:
     """Whether each frame's whole vehicle (its convex hull's vertices, projected) lies in the image."""
     seq = SyntheticSequence(vehicle, scene(range_m, cfg))

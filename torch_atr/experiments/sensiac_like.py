@@ -283,15 +283,18 @@ def run_all(cfg: SensiacLikeConfig, out: Path, workers: int = 0, progress: bool 
     folder = out / "sequences"
     folder.mkdir(parents=True, exist_ok=True)
     wanted = [(v, r) for v in cfg.vehicles for r in cfg.ranges_m]
+    config = json.loads(json.dumps(dataclasses.asdict(cfg)))
+    kept = {}
+    for path in sorted(folder.glob("*.json")):  # every one, not only the grid's: another seed's has another name
+        result = json.loads(path.read_text(encoding="utf-8"))
+        if result.get("format") != RESULT_FORMAT or result.get("config") != config:
+            raise ConfigError(f"{path} holds a result of another configuration; use another --out")
+        kept[path.name] = result
     done: dict[tuple[str, float], dict] = {}
     for vehicle, range_m in wanted:
-        path = folder / f"{job_name(vehicle, range_m, cfg)}.json"
-        if path.is_file():
-            result = json.loads(path.read_text(encoding="utf-8"))
-            if result.get("format") != RESULT_FORMAT or result.get("config") != json.loads(
-                    json.dumps(dataclasses.asdict(cfg))):
-                raise ConfigError(f"{path} holds a result of another configuration; use another --out")
-            done[(vehicle, range_m)] = result
+        name = f"{job_name(vehicle, range_m, cfg)}.json"
+        if name in kept:
+            done[(vehicle, range_m)] = kept[name]
     todo = [job for job in wanted if job not in done]
     log.info("%d sequences: %d done before, %d to run", len(wanted), len(done), len(todo))
     runs = _on_ray(todo, cfg, ray_address) if ray_address else in_processes(todo, cfg, workers or os.cpu_count() or 1)
