@@ -134,6 +134,14 @@ def _edit_state(raw, key, value):
      r"core.core'\] holds values in .*; expected them within \[-1e\+06, 1e\+06\]"),
     (lambda r: _edit_state(r, "identity.knots", r["state_dict"]["identity.knots"].flip(0)),
      r"identity.knots'\] is not strictly increasing"),
+    # The αₖ are the spline's sites from 0 to 2π: swapped, re-ordered or shifted ones put vehicles where the
+    # spline does not reproduce them (these loaded).
+    (lambda r: _edit_state(r, "identity.alphas", r["state_dict"]["identity.alphas"][[1, 0, 2]]),
+     r"identity.alphas'\] along identity.order, \[2.09.*\], are not the identity spline's data sites from 0 to 2π"),
+    (lambda r: _edit_state(r, "identity.order", torch.tensor([0, 2, 1])), r"are not the identity spline's data sites"),
+    (lambda r: _edit_state(_edit_state(r, "identity.knots", r["state_dict"]["identity.knots"] + 1.0),
+                           "identity.alphas", r["state_dict"]["identity.alphas"] + 1.0),
+     r"are not the identity spline's data sites from 0 to 2π, identity.knots\[3:7\] = \[1.0, "),
     (lambda r: _edit_state(r, "extra_buffer", torch.zeros(2)), "state_dict does not match model_args: unexpected "
                                                                "'extra_buffer'"),
     (lambda r: {**r, "model_args": {**r["model_args"], "template": {"size_px": 100000}}},

@@ -5,6 +5,7 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import logging
+import math
 import numbers
 import os
 import pickle
@@ -23,7 +24,7 @@ import torch_atr
 from torch_atr._checks import as_float_tensor, check_device, check_shape
 from torch_atr.config import ConfigError, ModelConfig, TemplateConfig, config_from_dict
 from torch_atr.io import atomic_torch_save, check_output_file
-from torch_atr.model.identity import DEGREE, IdentityManifold, dissimilarity, shortest_closed_path
+from torch_atr.model.identity import DEGREE, TWO_PI, IdentityManifold, dissimilarity, shortest_closed_path
 from torch_atr.model.rbf import RBFViewMapping, ridge_hat
 from torch_atr.model.tensor import TensorCore, principal_basis
 from torch_atr.validate import InputError, integer, show
@@ -416,8 +417,9 @@ def _check_state(state, model_args: dict, where: str) -> None:
     """Check a loaded state_dict against checked ``model_args``: the keys, shapes and dtypes they
     call for (one float dtype, float32 or float64; int64 order and labels), dense finite tensors
     within MAX_ABS_VALUE (log widths within LOG_WIDTH_RANGE), strictly increasing knots,
-    ``identity.order`` a permutation and ``identity.labels`` equal to ``vehicle_classes``: what
-    keeps every reconstruction finite."""
+    ``identity.order`` a permutation, ``identity.alphas`` the spline's data sites from 0 to 2π along it
+    and ``identity.labels`` equal to ``vehicle_classes``: what keeps every reconstruction finite and
+    each vehicle at its αₖ."""
     if not isinstance(state, dict):
         raise InputError(f"{where}: state_dict is a {type(state).__name__}; expected a dict of tensors")
     shapes = state_shapes(model_args)
@@ -458,6 +460,14 @@ def _check_state(state, model_args: dict, where: str) -> None:
     if not torch.equal(order.sort().values.cpu(), torch.arange(K)):
         raise InputError(f"{where}: state_dict['identity.order'] is not a permutation of 0..{K - 1}: "
                          f"{show(order.tolist())}")
+    # The αₖ are the spline's data sites along the path (IdentityManifold.fit), which spans one turn from 0: other
+    # αₖ loaded and put each vehicle where the spline does not reproduce it, and class_arcs off the circle.
+    sites = knots[DEGREE:DEGREE + K + 1]
+    if (not torch.equal(state["identity.alphas"][order], sites[:-1]) or sites[0].item() != 0.0
+            or not math.isclose(sites[-1].item(), TWO_PI, rel_tol=1e-6)):
+        raise InputError(f"{where}: state_dict['identity.alphas'] along identity.order, "
+                         f"{show(state['identity.alphas'][order].tolist())}, are not the identity spline's data sites "
+                         f"from 0 to 2π, identity.knots[{DEGREE}:{DEGREE + K + 1}] = {show(sites.tolist())}")
     if state["identity.labels"].tolist() != model_args["vehicle_classes"]:
         raise InputError(f"{where}: state_dict labels {show(state['identity.labels'].tolist())} differ from "
                          f"model_args vehicle_classes {show(model_args['vehicle_classes'])}")
