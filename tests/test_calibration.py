@@ -1,6 +1,8 @@
 """Calibration against known cameras: IR focal length from targets, checkerboards rendered with a
 known K, R, t (cv2.warpPerspective of a board texture, supersampled, blurred, noisy)."""
 
+import math
+
 import cv2
 import numpy as np
 import pytest
@@ -299,8 +301,11 @@ def test_floor_pose_errors():
         floor_pose(intrinsics, np.zeros((H, W), np.uint8), PATTERN, SQUARE)
     with pytest.raises(ValueError, match="480 x 640"):
         floor_pose(intrinsics, np.zeros((100, 100), np.uint8), PATTERN, SQUARE)
-    with pytest.raises(ValueError, match="square_m"):
-        floor_pose(intrinsics, np.zeros((H, W), np.uint8), PATTERN, 0.0)
+    for square in (0.0, math.inf, math.nan):  # an infinite square passed, to fail in cv2's solver with cv2.error
+        with pytest.raises(ValueError, match=f"square_m; got {square}"):
+            floor_pose(intrinsics, np.zeros((H, W), np.uint8), PATTERN, square)
+        with pytest.raises(ValueError, match=f"square_m; got {square}"):
+            calibrate_checkerboard([], PATTERN, square)
 
 
 def test_draw_cubes_paints_the_projected_corners():

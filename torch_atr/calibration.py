@@ -25,6 +25,7 @@ half turn and its origin may be either end.
 from __future__ import annotations
 
 import logging
+import math
 from typing import Sequence
 
 import cv2
@@ -166,8 +167,8 @@ def camera_from_focal(f: float, width: int, height: int,
 
 def _board_points(pattern: tuple[int, int], square_m: float) -> np.ndarray:
     """(P, 3) float32 board corners in the floor frame, row by row: corner k at (k % cols, k // cols, 0) · square."""
-    if not square_m > 0:
-        raise ValueError(f"Expected a positive square_m; got {square_m}")
+    if not 0 < square_m < math.inf:
+        raise ValueError(f"Expected a positive finite square_m; got {square_m}")
     cols, rows = pattern
     c, r = np.meshgrid(np.arange(cols), np.arange(rows))
     return (np.stack([c.ravel(), r.ravel(), np.zeros(cols * rows)], -1) * square_m).astype(np.float32)
