@@ -77,6 +77,24 @@ def test_another_seed_or_start_is_refused_not_added_beside_the_run(run):
     assert sorted(os.listdir(out / "sequences")) == before and (out / "report.md").read_text() == report
 
 
+def test_another_experiment_is_refused_a_runs_folder_finished_or_not(run, tmp_path):
+    """The visible band run into a SENSIAC-like folder ran and replaced its report and results.json."""
+    import shutil
+
+    out, _ = run
+    visible = ["visible", "--quick", "--workers", "1", "--frames", "2", "--particles", "20", "--methods", "I"]
+    finished = shutil.copytree(out, tmp_path / "finished")
+    with pytest.raises(OSError, match="holds another experiment's report .*format torch_atr.sensiac_like_report"):
+        main([*visible, "--out", str(finished)])
+    interrupted = shutil.copytree(out / "sequences", tmp_path / "interrupted" / "sequences").parent
+    with pytest.raises(ValueError, match="t_72_1000m_blind_seed0.json holds a result of another configuration"):
+        main([*visible, "--out", str(interrupted)])
+    for folder in (finished, interrupted):
+        assert sorted(os.listdir(folder / "sequences")) == sorted(os.listdir(out / "sequences"))
+    assert sorted(os.listdir(finished)) == sorted(os.listdir(out)) and os.listdir(interrupted) == ["sequences"]
+    assert (finished / "report.md").read_text() == (out / "report.md").read_text()
+
+
 def _frames_with_vehicle_in_view(vehicle: str, cfg: SensiacLikeConfig, range_m: float) -> np.ndarray:
     """Whether each frame's whole vehicle (its convex hull's vertices, projected) lies in the image."""
     seq = SyntheticSequence(vehicle, scene(range_m, cfg))

@@ -24,17 +24,18 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import json
 import logging
 import time
 from pathlib import Path
 
 from torch_atr.cli import console_logging, run_main
 from torch_atr.config import ConfigError
-from torch_atr.experiments.combined import EXPERIMENTS, write_combined_report
-from torch_atr.experiments.report import is_report_folder, mean_recognition, write_report
+from torch_atr.experiments.combined import COMBINED_FORMAT, EXPERIMENTS, write_combined_report
+from torch_atr.experiments.report import REPORT_FORMAT, is_report_folder, mean_recognition, write_report
 from torch_atr.experiments.sensiac_like import FULL, QUICK, SensiacLikeConfig, run_all
-from torch_atr.experiments.studies import run_studies, study_configs, write_studies_report
-from torch_atr.experiments.unseen import unseen_fields, write_unseen_report
+from torch_atr.experiments.studies import STUDIES_FORMAT, run_studies, study_configs, write_studies_report
+from torch_atr.experiments.unseen import UNSEEN_FORMAT, unseen_fields, write_unseen_report
 from torch_atr.io import OutputExistsError
 
 log = logging.getLogger("experiments")
@@ -80,7 +81,7 @@ def main(argv: list[str] | None = None) -> dict:
     if args.experiment == "visible":
         return _visible(args, given, out)
     cfg = SensiacLikeConfig(**(fields | given), tracker=tuple(args.overrides), scene=tuple(args.scene))
-    _check_out(out)
+    _check_out(out, UNSEEN_FORMAT if args.experiment == "unseen" else REPORT_FORMAT)
     start = time.perf_counter()
     results = run_all(cfg, out, args.workers, ray_address=args.ray)
     if args.experiment == "unseen":
@@ -96,9 +97,18 @@ def main(argv: list[str] | None = None) -> dict:
     return agg
 
 
-def _check_out(out: Path) -> None:
+def _check_out(out: Path, report_format: str) -> None:
+    """``OutputExistsError`` unless ``out`` is absent, empty or a folder of this experiment: its
+    results.json, where there is one, of ``report_format`` (another experiment's would be replaced)."""
     if out.exists() and (not out.is_dir() or (any(out.iterdir()) and not is_report_folder(out))):
         raise OutputExistsError(f"{out} exists and is not an experiment's folder; choose another --out")
+    try:
+        written = json.loads((out / "results.json").read_text(encoding="utf-8"))["format"]
+    except (OSError, ValueError, KeyError, TypeError):
+        return
+    if written != report_format:
+        raise OutputExistsError(f"{out} holds another experiment's report ({out / 'results.json'}: format "
+                                f"{written}); choose another --out")
 
 
 def _studies(args: argparse.Namespace, given: dict, out: Path) -> list[dict]:
@@ -106,7 +116,7 @@ def _studies(args: argparse.Namespace, given: dict, out: Path) -> list[dict]:
     if fixed:
         raise ConfigError(f"studies: {', '.join(fixed)} cannot be given; each study sets them itself")
     configs = study_configs(args.quick, **given, tracker=tuple(args.overrides))
-    _check_out(out)
+    _check_out(out, STUDIES_FORMAT)
     start = time.perf_counter()
     results = run_studies(out, configs, args.workers, ray_address=args.ray)
     rows = write_studies_report(out, configs, results, time.perf_counter() - start)
@@ -116,13 +126,13 @@ def _studies(args: argparse.Namespace, given: dict, out: Path) -> list[dict]:
 
 def _visible(args: argparse.Namespace, given: dict, out: Path) -> dict:
     from torch_atr.experiments.visible import QUICK as VISIBLE_QUICK
-    from torch_atr.experiments.visible import VisibleConfig, run_visible, write_visible_report
+    from torch_atr.experiments.visible import VISIBLE_FORMAT, VisibleConfig, run_visible, write_visible_report
 
     fixed = [f"--{k}" for k in ("full", "ray", "vehicles", "ranges", "scene") if getattr(args, k)]
     if fixed:
         raise ConfigError(f"visible: {', '.join(fixed)} cannot be given; the experiment sets its vehicles and scenes")
     cfg = VisibleConfig(**((dict(VISIBLE_QUICK) if args.quick else {}) | given), tracker=tuple(args.overrides))
-    _check_out(out)
+    _check_out(out, VISIBLE_FORMAT)
     start = time.perf_counter()
     calibration, drawn, results = run_visible(cfg, out, args.workers)
     from torch_atr.experiments.sensiac_like import worker_model
@@ -139,7 +149,7 @@ def _all(args: argparse.Namespace, out: Path) -> dict:
              if getattr(args, k)] + (["tracker overrides (key=value)"] if args.overrides else [])
     if given:
         raise ConfigError(f"all: {', '.join(given)} cannot be given; run that experiment alone to change it")
-    _check_out(out)
+    _check_out(out, COMBINED_FORMAT)
     common = ["--workers", str(args.workers), *(["--quick"] if args.quick else []),
               *(a for k, v in passed.items() if v is not None for a in (k, str(v)))]
     start = time.perf_counter()

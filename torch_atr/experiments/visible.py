@@ -252,13 +252,11 @@ def run_visible(cfg: VisibleConfig, out: Path, workers: int = 0) -> tuple[dict, 
     folder.mkdir(parents=True, exist_ok=True)
     config = json.loads(json.dumps(dataclasses.asdict(cfg)))
     done: dict[str, dict] = {}
-    for role in ROLES:
-        path = folder / f"{role}.json"
-        if path.is_file():
-            result = json.loads(path.read_text(encoding="utf-8"))
-            if result.get("format") != SEQUENCE_FORMAT or result.get("config") != config:
-                raise ConfigError(f"{path} holds a result of another configuration; use another --out")
-            done[role] = result
+    for path in sorted(folder.glob("*.json")):  # every one: another experiment's too
+        result = json.loads(path.read_text(encoding="utf-8"))
+        if result.get("format") != SEQUENCE_FORMAT or result.get("config") != config:
+            raise ConfigError(f"{path} holds a result of another configuration; use another --out")
+        done[path.stem] = result
     calibration, drawn = calibrate(cfg)
     camera = {"camera": calibration["calibrated"], "height_m": calibration["height_m"]}
     todo = [(role, getattr(cfg, role), camera if role in CALIBRATED else None) for role in ROLES if role not in done]
