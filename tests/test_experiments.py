@@ -95,6 +95,29 @@ def test_another_experiment_is_refused_a_runs_folder_finished_or_not(run, tmp_pa
     assert (finished / "report.md").read_text() == (out / "report.md").read_text()
 
 
+def _job_or_fail(name: str, _: float, folder) -> str:
+    """A job for in_processes: "fail" raises; any other leaves a file ``name`` in ``folder``."""
+    import time
+
+    if name == "fail":
+        raise ValueError("this job fails")
+    time.sleep(0.2)
+    (folder / name).write_text(name)
+    return name
+
+
+def test_a_failed_sequence_cancels_the_sequences_not_started(tmp_path):
+    """A failure (or Ctrl-C) in a run of worker processes waited for every sequence still queued to
+    run to its end, each result then thrown away."""
+    from torch_atr.experiments.sensiac_like import in_processes
+
+    todo = [("fail", 0.0), *((f"job{i}", 0.0) for i in range(40))]
+    with pytest.raises(ValueError, match="this job fails"):
+        for _ in in_processes(todo, tmp_path, 2, run=_job_or_fail):
+            pass
+    assert len(os.listdir(tmp_path)) <= 8  # those running or already handed to the 2 workers' queue: not 40
+
+
 def _frames_with_vehicle_in_view(vehicle: str, cfg: SensiacLikeConfig, range_m: float) -> np.ndarray:
     """Whether each frame's whole vehicle (its convex hull's vertices, projected) lies in the image."""
     seq = SyntheticSequence(vehicle, scene(range_m, cfg))

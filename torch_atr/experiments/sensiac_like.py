@@ -308,7 +308,8 @@ def run_all(cfg: SensiacLikeConfig, out: Path, workers: int = 0, progress: bool 
 
 def in_processes(todo: list[tuple], cfg, workers: int, run=None):
     """(job, result) as the jobs finish, ``run(*job, cfg)`` in ``workers`` processes at a time
-    (1: here); ``run`` defaults to :func:`run_sequence` and must be picklable (module level)."""
+    (1: here); ``run`` defaults to :func:`run_sequence` and must be picklable (module level).
+    A failed job, Ctrl-C or a consumer that stops cancels the jobs not started."""
     run = run_sequence if run is None else run
     if workers == 1 or len(todo) <= 1:
         for job in todo:
@@ -316,8 +317,11 @@ def in_processes(todo: list[tuple], cfg, workers: int, run=None):
         return
     with ProcessPoolExecutor(max_workers=workers) as pool:
         futures = {pool.submit(run, *job, cfg): job for job in todo}
-        for future in as_completed(futures):
-            yield futures[future], future.result()
+        try:
+            for future in as_completed(futures):
+                yield futures[future], future.result()
+        finally:  # else leaving the block waits for every job, each result then thrown away
+            pool.shutdown(cancel_futures=True)
 
 
 def _on_ray(todo: list[tuple[str, float]], cfg: SensiacLikeConfig, address: str):
