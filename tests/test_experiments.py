@@ -225,6 +225,15 @@ def test_the_quick_studies_run_every_setting(tmp_path):
         ("range_4000_5000", 4000.0), ("day", 1000.0), ("occlusion", 1000.0), ("turret", 1000.0)]
 
 
+def test_a_range_the_scene_refuses_fails_before_any_sequence_or_folder(tmp_path):
+    """``--ranges 1000 10`` ran the 1000 m sequence and failed in the 10 m one's worker, leaving a run folder."""
+    with pytest.raises(ValueError, match=r"range_m=10.0 \(expected at most 100 km, more than circle_diameter_m"):
+        main([*QUICK, "--ranges", "1000", "10", "--out", str(tmp_path / "out")])
+    with pytest.raises(ValueError, match="range_m=200000.0"):
+        SensiacLikeConfig(ranges_m=(200_000.0,))
+    assert os.listdir(tmp_path) == []
+
+
 def test_tracker_overrides_after_the_options_reach_the_tracker(tmp_path):
     """``... --out DIR key=value``, as the README writes it: the override is parsed (argparse's
     plain parse_args left it to no argument and exited) and a bad key is named."""

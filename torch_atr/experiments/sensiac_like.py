@@ -77,6 +77,8 @@ class SensiacLikeConfig:
         from torch_atr.data.synthetic import SceneConfig
 
         load_config(SceneConfig, None, list(self.scene), what="--scene")  # fails here, naming the key, not in a worker
+        for range_m in self.ranges_m:  # as does a range the scene refuses (at most 100 km, beyond the circle)
+            scene(range_m, self)
         for method in self.methods:  # so do the tracker's: a bad key failed once every worker had built its scene
             load_config(TrackerConfig, None, self.tracker_overrides(method))
         for vehicle in self.vehicles:  # and the inputs, before a run folder is made
