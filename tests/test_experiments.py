@@ -234,6 +234,13 @@ def test_a_range_the_scene_refuses_fails_before_any_sequence_or_folder(tmp_path)
     assert os.listdir(tmp_path) == []
 
 
+def test_a_negative_worker_count_is_named_before_a_folder_is_made(tmp_path):
+    for experiment in (QUICK, ["visible", "--quick"], ["all", "--quick"]):
+        with pytest.raises(ValueError, match=r"--workers must be 0 \(one per core\) or more; got -1"):
+            main([*experiment, "--workers", "-1", "--out", str(tmp_path / "out")])
+    assert os.listdir(tmp_path) == []
+
+
 def test_tracker_overrides_after_the_options_reach_the_tracker(tmp_path):
     """``... --out DIR key=value``, as the README writes it: the override is parsed (argparse's
     plain parse_args left it to no argument and exited) and a bad key is named."""

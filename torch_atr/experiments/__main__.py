@@ -64,6 +64,8 @@ def main(argv: list[str] | None = None) -> dict:
                         help="simulator scene overrides: night=false, occluder_width_m=3, turret_sweep_deg=60")
     parser.add_argument("overrides", nargs="*", help="tracker config overrides, key=value")
     args = parser.parse_intermixed_args(argv)  # overrides after options too: plain parse_args gives them to none
+    if args.workers < 0:  # else ProcessPoolExecutor's "max_workers must be greater than 0", once OUT/ was made
+        raise ConfigError(f"--workers must be 0 (one per core) or more; got {args.workers}")
     console_logging()
     if args.experiment == "unseen":
         fields = unseen_fields(args.quick) | (dict(FULL) if args.full else {})
