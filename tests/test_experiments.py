@@ -312,6 +312,27 @@ def test_study_labels_name_the_particles_and_ranges_each_run_ran(tmp_path):
     assert "| 4000 m | 4000 |" in report and "16000" not in report and "250 particles" not in report
 
 
+def test_study_rows_leave_out_vehicles_without_a_true_class(tmp_path):
+    """A vehicle of a class the model does not know (recognition None, as the unseen truck) counted as
+    0 % recognised: a row of a tank at 50 % and a truck read 25 %, and a truck alone 0 %."""
+    from torch_atr.experiments.report import MEASURES
+    from torch_atr.experiments.studies import study_configs, write_studies_report
+
+    configs = study_configs(quick=True)
+    configs = {name: configs[name] for name in ("baseline", "day")}
+
+    def seq(range_m: float, accuracy: float | None) -> dict:
+        metrics = {"recognition_accuracy": accuracy, "frames_per_second": 10.0, **{k: 1.0 for k, _ in MEASURES}}
+        return {"range_m": range_m, "methods": {"I": {"metrics": metrics}}}
+
+    results = {"baseline": [seq(1000.0, 0.5), seq(1000.0, None)], "day": [seq(1000.0, None)]}
+    rows = write_studies_report(tmp_path, configs, results, wall_s=1.0)
+    assert [(r["setting"], r["sequences"], r["recognition_pct"]) for r in rows] == [
+        ("baseline", 2, pytest.approx(50.0)), ("day", 1, None)]
+    report = (tmp_path / "report.md").read_text()
+    assert "| night, 200 particles | 1000 | 50 |" in report and "| day scene (low contrast) | 1000 | — |" in report
+
+
 def test_the_default_checkpoint_is_found_from_any_folder_and_a_missing_one_makes_no_folder(tmp_path, monkeypatch):
     """From another folder, "checkpoints/default.pt" failed, once OUT/sequences/ had been made."""
     from torch_atr.experiments.sensiac_like import REPO, resolve_checkpoint

@@ -76,15 +76,16 @@ def run_studies(out: Path, configs: dict[str, SensiacLikeConfig], workers: int =
 
 def study_rows(configs: dict[str, SensiacLikeConfig], results: dict[str, list[dict]]) -> list[dict]:
     """One row per setting and range: {"setting", "change" (:func:`study_label`), "range_m", "sequences",
-    "recognition_pct" (mean over the vehicles of % of frames on the true class), the MEASURES'
-    means, "frames_per_second"}."""
+    "recognition_pct" (mean over the vehicles of % of frames on the true class; vehicles of a class the
+    model does not know have none, and a row of only those None), the MEASURES' means, "frames_per_second"}."""
     rows = []
     for name, seqs in results.items():
         for range_m in sorted({r["range_m"] for r in seqs}):
             metrics = [r["methods"]["I"]["metrics"] for r in seqs if r["range_m"] == range_m]
             row = {"setting": name, "change": study_label(name, configs[name]), "range_m": range_m,
                    "sequences": len(metrics),
-                   "recognition_pct": 100 * float(np.mean([m["recognition_accuracy"] or 0 for m in metrics]))}
+                   "recognition_pct": mean_or_none([None if m["recognition_accuracy"] is None
+                                                    else 100 * m["recognition_accuracy"] for m in metrics])}
             row.update({k: mean_or_none([m[k] for m in metrics]) for k, _ in MEASURES})
             row["frames_per_second"] = float(np.mean([m["frames_per_second"] for m in metrics]))
             rows.append(row)
@@ -106,7 +107,8 @@ def write_studies_report(out: Path, configs: dict[str, SensiacLikeConfig], resul
              + " | frames/s |", "|---" * (4 + len(MEASURES)) + "|"]
     for row in rows:
         errors = " | ".join("—" if row[k] is None else f"{row[k]:.2f}" for k, _ in MEASURES)
-        lines.append(f"| {row['change']} | {row['range_m']:g} | {row['recognition_pct']:.0f} | {errors} | "
+        recognition = "—" if row["recognition_pct"] is None else f"{row['recognition_pct']:.0f}"
+        lines.append(f"| {row['change']} | {row['range_m']:g} | {recognition} | {errors} | "
                      f"{row['frames_per_second']:.1f} |")
     lines += ["", f"Wall time {wall_s:.0f} s (this run; sequences kept from an earlier run are not re-run). "
               "Each setting's sequences and config are in its folder.", ""]
