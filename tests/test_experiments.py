@@ -163,6 +163,22 @@ def test_unseen_meshes_are_tracked_and_reported_by_class(tmp_path):
               str(tmp_path / "bad")])
 
 
+def test_the_unseen_report_names_a_catalog_vehicle_whole(tmp_path):
+    """``unseen --vehicles t_72 heldout:tank/...``: every name lost its first 8 characters, the
+    length of "heldout:", so the catalog T-72's row was named "" (made-up results: nothing is tracked)."""
+    from torch_atr.experiments.report import MEASURES
+    from torch_atr.experiments.unseen import write_unseen_report
+
+    cfg = SensiacLikeConfig(vehicles=("t_72", "heldout:tank/quaternius_tank1.obj"), ranges_m=(1000.0,), methods=("I",))
+    metrics = {"recognition_accuracy": 0.5, "best_matches": ["t_72", "m1a1"], **{k: 1.0 for k, _ in MEASURES}}
+    results = [{"vehicle": name, "class": "tank", "range_m": 1000.0, "methods": {"I": {"metrics": metrics}}}
+               for name in cfg.vehicles]
+    write_unseen_report(tmp_path, cfg, results, wall_s=1.0)
+    report = (tmp_path / "report.md").read_text()
+    for shown in ("t_72", "tank/quaternius_tank1.obj"):
+        assert f"\n| {shown} | tank | 50 |" in report, shown
+
+
 @pytest.mark.slow
 def test_a_local_ray_cluster_gives_the_processes_results(run, tmp_path):
     pytest.importorskip("ray")

@@ -97,7 +97,7 @@ def write_unseen_report(out: Path, cfg: SensiacLikeConfig, results: list[dict], 
     ]
     for name, mesh in known.items():
         lines.append(
-            f"| {name[len(HELDOUT_PREFIX):]} | {mesh['class']} | "
+            f"| {name.removeprefix(HELDOUT_PREFIX)} | {mesh['class']} | "
             + " | ".join(_cell([mesh["recognition"][r][m] for m in cfg.methods]) for r in ranges) + " | "
             + " | ".join("/".join("—" if mesh["errors"][k][m] is None else f"{mesh['errors'][k][m]:.2f}"
                                   for m in cfg.methods) for k, _ in MEASURES) + " | "
@@ -113,7 +113,7 @@ def write_unseen_report(out: Path, cfg: SensiacLikeConfig, results: list[dict], 
         lines += ["", f"## Outside the six classes: the two nearest training vehicles, Method {cfg.methods[0]}", "",
                   "| mesh | " + " | ".join(f"{r} m" for r in ranges) + " |", "|---" * (len(ranges) + 1) + "|"]
         for name, mesh in unknown.items():
-            lines.append(f"| {name[len(HELDOUT_PREFIX):]} | "
+            lines.append(f"| {name.removeprefix(HELDOUT_PREFIX)} | "
                          + " | ".join(", ".join(mesh["best_matches"][r][cfg.methods[0]]) for r in ranges) + " |")
     lines += ["", "## Run", "",
               f"- {len(results)} sequences; wall time {wall_s:.0f} s (this run; sequences kept from an earlier run "
