@@ -20,8 +20,10 @@ def _grid(n_theta: int, phis_deg, dtype=torch.float64):
 
 def test_rbf_features_match_brute_force():
     g = torch.Generator().manual_seed(1)
-    u = view_vectors(torch.rand(7, generator=g, dtype=torch.float64) * 6, torch.rand(7, generator=g, dtype=torch.float64))
-    centres = view_vectors(torch.rand(5, generator=g, dtype=torch.float64) * 6, torch.rand(5, generator=g, dtype=torch.float64))
+    u = view_vectors(torch.rand(7, generator=g, dtype=torch.float64) * 6,
+                     torch.rand(7, generator=g, dtype=torch.float64))
+    centres = view_vectors(torch.rand(5, generator=g, dtype=torch.float64) * 6,
+                           torch.rand(5, generator=g, dtype=torch.float64))
     widths = torch.rand(5, generator=g, dtype=torch.float64) + 0.2
     psi = rbf_features(u, centres, widths).numpy()
     un, cn, wn = u.numpy(), centres.numpy(), widths.numpy()

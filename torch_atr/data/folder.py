@@ -162,7 +162,8 @@ def _check_frame_files(frames_dir: Path, n: int) -> None:
         raise FileNotFoundError(f"Frames folder not found: {frames_dir}")
     present = {p.name for p in frames_dir.iterdir() if not p.name.startswith(".")}
     extra = sorted(name for name in present
-                   if not (_FRAME_RE.fullmatch(name) and int(name[:-4]) < n and name == _frame_filename(int(name[:-4]))))
+                   if not (_FRAME_RE.fullmatch(name) and int(name[:-4]) < n
+                           and name == _frame_filename(int(name[:-4]))))
     found = len(present) - len(extra)
     if found < n:
         examples = []

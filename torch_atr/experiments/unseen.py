@@ -64,7 +64,8 @@ def aggregate_unseen(results: list[dict], cfg: SensiacLikeConfig) -> dict:
     classes: dict = {}
     for cls in sorted({m["class"] for m in meshes.values()} - {"unknown"}):
         of_class = [m for m in meshes.values() if m["class"] == cls]
-        classes[cls] = {f"{r:g}": {m: mean_or_none([x["recognition"][f"{r:g}"][m] for x in of_class]) for m in cfg.methods}
+        classes[cls] = {f"{r:g}": {m: mean_or_none([x["recognition"][f"{r:g}"][m] for x in of_class])
+                                   for m in cfg.methods}
                         for r in cfg.ranges_m}
     return {"meshes": meshes, "classes": classes}
 

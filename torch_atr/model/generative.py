@@ -388,7 +388,8 @@ def check_model_args(model_args, where: str = "model_args") -> TemplateConfig:
     names, class_names, classes = (model_args[k] for k in ("vehicle_names", "class_names", "vehicle_classes"))
     if not isinstance(class_names, list) or not 1 <= len(class_names) <= MAX_CLASSES or not all(
             isinstance(c, str) for c in class_names):
-        raise InputError(f"{key('class_names')}: expected a list of 1 to {MAX_CLASSES} strings; got {show(class_names)}")
+        raise InputError(f"{key('class_names')}: expected a list of 1 to {MAX_CLASSES} strings; "
+                         f"got {show(class_names)}")
     if not isinstance(names, list) or len(names) != K or not all(isinstance(n, str) for n in names):
         raise InputError(f"{key('vehicle_names')}: expected a list of {K} strings; got {show(names)}")
     if not isinstance(classes, list) or len(classes) != K:
