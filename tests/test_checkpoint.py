@@ -1,5 +1,6 @@
 """Checkpoints from untrusted sources: checksum, checks before allocation, no unsafe hints, no overwriting."""
 
+import copy
 import logging
 import os
 import re
@@ -32,6 +33,16 @@ def saved(model, tmp_path):
     path = tmp_path / "model.pt"
     model.save(path, extra={"note": "x", "views": torch.arange(3)})
     return path
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a GPU")
+def test_a_model_saved_from_a_gpu_holds_cpu_tensors(model, tmp_path):
+    """torch.load puts a tensor back on the device it was saved from, and a machine without that
+    device refuses it (which load_checkpoint reported as a corrupt file): a checkpoint holds CPU tensors."""
+    path = tmp_path / "gpu.pt"
+    copy.deepcopy(model).to("cuda").save(path)
+    assert {t.device.type for t in torch.load(path, weights_only=True)["state_dict"].values()} == {"cpu"}
+    assert GenerativeShapeModel.from_checkpoint(path).core.core.device.type == "cpu"
 
 
 def _v1(path):

@@ -269,11 +269,12 @@ class GenerativeShapeModel(nn.Module):
         extra: plain data to store alongside (tensors, numbers, strings, None, lists/dicts of them).
         The file stores the SHA-256 of its content (:func:`content_sha256`), checked on load. An
         existing checkpoint at ``path`` is replaced; any other file is not (``OutputExistsError``).
-        A model :func:`load_checkpoint` would refuse (say one cast to float16) is not written.
+        A model :func:`load_checkpoint` would refuse (say one cast to float16) is not written. The
+        state is stored on the CPU, whatever the model's device, so a machine without it loads the file.
         """
         _check_plain("extra", extra)
         path = check_output_file(path, True, is_checkpoint, "checkpoint")
-        model_args, state = self.model_args, self.state_dict()
+        model_args, state = self.model_args, {key: t.detach().cpu() for key, t in self.state_dict().items()}
         _check_state(state, model_args, f"{path} (not written, as it would not load)")
         atomic_torch_save({"format": FORMAT, "format_version": FORMAT_VERSION,
                            "torch_atr_version": torch_atr.__version__, "model_args": model_args,
