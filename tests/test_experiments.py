@@ -4,6 +4,7 @@ agrees with its sequences."""
 import dataclasses
 import json
 import os
+import re
 
 import numpy as np
 import pytest
@@ -75,6 +76,19 @@ def test_another_seed_or_start_is_refused_not_added_beside_the_run(run):
         with pytest.raises(ValueError, match="another configuration; use another --out"):
             main([*QUICK, *other, "--out", str(out)])
     assert sorted(os.listdir(out / "sequences")) == before and (out / "report.md").read_text() == report
+
+
+@pytest.mark.parametrize("damage", ['{"format": "torch_atr.sensiac_like_seq', "[1, 2]", "\udcff"])
+def test_a_damaged_result_file_is_named(run, tmp_path, damage):
+    """A result file cut short, or not a JSON object, raised json's bare error (or an AttributeError)
+    naming no file: the resume names it."""
+    import shutil
+
+    out = shutil.copytree(run[0], tmp_path / "run")
+    damaged = sorted((out / "sequences").glob("*.json"))[0]
+    damaged.write_text(damage, encoding="utf-8", errors="surrogateescape")
+    with pytest.raises(ValueError, match=f"{re.escape(str(damaged))} is not a result file"):
+        main([*QUICK, "--out", str(out)])
 
 
 def test_another_experiment_is_refused_a_runs_folder_finished_or_not(run, tmp_path):

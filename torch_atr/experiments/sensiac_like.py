@@ -271,6 +271,19 @@ def _write(result: dict, path: Path) -> None:
     atomic_write_text(json.dumps(result) + "\n", path)
 
 
+def read_result(path: Path) -> dict:
+    """The JSON object of a sequence's result file (NaN allowed, as ``json.dumps`` writes it); a file
+    that is not one (damaged, or put there by hand) raises ConfigError naming it."""
+    try:
+        result = json.loads(path.read_text(encoding="utf-8"))
+    except (UnicodeDecodeError, json.JSONDecodeError, RecursionError) as exc:
+        raise ConfigError(f"{path} is not a result file ({type(exc).__name__}: {exc}); remove it or use another "
+                          "--out") from None
+    if not isinstance(result, dict):
+        raise ConfigError(f"{path} is not a result file (a JSON {type(result).__name__}); remove it or use another --out")
+    return result
+
+
 def run_all(cfg: SensiacLikeConfig, out: Path, workers: int = 0, progress: bool = True,
             ray_address: str | None = None) -> list[dict]:
     """Run every sequence not already in ``out/sequences`` (resumable), ``workers`` at a time
@@ -288,7 +301,7 @@ def run_all(cfg: SensiacLikeConfig, out: Path, workers: int = 0, progress: bool 
     config = json.loads(json.dumps(dataclasses.asdict(cfg)))
     kept = {}
     for path in sorted(folder.glob("*.json")):  # every one, not only the grid's: another seed's has another name
-        result = json.loads(path.read_text(encoding="utf-8"))
+        result = read_result(path)
         if result.get("format") != RESULT_FORMAT or result.get("config") != config:
             raise ConfigError(f"{path} holds a result of another configuration; use another --out")
         kept[path.name] = result
