@@ -3,6 +3,7 @@
 import dataclasses
 import math
 import re
+import tracemalloc
 import warnings
 
 import cv2
@@ -16,7 +17,8 @@ from torch_atr.camera import Camera
 from torch_atr.config import ConfigError
 from torch_atr.data import FolderSequence, open_sequence, save_sequence
 from torch_atr.data.synthetic import (BODY, ENGINE_DECK, EXHAUST, RUNNING_GEAR, SceneConfig, SyntheticSequence,
-                                      demo_sequence, parse_synthetic_spec, surface_parts, visible_faces)
+                                      demo_sequence, parse_synthetic_spec, surface_parts, visible_faces,
+                                      visible_scene)
 from torch_atr.pose import VehiclePose, body_to_world
 from torch_atr.render import render_mask
 from torch_atr.segmentation import ForegroundSegmenter
@@ -363,6 +365,20 @@ def test_a_vehicle_too_large_in_the_image_is_refused_before_rendering():
     with pytest.raises(ConfigError, match=r"t_72 \(\d+.\d m across\) would span \d+ px at the circle's nearest point, "
                                           r"150 m away; expected at most 512"):
         SyntheticSequence("t_72", SceneConfig(range_m=200.0))
+
+
+def test_visible_floor_memory_does_not_grow_with_the_frame_height():
+    # The static floor's 3 x 3 sub-samples of a whole frame at once took 4.5 GB at 2048 x 2048 (and 0.5 GB at
+    # 640 x 480); numpy's allocations are traced by tracemalloc.
+    peaks = []
+    for height in (48, 384):
+        seq = SyntheticSequence("ford_f150", visible_scene(frames=1, width=128, height=height))
+        tracemalloc.start()
+        next(seq.warmup_frames(1))  # builds the static scene
+        peaks.append(tracemalloc.get_traced_memory()[1])
+        tracemalloc.stop()
+    assert peaks[1] < 2 * peaks[0], f"peak traced memory {peaks[0] / 2**20:.1f} MB at 48 rows, " \
+                                    f"{peaks[1] / 2**20:.1f} MB at 384"
 
 
 def test_save_sequence_round_trip(tmp_path):

@@ -176,6 +176,7 @@ _GROUT_M = 0.02  # ... and the width of the darker grout lines between them
 _GROUT_SHADE = 0.6  # grout albedo / tile albedo
 _TEXTURE_WAVES = 8  # sinusoids summed by the procedural texture
 _TEXTURE_WAVELENGTH_M = (0.15, 1.5)  # their wavelengths' range
+_FLOOR_BAND_ROWS = 32  # visible band: the floor is rendered in bands of this many pixel rows
 
 # The visible band's indoor-like scene (thesis 6.3, the toy cars, at full size): a camera 6.5 m up,
 # tilted down 32°, wide-angle (68° x 52° field of view), 13 m from the centre of a 10 m circle
@@ -769,19 +770,25 @@ class SyntheticSequence(Sequence):
         k = S // 2
         offsets = (np.arange(S) - k) / S
         u = (np.arange(cfg.width)[:, None] + offsets).ravel()  # (W·S,) sub-sample columns
-        v = (np.arange(cfg.height)[:, None] + offsets).ravel()
-        rays = self._world_rays(np.stack(np.meshgrid(u, v), axis=-1))  # (H·S, W·S, 3)
-        down = rays[..., 1] < 0
-        with np.errstate(divide="ignore", invalid="ignore"):
-            s = np.where(down, cfg.camera_height_m / -rays[..., 1], 0.0)  # ray parameter at the floor y = −h
-        ground = np.stack([s * rays[..., 0], s * rays[..., 2]], axis=-1)[down]  # (P, 2) floor (x, z), metres
-        albedo = cfg.floor_albedo * (1 + cfg.texture_contrast * _texture(ground, _generator(cfg.seed, _TEXTURE, 0)))
-        from_line = np.abs(ground / _TILE_M - np.round(ground / _TILE_M)).min(axis=1) * _TILE_M
-        albedo = np.where(from_line < _GROUT_M / 2, _GROUT_SHADE * albedo, albedo)
-        up = np.broadcast_to(np.array([0.0, 1.0, 0.0]), (len(albedo), 3))
-        grey = np.full(down.shape, MAX_GREY * _WALL_ALBEDO * cfg.ambient)
-        grey[down] = MAX_GREY * lambert(albedo, up, cfg.light_direction(), cfg.ambient)
-        return grey.reshape(cfg.height, S, cfg.width, S).mean(axis=(1, 3))
+        out = np.empty((cfg.height, cfg.width))
+        # Bands of rows: the sub-samples' float64 temporaries of a whole 2048 x 2048 frame took 4.5 GB.
+        for r0 in range(0, cfg.height, _FLOOR_BAND_ROWS):
+            rows = np.arange(r0, min(r0 + _FLOOR_BAND_ROWS, cfg.height))
+            v = (rows[:, None] + offsets).ravel()  # (h·S,) sub-sample rows of the band
+            rays = self._world_rays(np.stack(np.meshgrid(u, v), axis=-1))  # (h·S, W·S, 3)
+            down = rays[..., 1] < 0
+            with np.errstate(divide="ignore", invalid="ignore"):
+                s = np.where(down, cfg.camera_height_m / -rays[..., 1], 0.0)  # ray parameter at the floor y = −h
+            ground = np.stack([s * rays[..., 0], s * rays[..., 2]], axis=-1)[down]  # (P, 2) floor (x, z), metres
+            texture = _texture(ground, _generator(cfg.seed, _TEXTURE, 0))  # the same waves in every band
+            albedo = cfg.floor_albedo * (1 + cfg.texture_contrast * texture)
+            from_line = np.abs(ground / _TILE_M - np.round(ground / _TILE_M)).min(axis=1) * _TILE_M
+            albedo = np.where(from_line < _GROUT_M / 2, _GROUT_SHADE * albedo, albedo)
+            up = np.broadcast_to(np.array([0.0, 1.0, 0.0]), (len(albedo), 3))
+            grey = np.full(down.shape, MAX_GREY * _WALL_ALBEDO * cfg.ambient)
+            grey[down] = MAX_GREY * lambert(albedo, up, cfg.light_direction(), cfg.ambient)
+            out[rows] = grey.reshape(len(rows), S, cfg.width, S).mean(axis=(1, 3))
+        return out
 
     def _clutter(self, stream: int) -> np.ndarray:
         """(H, W) float64 static texture of unit standard deviation (module docstring)."""
