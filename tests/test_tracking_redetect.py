@@ -5,6 +5,7 @@ on a reversed heading without moving the identity (each against the same run wit
 import math
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
 import torch
@@ -292,3 +293,27 @@ def test_redetection_with_every_particle_behind_the_camera_places_nothing(model,
     plain, searched = run(0), run(1)
     assert [{**r, "step_ms": 0} for r in plain] == [{**r, "step_ms": 0} for r in searched]
     assert all(math.isfinite(v) for r in searched for v in r.values() if isinstance(v, float))
+
+
+def test_a_frame_lost_after_a_redetection_keeps_the_weights_normalised(model, btr, caplog):
+    """At σ = 0.007 a blob dilated by 4 px is explained by no particle, and the hypotheses the search
+    finds on it beat every particle but underflow too: the frame is lost with particles redrawn at
+    1/N among weights that never resample (``resample_ess`` 0) and have gathered on a few. The
+    weights still sum to 1 (they summed to 1.2 and the ESS refused them, a ValueError from
+    ``step``), and so does the class posterior."""
+    cfg = load_config(TrackerConfig, None, ["filter.particles=50", "filter.sigma=0.007", "filter.resample_ess=0",
+                                            "redetect.after_truth=true"])
+    tracker = Tracker(model, btr.camera, cfg, seed=0)
+    tracker.warm_up(btr.warmup_frames(20))
+    tracker.initialise(btr.truth(0))
+    for i in range(10):
+        tracker.step(btr.frame(i))
+    assert float(tracker.log_weights.exp().max()) > 0.5  # the redrawn particles' 1/N would not sum with them to 1
+    blob = cv2.dilate(tracker.last_mask.astype(np.uint8), np.ones((9, 9), np.uint8)).astype(bool)
+    with caplog.at_level("DEBUG", logger="torch_atr.tracking.filter"):
+        row = tracker.step(mask=blob)
+    assert any("re-detection redrew 10 particles" in r.getMessage() for r in caplog.records)
+    assert row["lost"] == 1
+    assert abs(float(tracker.log_weights.double().exp().sum()) - 1) < 1e-6
+    assert abs(sum(v for k, v in row.items() if k.startswith("p_")) - 1) < 1e-6
+    assert 1 <= row["ess"] <= 50 and all(math.isfinite(v) for v in row.values() if isinstance(v, float))

@@ -28,8 +28,9 @@ image, and is lost when every particle's likelihood underflows (max log w below 
 smallest normal float; a particle whose window sees nothing of the image, behind the camera or
 wholly outside it, has none), or (``redetect.restart``) when its blob is clear of the image's
 edge and lies outside the box of the particles' predicted windows: the filter then keeps its prediction,
-leaves the weights as they are and flags the frame ``lost``. Estimates are never NaN once the
-filter is initialised.
+leaves the weights as they are (particles a re-detection redrew on it at 1/N among them,
+normalised again) and flags the frame ``lost``. Estimates are never NaN once the filter is
+initialised.
 
 The blind start waits for a blob clear of the image's edge (``init.border_px``; a blob the edge
 cuts has the wrong size and shape: ``initialise`` module docstring); until it starts, frames are
@@ -496,7 +497,8 @@ class Tracker:
             if log_lik.max() >= floor:
                 self.log_weights = torch.log_softmax(self.log_weights + log_lik, dim=0)
                 lost, self._unexplained = False, 0
-            else:
+            else:  # the weights stay, normalised again: a re-detection may have redrawn particles at 1/N
+                self.log_weights = torch.log_softmax(self.log_weights, dim=0)
                 self._unexplained += 1
                 if self._unexplained == _UNEXPLAINED_WARNING:
                     self._warn_unexplained(mask, float(log_lik.max()), floor, side)
