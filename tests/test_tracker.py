@@ -548,6 +548,26 @@ def test_a_refused_step_leaves_the_filter_as_it_was(model, btr):
     assert torch.equal(tracker.generator.get_state(), before[2])
 
 
+def test_reset_never_writes_into_the_callers_particles(model, btr, caplog):
+    """After 11 blind frames the speeds are measured on the first step after a reset (its track
+    holds the frames before it); they were set in the caller's own tensor, which the tracker held.
+    Float64 particles on a float32 tracker are taken in its dtype."""
+    tracker = Tracker(model, btr.camera, _config("filter.particles=20", f"init.camera_height_m={btr.camera_height_m}"),
+                      seed=0)
+    tracker.warm_up(btr.warmup_frames(20))
+    for i in range(11):
+        tracker.step(btr.frame(i))
+    mine = tracker.particles.clone()
+    kept = mine.clone()
+    tracker.reset(mine)
+    with caplog.at_level("DEBUG", logger="torch_atr.tracking.filter"):
+        row = tracker.step(btr.frame(11))
+    assert any("speeds set from the blob's motion" in r.getMessage() for r in caplog.records)
+    assert torch.equal(mine, kept) and row["lost"] == 0
+    tracker.reset(kept.double())
+    assert tracker.particles.dtype == torch.float32 and torch.equal(tracker.particles, kept)
+
+
 def test_frames_must_have_the_cameras_size(model, btr):
     tracker = Tracker(model, btr.camera, _config("filter.particles=50"), seed=0)
     with pytest.raises(ValueError, match=r"frames of the camera's image size \(512, 640\) \(H, W\); got \(256, 320\)"):

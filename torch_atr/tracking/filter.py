@@ -425,11 +425,12 @@ class Tracker:
 
     def reset(self, particles: torch.Tensor) -> None:
         """Start from given particles: (N, 6) [x, y, z, h, v, α] describing the coming frame
-        (equal weights; the next :meth:`step` weighs them without a prediction first)."""
+        (equal weights; the next :meth:`step` weighs them without a prediction first). They are
+        copied: the filter never writes into the caller's tensor."""
         check_shape("particles", particles, ("N", STATE_DIM))
         if particles.shape[0] == 0 or not bool(particles.isfinite().all()):
             raise ValueError(f"Expected at least one particle, all finite; got {particles.shape[0]}")
-        self.particles = particles.to(self.device, self.dtype)
+        self.particles = particles.to(self.device, self.dtype, copy=True)  # the caller's tensor is theirs
         self.log_weights = torch.full((self.particles.shape[0],), -math.log(self.particles.shape[0]),
                                       dtype=self.dtype, device=self.device)
         self._fresh = True
