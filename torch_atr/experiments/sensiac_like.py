@@ -280,7 +280,8 @@ def read_result(path: Path) -> dict:
         raise ConfigError(f"{path} is not a result file ({type(exc).__name__}: {exc}); remove it or use another "
                           "--out") from None
     if not isinstance(result, dict):
-        raise ConfigError(f"{path} is not a result file (a JSON {type(result).__name__}); remove it or use another --out")
+        raise ConfigError(f"{path} is not a result file (a JSON {type(result).__name__}); remove it or use "
+                          "another --out")
     return result
 
 
