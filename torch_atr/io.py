@@ -27,10 +27,10 @@ import torch
 
 log = logging.getLogger(__name__)
 
-_TEMP_CHARS = "[a-z0-9_]{8}"  # tempfile's random part
+TEMP_CHARS = "[a-z0-9_]{8}"  # tempfile's random part
 _SET_ASIDE = ".replaced"  # claimed_output_dir: the suffix of a replaced run's files until the new run ends
 _TEMP_SUFFIX = r"(\.[A-Za-z0-9]{1,8})?"  # an extension after .tmp, for writers that go by it (.mp4)
-_ANY_TEMP = re.compile(rf"\..+\.{_TEMP_CHARS}\.tmp{_TEMP_SUFFIX}")
+_ANY_TEMP = re.compile(rf"\..+\.{TEMP_CHARS}\.tmp{_TEMP_SUFFIX}")
 RUN_CLAIM = ".torch_atr_run"  # written into a run folder as a run starts: an interrupted run's folder stays ours
 
 
@@ -39,7 +39,7 @@ class OutputExistsError(FileExistsError):
 
 
 @contextmanager
-def _unheld(candidate: Path) -> Iterator[bool]:
+def unheld(candidate: Path) -> Iterator[bool]:
     """True, holding its lock for the block, when no live write holds ``candidate``; False when
     one does or it is gone."""
     try:
@@ -60,10 +60,10 @@ def _unheld(candidate: Path) -> Iterator[bool]:
 
 def _remove_stale_temps(path: Path) -> None:
     """Delete ``.NAME.XXXXXXXX.tmp`` files beside ``path`` that no live write holds locked."""
-    pattern = re.compile(rf"\.{re.escape(path.name)}\.{_TEMP_CHARS}\.tmp{_TEMP_SUFFIX}")
+    pattern = re.compile(rf"\.{re.escape(path.name)}\.{TEMP_CHARS}\.tmp{_TEMP_SUFFIX}")
     for candidate in path.parent.iterdir():
         if pattern.fullmatch(candidate.name):
-            with _unheld(candidate) as stale:
+            with unheld(candidate) as stale:
                 if stale:
                     candidate.unlink(missing_ok=True)
                     log.info("removed %s, left by an interrupted write of %s", candidate, path)
@@ -73,7 +73,7 @@ def _is_stale_temp(path: Path) -> bool:
     """True for the temporary file of a killed write (any target): the next write of it removes it."""
     if not _ANY_TEMP.fullmatch(path.name) or not path.is_file():
         return False
-    with _unheld(path) as stale:
+    with unheld(path) as stale:
         return stale
 
 

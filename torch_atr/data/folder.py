@@ -38,7 +38,7 @@ from tqdm import tqdm
 
 from torch_atr.data.sequence import (MAX_CAMERA_HEIGHT_M, TEXT_FIELDS, TRUTH_FIELDS, FrameTruth, Sequence,
                                      check_fps, load_camera_json, register_scheme)
-from torch_atr.io import strict_json
+from torch_atr.io import TEMP_CHARS, strict_json, unheld
 from torch_atr.validate import (InputError, image_file_size, image_size, integer, parse_real, read_image,
                                 read_json_object, read_text, real, show)
 
@@ -48,7 +48,6 @@ FORMAT = "torch_atr.sequence"
 FORMAT_VERSION = 1
 _FRAME_RE = re.compile(r"\d{6,}\.png")
 FRAME_RULE = "(H, W) uint8/uint16 or (H, W, 3) uint8"
-_TEMP_CHARS = "[a-z0-9_]{8}"  # tempfile's random part
 _WRITING = ".saving"  # .NAME.XXXXXXXX.saving: a save's new sequence until it is renamed to NAME
 _SUPERSEDED = ".superseded"  # .NAME.XXXXXXXX.superseded: holds NAME, the sequence a save replaces, until deleted
 _WRITTEN = frozenset({"frames", "truth.csv", "camera.json", "meta.json"})  # what a save writes in its folder
@@ -370,27 +369,18 @@ def _remove_left_by_killed_saves(folder: Path, kind: str, holds: frozenset[str])
     no live save holds and that hold nothing but entries named in ``holds``: those that killed saves
     of ``folder`` left. Anything else (a file or link of that name, a folder with other entries, one
     the file system cannot lock) stays; one that cannot be removed is logged, not raised."""
-    pattern = re.compile(rf"\.{re.escape(folder.name)}\.{_TEMP_CHARS}{re.escape(kind)}")
+    pattern = re.compile(rf"\.{re.escape(folder.name)}\.{TEMP_CHARS}{re.escape(kind)}")
     for candidate in folder.parent.iterdir():
-        if not pattern.fullmatch(candidate.name):
+        if not pattern.fullmatch(candidate.name) or candidate.is_symlink() or not candidate.is_dir():
             continue
-        try:
-            fd = os.open(candidate, os.O_RDONLY | os.O_DIRECTORY | os.O_NOFOLLOW)
-        except OSError:  # not a folder, a link, not ours to read, or gone
-            continue
-        try:
+        with unheld(candidate) as stale:
             try:
-                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-                stale = {entry.name for entry in candidate.iterdir()} <= holds
-            except OSError:  # a live save holds it (or the file system cannot lock folders), or not ours to list
-                stale = False
-            if stale:
-                shutil.rmtree(candidate)
-                logger.info("removed %s, left by a save of %s that was killed", candidate, folder)
-        except OSError as exc:
-            logger.warning("could not remove %s, left by a save of %s that was killed: %s", candidate, folder, exc)
-        finally:
-            os.close(fd)
+                if stale and {entry.name for entry in candidate.iterdir()} <= holds:
+                    shutil.rmtree(candidate)
+                    logger.info("removed %s, left by a save of %s that was killed", candidate, folder)
+            except OSError as exc:
+                logger.warning("could not remove %s, left by a save of %s that was killed: %s", candidate, folder,
+                               exc)
 
 
 register_scheme("folder", FolderSequence)
