@@ -349,8 +349,6 @@ def test_fit_rejects_bad_inputs(data):
         GenerativeShapeModel.fit(bad, data["theta"], data["phi"], NAMES, CLASSES, ["car", "tank"], TEMPLATE)
 
 
-
-
 @pytest.mark.parametrize("key, message", [
     ("theta", r"Expected theta to be finite radians; 1 value\(s\) are NaN or infinite"),
     ("phi", r"Expected phi to be finite radians; 1 value"),
@@ -382,6 +380,7 @@ def test_fine_tune_widths_rejects_non_finite_inputs(model, data, key):
         fine_tune_widths(rbf, inputs["train"], inputs["theta"], data["phi"], inputs["val"], inputs["val_theta"],
                          data["val_phi"], 2, 0.01)
     assert torch.equal(rbf.log_width.detach(), before)  # refused before any step
+
 
 def test_model_config_from_yaml_and_overrides(tmp_path):
     path = tmp_path / "model.yaml"

@@ -71,7 +71,6 @@ def test_init_width_validation():
         RBFViewMapping(torch.zeros(1), torch.zeros(1))
 
 
-
 def test_centres_of_two_float_dtypes_give_one_dtype():
     # float32 θ with float64 φ made a float32 centres_theta beside float64 centres_phi and log_width.
     theta, phi = _grid(6, [0.0, 20.0])
@@ -81,6 +80,7 @@ def test_centres_of_two_float_dtypes_give_one_dtype():
     rbf = RBFViewMapping(theta.float(), phi)
     reference = RBFViewMapping(theta.float().double(), phi)
     torch.testing.assert_close(rbf(theta, phi), reference(theta, phi), rtol=0, atol=0)
+
 
 def _lstsq_reference(psi: np.ndarray, Y: np.ndarray, ridge: float) -> np.ndarray:
     """Per-vehicle ridge regression as ordinary least squares on [Ψ; √λ I] b = [y; 0]."""
@@ -107,7 +107,6 @@ def test_fit_matches_numpy_lstsq(n_centres_theta):
     np.testing.assert_allclose(B.detach().numpy(), ref, rtol=1e-7, atol=1e-9)
 
 
-
 def test_fit_takes_templates_of_another_float_dtype():
     # float32 templates (as rendered) on float64 centres (as train.py's grid) raised a matmul dtype RuntimeError.
     theta, phi = _grid(12, [0, 20])
@@ -119,6 +118,7 @@ def test_fit_takes_templates_of_another_float_dtype():
     narrow = RBFViewMapping(theta.float(), phi.float()).fit(theta, phi, Y, 1e-3)
     assert narrow.dtype == torch.float32
     torch.testing.assert_close(narrow, expected.float(), rtol=1e-4, atol=1e-4)
+
 
 def test_fit_interpolates_training_views_at_zero_ridge():
     theta, phi = _grid(12, [0, 20, 40])
