@@ -91,6 +91,17 @@ def test_a_damaged_result_file_is_named(run, tmp_path, damage):
         main([*QUICK, "--out", str(out)])
 
 
+def test_hidden_files_in_sequences_are_not_result_files(run, tmp_path):
+    """macOS's ._NAME.json beside each file copied to an exFAT drive (binary, not JSON) stopped the
+    resume with "is not a result file"; hidden files are not results."""
+    import shutil
+
+    out = shutil.copytree(run[0], tmp_path / "run")
+    for path in sorted((out / "sequences").glob("*.json")):
+        (path.parent / f"._{path.name}").write_bytes(b"\x00\x05\x16\x07\x00\x02\x00\x00Mac OS X        ")
+    assert main([*QUICK, "--out", str(out)]) == run[1]
+
+
 def test_another_experiment_is_refused_a_runs_folder_finished_or_not(run, tmp_path):
     """The visible band run into a SENSIAC-like folder ran and replaced its report and results.json."""
     import shutil

@@ -271,6 +271,12 @@ def _write(result: dict, path: Path) -> None:
     atomic_write_text(json.dumps(result) + "\n", path)
 
 
+def result_files(folder: Path) -> list[Path]:
+    """The result files in ``folder``, sorted: every ``*.json`` but hidden ones (macOS's ``._NAME.json``
+    beside each file copied to a FAT or exFAT drive is not a result)."""
+    return sorted(path for path in folder.glob("*.json") if not path.name.startswith("."))
+
+
 def read_result(path: Path) -> dict:
     """The JSON object of a sequence's result file (NaN allowed, as ``json.dumps`` writes it); a file
     that is not one (damaged, or put there by hand) raises ConfigError naming it."""
@@ -301,7 +307,7 @@ def run_all(cfg: SensiacLikeConfig, out: Path, workers: int = 0, progress: bool 
     wanted = [(v, r) for v in cfg.vehicles for r in cfg.ranges_m]
     config = json.loads(json.dumps(dataclasses.asdict(cfg)))
     kept = {}
-    for path in sorted(folder.glob("*.json")):  # every one, not only the grid's: another seed's has another name
+    for path in result_files(folder):  # every one, not only the grid's: another seed's has another name
         result = read_result(path)
         if result.get("format") != RESULT_FORMAT or result.get("config") != config:
             raise ConfigError(f"{path} holds a result of another configuration; use another --out")
