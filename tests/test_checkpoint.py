@@ -40,8 +40,9 @@ def test_a_model_saved_from_a_gpu_holds_cpu_tensors(model, tmp_path):
     """torch.load puts a tensor back on the device it was saved from, and a machine without that
     device refuses it (which load_checkpoint reported as a corrupt file): a checkpoint holds CPU tensors."""
     path = tmp_path / "gpu.pt"
-    copy.deepcopy(model).to("cuda").save(path)
-    assert {t.device.type for t in torch.load(path, weights_only=True)["state_dict"].values()} == {"cpu"}
+    copy.deepcopy(model).to("cuda").save(path, extra={"views": [torch.arange(3, device="cuda")]})
+    raw = torch.load(path, weights_only=True)
+    assert {t.device.type for t in [*raw["state_dict"].values(), *raw["extra"]["views"]]} == {"cpu"}
     assert GenerativeShapeModel.from_checkpoint(path).core.core.device.type == "cpu"
 
 

@@ -270,11 +270,14 @@ class GenerativeShapeModel(nn.Module):
         The file stores the SHA-256 of its content (:func:`content_sha256`), checked on load. An
         existing checkpoint at ``path`` is replaced; any other file is not (``OutputExistsError``).
         A model :func:`load_checkpoint` would refuse (say one cast to float16) is not written. The
-        state is stored on the CPU, whatever the model's device, so a machine without it loads the file.
+        tensors (the state's and those in ``extra``) are stored on the CPU, whatever the model's device,
+        so a machine without that device loads the file.
         """
         _check_plain("extra", extra)
         path = check_output_file(path, True, is_checkpoint, "checkpoint")
-        model_args, state = self.model_args, {key: t.detach().cpu() for key, t in self.state_dict().items()}
+        model_args, state, extra = self.model_args, self.state_dict(), _on_cpu(extra)
+        for key, tensor in state.items():
+            state[key] = tensor.detach().cpu()
         _check_state(state, model_args, f"{path} (not written, as it would not load)")
         atomic_torch_save({"format": FORMAT, "format_version": FORMAT_VERSION,
                            "torch_atr_version": torch_atr.__version__, "model_args": model_args,
@@ -302,6 +305,17 @@ def _check_plain(name: str, value) -> None:
             _check_plain(f"{name}[{key!r}]", item)
         return
     raise ValueError(f"{name} holds a {type(value).__name__}; checkpoints store only tensors and plain data")
+
+
+def _on_cpu(value):
+    """``value`` (plain data, :func:`_check_plain`) with each tensor in it moved to the CPU."""
+    if isinstance(value, torch.Tensor):
+        return value.detach().cpu()
+    if isinstance(value, (list, tuple)):
+        return type(value)(_on_cpu(item) for item in value)
+    if isinstance(value, dict):
+        return {key: _on_cpu(item) for key, item in value.items()}
+    return value
 
 
 def content_sha256(model_args: dict, state_dict: dict, extra) -> str:
