@@ -490,16 +490,18 @@ class Tracker:
         if self.initialised and observed and not self._missed:
             log_lik = self._log_likelihood(distance, self.particles)
             k = self._frames - self._start  # never searched at the start itself
+            redrawn = False
             if self._searching and self.cfg.redetect.searches(k):
-                log_lik = self._redetect(mask, distance, frame, log_lik)
+                log_lik, redrawn = self._redetect(mask, distance, frame, log_lik)
             elif self.cfg.redetect.view_searches(k):
-                log_lik = self._redetect(mask, distance, frame, log_lik, views_only=True)
+                log_lik, redrawn = self._redetect(mask, distance, frame, log_lik, views_only=True)
             floor = math.log(torch.finfo(self.dtype).tiny)  # below it every weight underflows
             if log_lik.max() >= floor:
                 self.log_weights = torch.log_softmax(self.log_weights + log_lik, dim=0)
                 lost, self._unexplained = False, 0
-            else:  # the weights stay, normalised again: a re-detection may have redrawn particles at 1/N
-                self.log_weights = torch.log_softmax(self.log_weights, dim=0)
+            else:
+                if redrawn:  # the weights stay, normalised again: the redrawn particles came in at 1/N
+                    self.log_weights = torch.log_softmax(self.log_weights, dim=0)
                 self._unexplained += 1
                 if self._unexplained == _UNEXPLAINED_WARNING:
                     self._warn_unexplained(mask, float(log_lik.max()), floor, side)
@@ -719,10 +721,10 @@ class Tracker:
                  states.shape[0], best[X], best[Z], best[ALPHA], name, self.cfg.init.contact_row(contrast))
 
     def _redetect(self, mask: np.ndarray, distance: FrameDistance, frame: np.ndarray | None,
-                  log_lik: torch.Tensor, views_only: bool = False) -> torch.Tensor:
+                  log_lik: torch.Tensor, views_only: bool = False) -> tuple[torch.Tensor, bool]:
         """Re-detection (``RedetectConfig``): the worst-explaining particles redrawn around the blob's
-        hypotheses that beat every particle by the margin, in place; returns the (N,) log-likelihoods
-        with theirs. ``views_only``: the hypotheses keep the estimate's identity (the grid's α nearest
+        hypotheses that beat every particle by the margin, in place, at weight 1/N; returns the (N,)
+        log-likelihoods with theirs and whether any was redrawn. ``views_only``: the hypotheses keep the estimate's identity (the grid's α nearest
         to the particles' circular mean and its two neighbours) and search the view."""
         rc = self.cfg.redetect
         wanted = (not rc.keep_range and self.cfg.init.ground_row is None and frame is not None
@@ -744,7 +746,7 @@ class Tracker:
         best = float(log_lik.max())
         better = hyp > best + rc.margin
         if not bool(better.any()):
-            return log_lik
+            return log_lik, False
         n = self.particles.shape[0]
         m = max(1, round(rc.share * n))
         init = self.cfg.init
@@ -764,7 +766,7 @@ class Tracker:
         log_lik[worst] = self._log_likelihood(distance, new)
         log.debug("frame %d: re-detection redrew %d particles (best hypothesis %.1f, best particle %.1f)",
                   self._frames, m, float(hyp.max()), best)
-        return log_lik
+        return log_lik, True
 
     def _measure_speed(self, point: tuple[int, float, float] | None, row: dict) -> None:
         """After a blind start (``init.speed_frames``): add this frame's (frame, s, blob column) ``point``
