@@ -10,7 +10,6 @@ import pytest
 
 from torch_atr.camera import Camera
 from torch_atr.data import VideoSequence, open_sequence, save_sequence
-from torch_atr.data.video import natural_key
 from torch_atr.validate import InputError
 
 H, W, N = 48, 64, 12
@@ -148,42 +147,6 @@ def test_image_order_across_folders_ties_and_hidden_files(tmp_path):
                                  np.full((H, W), value, np.uint8))[1].tobytes())
     seq = open_sequence(f"video:{tie}")
     assert len(seq) == 2 and [int(seq.frame(i)[0, 0]) for i in range(2)] == [2, 1]  # img01, then img1
-
-
-def test_time_stamps_with_a_decimal_point_sort_by_value(tmp_path):
-    """Frames named by fractional time stamps come in time order (t_1.25 before t_1.5), not in
-    text order; a frame folder of them opens in that order."""
-    folder = tmp_path / "stamps"
-    folder.mkdir()
-    stamps = ["0.75", "1", "1.25", "1.5", "2", "10"]
-    for value, stamp in enumerate(reversed(stamps)):  # written out of order, values by reversed rank
-        cv2.imwrite(str(folder / f"t_{stamp}.png"), np.full((H, W), value, np.uint8))
-    seq = open_sequence(f"video:{folder}")
-    assert [int(seq.frame(i)[0, 0]) for i in range(len(seq))] == list(reversed(range(len(stamps))))
-    assert seq.meta["first_file"].endswith("t_0.75.png") and seq.meta["last_file"].endswith("t_10.png")
-
-
-@pytest.mark.parametrize("shuffled, ordered", [
-    (["t_2.png", "t_1.5.png", "t_1.25.png", "t_1.png", "t_10.png"],
-     ["t_1.png", "t_1.25.png", "t_1.5.png", "t_2.png", "t_10.png"]),
-    (["frame_0100.png", "frame_0010.png", "frame_0009.png"], ["frame_0009.png", "frame_0010.png", "frame_0100.png"]),
-    (["c.png", "b.png", "A.png"], ["A.png", "b.png", "c.png"]),  # no numbers: text, case-blind
-    (["scan_b.png", "scan_10.png", "scan_a.png", "scan_9.5.png"],  # a number sorts before text at its place
-     ["scan_9.5.png", "scan_10.png", "scan_a.png", "scan_b.png"]),
-    (["frame.10.png", "frame.7.png", "frame.7.5.png"],  # a dot after text is not a decimal point
-     ["frame.7.png", "frame.7.5.png", "frame.10.png"]),
-    (["run2_t_0.5.png", "run10_t_0.25.png", "run2_t_0.25.png"],  # the first number decides first
-     ["run2_t_0.25.png", "run2_t_0.5.png", "run10_t_0.25.png"]),
-])
-def test_natural_key_orders_numbers_by_value(shuffled, ordered):
-    assert sorted(shuffled, key=natural_key) == ordered
-
-
-def test_natural_key_numbers_are_exact():
-    """Numbers compare exactly however long (no float rounding), and equal values tie."""
-    assert natural_key("t_1.000000000000000000001") > natural_key("t_1.png")
-    assert natural_key("t_99999999999999999999999") > natural_key("t_99999999999999999999998")
-    assert natural_key("t_1.50.png") == natural_key("t_1.5.png") == natural_key("T_01.5.PNG")
 
 
 def test_mixed_image_sizes(tmp_path):

@@ -2,9 +2,8 @@
 
 Frames come out grey uint8 (``color=False``, the default) or RGB uint8 (``color=True``); a
 16-bit grey image (an IR frame saved as PNG or TIFF) stays uint16 when read grey. Image files
-are ordered naturally, numbers by value (``frame2`` before ``frame10``, ``t_1.25`` before
-``t_1.5``: :func:`natural_key`), folder by folder for a glob; hidden files are not frames. These
-sources carry no ground truth.
+are ordered naturally (``frame2`` before ``frame10``), folder by folder for a glob; hidden files are
+not frames. These sources carry no ground truth.
 Frame sizes are checked against the bounds of :mod:`torch_atr.validate` before any decoding
 (an image file's header, a video's reported size).
 """
@@ -16,7 +15,6 @@ import logging
 import math
 import os
 import re
-from decimal import Decimal
 from pathlib import Path
 
 import cv2
@@ -29,26 +27,16 @@ from torch_atr.validate import InputError, image_size, read_image
 logger = logging.getLogger(__name__)
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".pgm", ".ppm", ".pnm", ".webp")
-_NUMBER = re.compile(r"(\d+(?:\.\d+)?)")  # digits, then at most one decimal point followed by digits
 
 
 def natural_key(name: str) -> list:
-    """Sort key that orders embedded numbers by value: ``img2 < img10``, ``t_1.25 < t_1.5 < t_2``.
-
-    ``name`` is split into text and numbers. A number is a run of digits, with at most one decimal
-    point that has digits on both sides (``1.25``; the dot of ``img.png`` or ``frame.7`` is text,
-    and ``1.2.3`` is 1.2, a dot, then 3, so ``v1.10`` sorts before ``v1.9``). Numbers compare
-    exactly by value, zero padding aside (``0009`` is 9); text compares case-blind. Names are
-    compared part by part, a number before text at the same place (``scan_9`` before ``scan_a``).
-    """
-    parts = _NUMBER.split(name)  # text, number, text, ..., text: a number only ever meets a number
-    return [Decimal(part) if k % 2 else part.lower() for k, part in enumerate(parts)]
+    """Sort key that orders embedded numbers by value: ``img2 < img10``."""
+    return [int(part) if part.isdigit() else part.lower() for part in re.split(r"(\d+)", name)]
 
 
 def _file_order(path: Path) -> tuple[list, str]:
-    """Sort key of image files: :func:`natural_key` of each part of the path, folder by folder (a
-    glob's matches in several folders keep each folder's frames together), then the path itself
-    (names of equal key, ``img1`` and ``img01`` or ``t_1.5`` and ``t_1.50``, in a fixed order)."""
+    """Sort key of image files: natural, folder by folder (a glob's matches in several folders keep
+    each folder's frames together), then the path itself (``img1`` and ``img01`` in a fixed order)."""
     return [natural_key(part) for part in path.parts], str(path)
 
 
