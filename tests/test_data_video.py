@@ -149,6 +149,19 @@ def test_image_order_across_folders_ties_and_hidden_files(tmp_path):
     assert len(seq) == 2 and [int(seq.frame(i)[0, 0]) for i in range(2)] == [2, 1]  # img01, then img1
 
 
+def test_digit_runs_compare_as_whole_numbers_as_ls_v_does():
+    """A counter after a dot sorts by value (cam1.2 before cam1.10), as do time stamps with a fixed
+    number of decimals; one of varying width (t_1.5, t_1.25) compares its decimals as a whole
+    number too, like ls -v (README: write them with a fixed number of decimals)."""
+    from torch_atr.data.video import natural_key
+
+    counters = [f"cam1.{k}.png" for k in (1, 2, 9, 10, 11, 20)]
+    assert sorted(reversed(counters), key=natural_key) == counters
+    assert sorted(["shot_2024.10.png", "shot_2024.2.png"], key=natural_key) == ["shot_2024.2.png", "shot_2024.10.png"]
+    stamps = ["t_0.750.png", "t_1.250.png", "t_1.500.png", "t_10.000.png"]
+    assert sorted(reversed(stamps), key=natural_key) == stamps
+
+
 def test_mixed_image_sizes(tmp_path):
     (tmp_path / "m").mkdir()
     cv2.imwrite(str(tmp_path / "m" / "a1.png"), np.zeros((4, 5), np.uint8))

@@ -30,7 +30,9 @@ IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".pgm", ".pp
 
 
 def natural_key(name: str) -> list:
-    """Sort key that orders embedded numbers by value: ``img2 < img10``."""
+    """Sort key that orders embedded numbers by value: ``img2 < img10``. Each run of digits is one
+    whole number, as ``ls -v`` reads it (``cam1.2 < cam1.10``), so the decimals of time stamps
+    compare right only when they have a fixed width (``t_1.250 < t_1.500``)."""
     return [int(part) if part.isdigit() else part.lower() for part in re.split(r"(\d+)", name)]
 
 
