@@ -16,6 +16,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import logging
+import os
 from pathlib import Path
 
 from torch_atr import viz
@@ -75,7 +76,7 @@ def main(argv: list[str] | None = None) -> dict:
     model, extra = load_checkpoint(in_repo(cfg.checkpoint), map_location=cfg.device)
     sequence = open_sequence(cfg.sequence)
     # config.yaml names the files read by absolute paths: it reproduces the run from any folder.
-    cfg = dataclasses.replace(cfg, checkpoint=str(in_repo(cfg.checkpoint).resolve()),
+    cfg = dataclasses.replace(cfg, checkpoint=os.path.abspath(in_repo(cfg.checkpoint)),
                               sequence=absolute_spec(cfg.sequence))
     out = check_output_dir(cfg.out, args.overwrite, "metrics.json", is_track_run, "tracking run")
     tracker = make_tracker(cfg, model, trained_catalog(extra), sequence)

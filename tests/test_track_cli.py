@@ -161,8 +161,12 @@ def test_absolute_spec_makes_the_files_a_spec_reads_absolute(tmp_path, monkeypat
     assert absolute_spec("folder:clips/a") == f"folder:{tmp_path / 'clips/a'}"
     assert absolute_spec("video:shots/*.png, calib=cam.json,fps=30") == (f"video:{tmp_path / 'shots/*.png'},"
                                                                          f"calib={tmp_path / 'cam.json'},fps=30")
-    assert absolute_spec("sensiac:~/arf/a.arf,layout=trailer40") == (f"sensiac:{Path.home().resolve() / 'arf/a.arf'},"
+    assert absolute_spec("sensiac:~/arf/a.arf,layout=trailer40") == (f"sensiac:{Path.home() / 'arf/a.arf'},"
                                                                      f"layout=trailer40")
+    (tmp_path / "store").mkdir()
+    (tmp_path / "store" / "abc123.mp4").write_text("")
+    (tmp_path / "clip.mp4").symlink_to(tmp_path / "store" / "abc123.mp4")
+    assert absolute_spec("video:clip.mp4") == f"video:{tmp_path / 'clip.mp4'}"  # a link keeps its name
     assert absolute_spec(SHORT) == SHORT  # a catalog name, not a path
     assert absolute_spec("synthetic:vehicle=tank.obj,range=900") == (f"synthetic:vehicle={tmp_path / 'tank.obj'},"
                                                                      f"range=900")

@@ -57,8 +57,9 @@ class TrackConfig:
 
 
 def _absolute(path: str) -> str:
-    """``path`` (``~`` expanded) as an absolute path, symbolic links resolved; a glob's pattern kept."""
-    return str(Path(path).expanduser().resolve())
+    """``path`` (``~`` expanded) as an absolute path, its symbolic links kept (a linked clip keeps its
+    name); a glob's pattern kept."""
+    return os.path.abspath(os.path.expanduser(path))
 
 
 def absolute_spec(spec: str) -> str:
@@ -80,7 +81,7 @@ def absolute_spec(spec: str) -> str:
         _, options = parse_spec_options(rest, has_target=False)
         vehicle = options.get("vehicle", "")
         if Path(vehicle).is_file():  # a file, as the simulator reads it (no ~); else a catalog name
-            options["vehicle"] = str(Path(vehicle).resolve())
+            options["vehicle"] = os.path.abspath(vehicle)
         return f"{scheme}:" + ",".join(f"{k}={v}" for k, v in options.items())
     return spec
 
