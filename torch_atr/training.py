@@ -162,7 +162,7 @@ def check_checkpoint_path(checkpoint: Path, run_dir: Path, run_files: tuple[str,
     own checkpoint there: ``checkpoint`` is the run folder ``run_dir``, a folder above it, or one of
     the files the run writes into it (``run_files``: names or glob patterns, ``events.out.tfevents.*``)."""
     path, folder = checkpoint.resolve(), run_dir.resolve()
-    default = f"(null: {run_dir / 'model.pt'})"
+    default = f"(or leave checkpoint unset: {run_dir / 'model.pt'})"
     if path == folder or path in folder.parents:
         where = "the run folder" if path == folder else "a folder above the run folder"
         raise ConfigError(f"checkpoint={checkpoint} is {where} {run_dir}; the checkpoint must be a file of its own "
