@@ -24,7 +24,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import json
 import logging
 import time
 from pathlib import Path
@@ -32,7 +31,8 @@ from pathlib import Path
 from torch_atr.cli import console_logging, run_main
 from torch_atr.config import ConfigError
 from torch_atr.experiments.combined import COMBINED_FORMAT, EXPERIMENTS, write_combined_report
-from torch_atr.experiments.report import REPORT_FORMAT, is_report_folder, mean_recognition, write_report
+from torch_atr.experiments.report import (REPORT_FORMAT, is_report_folder, mean_recognition, report_format,
+                                          write_report)
 from torch_atr.experiments.sensiac_like import FULL, QUICK, SensiacLikeConfig, run_all
 from torch_atr.experiments.studies import STUDIES_FORMAT, run_studies, study_configs, write_studies_report
 from torch_atr.experiments.unseen import UNSEEN_FORMAT, unseen_fields, write_unseen_report
@@ -99,16 +99,13 @@ def main(argv: list[str] | None = None) -> dict:
     return agg
 
 
-def _check_out(out: Path, report_format: str) -> None:
+def _check_out(out: Path, expected: str) -> None:
     """``OutputExistsError`` unless ``out`` is absent, empty or a folder of this experiment: its
-    results.json, where there is one, of ``report_format`` (another experiment's would be replaced)."""
+    results.json, where there is one, of format ``expected`` (another experiment's would be replaced)."""
     if out.exists() and (not out.is_dir() or (any(out.iterdir()) and not is_report_folder(out))):
         raise OutputExistsError(f"{out} exists and is not an experiment's folder; choose another --out")
-    try:
-        written = json.loads((out / "results.json").read_text(encoding="utf-8"))["format"]
-    except (OSError, ValueError, KeyError, TypeError):
-        return
-    if written != report_format:
+    written = report_format(out)
+    if written is not None and written != expected:
         raise OutputExistsError(f"{out} holds another experiment's report ({out / 'results.json'}: format "
                                 f"{written}); choose another --out")
 

@@ -158,14 +158,23 @@ def write_report(out: Path, cfg: SensiacLikeConfig, results: list[dict], model, 
     return agg
 
 
+def report_format(path: Path) -> str | None:
+    """The ``format`` of the folder ``path``'s results.json; None where it has none (no file, not
+    JSON, no format)."""
+    try:
+        written = json.loads((path / "results.json").read_text(encoding="utf-8")).get("format")
+    except (OSError, ValueError, AttributeError):
+        return None
+    return written if isinstance(written, str) else None
+
+
 def is_report_folder(path: Path) -> bool:
     """True for a folder an experiment wrote (its results.json is ours) or is writing (sequences/,
     or the studies' settings' folders holding sequences/)."""
-    try:
-        return json.loads((path / "results.json").read_text(encoding="utf-8")).get("format", "").startswith(
-            "torch_atr.")
-    except (OSError, ValueError, AttributeError):
-        return (path / "sequences").is_dir() or any((sub / "sequences").is_dir() for sub in path.glob("*/"))
+    written = report_format(path)
+    if written is not None:
+        return written.startswith("torch_atr.")
+    return (path / "sequences").is_dir() or any((sub / "sequences").is_dir() for sub in path.glob("*/"))
 
 
 def mean_recognition(agg: dict) -> dict:
