@@ -191,9 +191,10 @@ class BlobTracker(Tracker):
         self._reset_views(grid[pick] + noise * half_steps)
         self._fresh = False  # weighed on this very frame
 
-    def _redetect(self, mask, distance, frame, log_lik: torch.Tensor) -> torch.Tensor:
+    def _redetect(self, mask, distance, frame, log_lik: torch.Tensor, views_only: bool = False
+                  ) -> tuple[torch.Tensor, bool]:
         """No re-detection: its hypotheses are placed by the camera, which this tracker has none of."""
-        return log_lik
+        return log_lik, False
 
     def _estimate(self) -> dict:
         model, p = self.model, self.particles
