@@ -7,6 +7,7 @@ tests themselves (a SIGALRM timer and RLIMIT_DATA), so Hypothesis's deadline is 
 flaky on a shared machine and cannot stop a hang anyway.
 """
 
+import sys
 from pathlib import Path
 
 import pytest
@@ -18,6 +19,15 @@ settings.register_profile("ci", max_examples=30, derandomize=True, deadline=None
                           suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
 settings.register_profile("large", max_examples=2000, deadline=None, print_blob=True,
                           suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
+
+
+@pytest.fixture(autouse=True)
+def _close_figures():
+    """Close the figures a test drew: pyplot keeps every open figure, and warns past 20."""
+    yield
+    pyplot = sys.modules.get("matplotlib.pyplot")
+    if pyplot is not None:
+        pyplot.close("all")
 
 
 @pytest.fixture(scope="module")
