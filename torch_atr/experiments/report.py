@@ -1,7 +1,7 @@
 """The report of an experiment: ``report.md``, ``results.json`` and the figures, written atomically.
 
 - Table 6.1's analogue: the percentage of frames recognised per class group (tanks, APCs, SUVs,
-  pick-ups) and range, the four methods as ``I/II/III/IV`` like the thesis, beside its numbers
+  pick-ups, then any other class run) and range, the four methods as ``I/II/III/IV`` like the thesis, beside its numbers
   where it gives them (1000 m and 3500 m);
 - Fig. 6.8's analogue: mean horizontal, range and aspect errors per range per method, as a figure
   (``errors_by_range.png``) and a table;
@@ -86,8 +86,8 @@ def identity_figure(results: list[dict], model, range_m: float = 1000.0):
 
 
 def _recognition_table(agg: dict, cfg: SensiacLikeConfig) -> list[str]:
-    groups = [g for g in GROUPS if g in agg["recognition"]]
-    lines = ["| range (m) | " + " | ".join(GROUP_TITLES[g] for g in groups) + " |",
+    groups = list(agg["recognition"])  # Table 6.1's, then other classes (no thesis number: —)
+    lines = ["| range (m) | " + " | ".join(GROUP_TITLES.get(g, g) for g in groups) + " |",
              "|---" * (len(groups) + 1) + "|"]
     for range_m in cfg.ranges_m:
         r = f"{range_m:g}"
@@ -95,7 +95,7 @@ def _recognition_table(agg: dict, cfg: SensiacLikeConfig) -> list[str]:
         lines.append(f"| {r} (ours) | " + " | ".join(cells) + " |")
         if r in THESIS_TABLE_6_1 and tuple(cfg.methods) == ("I", "II", "III", "IV"):
             lines.append(f"| {r} (thesis, SENSIAC) | " + " | ".join(
-                "/".join(str(v) for v in THESIS_TABLE_6_1[r][g]) for g in groups) + " |")
+                "/".join(str(v) for v in THESIS_TABLE_6_1[r][g]) if g in GROUPS else "—" for g in groups) + " |")
     return lines
 
 

@@ -370,12 +370,14 @@ def _on_ray(todo: list[tuple[str, float]], cfg: SensiacLikeConfig, address: str)
 def aggregate(results: list[dict], cfg: SensiacLikeConfig) -> dict:
     """The experiment's tables from the sequences' results (``results.json``'s "aggregate").
 
-    Returns {"recognition": {group: {range: {method: % of frames}}} (Table 6.1), "errors":
-    {measure: {range: {method: mean over vehicles}}} (Fig. 6.8), "frames_per_second": {method:
-    mean}}; groups and ranges without a sequence are left out.
+    Returns {"recognition": {group: {range: {method: % of frames}}} (Table 6.1: its groups, then
+    any other class the vehicles run belong to, a car say), "errors": {measure: {range: {method:
+    mean over vehicles}}} (Fig. 6.8), "frames_per_second": {method: mean}}; groups and ranges
+    without a sequence are left out, as are vehicles of a class the model does not know.
     """
+    present = {r["class"] for r in results} - {"unknown"}
     recognition: dict = {}
-    for group in GROUPS:
+    for group in [g for g in GROUPS if g in present] + sorted(present - set(GROUPS)):
         for range_m in cfg.ranges_m:
             cell = [r for r in results if r["class"] == group and r["range_m"] == range_m]
             if cell:
