@@ -739,3 +739,18 @@ def test_spec_gun_validation():
     for name in ("btr_80", "toyota_camry"):
         with pytest.raises(ValueError, match=rf"{name}: wheels \(track 3\.0, tyre"):
             dataclasses.replace(SPECS[name], track=3.0)
+
+
+@pytest.mark.parametrize("size", ["scale: null", "length: null", "length: null, scale: null", "length: ~"])
+def test_a_catalog_entry_with_a_null_length_or_scale_has_no_size(tmp_path, size):
+    """A null ``length`` or ``scale`` does not size the vehicle: the manifest reader refuses the entry
+    (naming it), as it does one with neither key, instead of passing on an entry with no size at all."""
+    from torch_atr.vehicles.catalog import read_catalog_manifest
+
+    (tmp_path / "catalog.yaml").write_text("vehicles:\n  - {file: a.obj, class: car, scale: 1}\n"
+                                           f"  - {{file: b.obj, class: car, {size}}}\n")
+    with pytest.raises(ValueError, match=r"catalog.yaml: vehicles\[1\] \(b.obj\): give exactly one of 'length'"):
+        read_catalog_manifest(tmp_path)
+    (tmp_path / "catalog.yaml").write_text("vehicles:\n  - {file: a.obj, class: car, scale: 1}\n"
+                                           "  - {file: b.obj, class: car, length: 4.5, scale: null}\n")
+    assert read_catalog_manifest(tmp_path)[1].length == 4.5

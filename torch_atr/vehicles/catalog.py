@@ -103,7 +103,7 @@ def read_catalog_manifest(folder: str | Path) -> list[CatalogEntry]:
         if unknown or missing:
             raise ValueError(f"{where}: unknown keys {unknown} / missing keys {missing}; "
                              f"keys are {sorted(_ENTRY_KEYS)}")
-        if ("length" in item) == ("scale" in item):
+        if (item.get("length") is None) == (item.get("scale") is None):  # a null one is not given
             raise ValueError(f"{where}: give exactly one of 'length' (metres) and 'scale' (file units -> metres)")
         kw = {}
         for key, value in item.items():
