@@ -754,3 +754,15 @@ def test_a_catalog_entry_with_a_null_length_or_scale_has_no_size(tmp_path, size)
     (tmp_path / "catalog.yaml").write_text("vehicles:\n  - {file: a.obj, class: car, scale: 1}\n"
                                            "  - {file: b.obj, class: car, length: 4.5, scale: null}\n")
     assert read_catalog_manifest(tmp_path)[1].length == 4.5
+
+
+def test_a_repeated_catalog_name_names_both_entries(tmp_path):
+    """Like every manifest error, a repeated name names the entries (index and file) that share it."""
+    from torch_atr.vehicles.catalog import read_catalog_manifest
+
+    (tmp_path / "catalog.yaml").write_text("vehicles:\n  - {file: a.obj, class: car, scale: 1}\n"
+                                           "  - {file: b.obj, class: car, scale: 1}\n"
+                                           "  - {file: sub/a.obj, class: suv, scale: 1}\n")
+    with pytest.raises(ValueError, match=r"catalog.yaml: vehicles\[2\] \(sub/a.obj\): vehicle names must be unique "
+                                         r"\(set 'name'\); 'a' is vehicles\[0\] \(a.obj\)'s too$"):
+        read_catalog_manifest(tmp_path)

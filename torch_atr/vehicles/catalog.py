@@ -125,10 +125,13 @@ def read_catalog_manifest(folder: str | Path) -> list[CatalogEntry]:
         except ValueError as exc:
             raise ValueError(f"{where}: {exc}") from exc
         entries.append(entry)
-    names = [e.name or Path(e.file).stem for e in entries]
-    repeated = sorted({n for n in names if names.count(n) > 1})
-    if repeated:
-        raise ValueError(f"{path}: vehicle names must be unique (set 'name'); repeated: {repeated}")
+    first: dict[str, int] = {}  # name -> the entry that has it
+    for i, e in enumerate(entries):
+        name = e.name or Path(e.file).stem
+        if name in first:
+            raise ValueError(f"{path}: vehicles[{i}] ({e.file}): vehicle names must be unique (set 'name'); "
+                             f"{name!r} is vehicles[{first[name]}] ({entries[first[name]].file})'s too")
+        first[name] = i
     return entries
 
 
