@@ -269,3 +269,22 @@ def test_type_errors_say_what_was_expected_in_words():
     # unquoted, an exponent without a dot is a number (YAML 1.2; 1.1 reads it as text), in a file or an override
     assert parse_yaml("a: 1e-3\nb: -2.5E+2\nc: '1e-3'\nd: 1.5e3\ne: 7\n") == {"a": 0.001, "b": -250.0, "c": "1e-3",
                                                                                  "d": 1500.0, "e": 7}
+
+
+def test_numbers_are_read_as_yaml_1_2_reads_them_not_as_octal_or_base_60(tmp_path):
+    """YAML 1.1 reads 010 as octal 8 and 1:30 as base-60 90, without a word; a config means 10, and
+    1:30 is no number: its key refuses it, in a file and in an override."""
+    assert load_config(TrainConfig, None, ["views.azimuth_step_deg=010", "seed=0_12"]).views.azimuth_step_deg == 10
+    assert load_config(TrainConfig, None, ["seed=012"]).seed == 12
+    assert load_config(TrainConfig, None, ["seed=0x10"]).seed == 16  # hexadecimal, as YAML 1.2 has it too
+    with pytest.raises(ConfigError, match=r"^override seed=1:30: seed: expected an integer; got '1:30'$"):
+        load_config(TrainConfig, None, ["seed=1:30"])
+    with pytest.raises(ConfigError, match=r"^override model.ridge=1:30.5: model.ridge: expected a number; "
+                                          r"got '1:30.5'"):
+        load_config(TrainConfig, None, ["model.ridge=1:30.5"])
+    path = tmp_path / "c.yaml"
+    path.write_text("seed: 010\nname: '1'\ntemplate:\n  size_px: 1:04\n")
+    with pytest.raises(ConfigError, match=rf"^{path}: template.size_px: expected an integer; got '1:04'$"):
+        load_config(TrainConfig, path)
+    path.write_text("seed: 010\n")
+    assert load_config(TrainConfig, path).seed == 10

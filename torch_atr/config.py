@@ -206,11 +206,30 @@ class _UniqueKeyLoader(yaml.SafeLoader):
                 first[key] = key_node.start_mark.line + 1
         return super().construct_mapping(node, deep=deep)
 
+    # YAML 1.1 reads 010 as octal 8 and 1:30 as base-60 90; YAML 1.2, and a reader of a config, as
+    # 10 and as text (which a number's key then refuses, naming it).
+    def construct_yaml_int(self, node):
+        value = self.construct_scalar(node)
+        if ":" in value:
+            return value
+        digits = value.replace("_", "").lstrip("+-")
+        if len(digits) > 1 and digits[0] == "0" and digits[1].isdigit():
+            return int(value.replace("_", ""), 10)
+        return super().construct_yaml_int(node)
+
+    def construct_yaml_float(self, node):
+        value = self.construct_scalar(node)
+        return value if ":" in value else super().construct_yaml_float(node)
+
 
 # YAML 1.1 reads a number with an exponent and no dot (1e-3, 5E+2) as text; YAML 1.2, and a reader
 # of a config, as a number. Quoted, it stays text, as a quoted '5' does.
 _UniqueKeyLoader.add_implicit_resolver("tag:yaml.org,2002:float", re.compile(r"^[-+]?(?:[0-9]+\.?[0-9]*|\.[0-9]+)"
                                                                             r"[eE][-+]?[0-9]+$"), list("-+0123456789."))
+
+
+_UniqueKeyLoader.add_constructor("tag:yaml.org,2002:int", _UniqueKeyLoader.construct_yaml_int)
+_UniqueKeyLoader.add_constructor("tag:yaml.org,2002:float", _UniqueKeyLoader.construct_yaml_float)
 
 
 def parse_yaml(text: str):
