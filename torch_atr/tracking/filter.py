@@ -28,8 +28,8 @@ image, and is lost when every particle's likelihood underflows (max log w below 
 smallest normal float; a particle whose window sees nothing of the image, behind the camera or
 wholly outside it, has none), or (``redetect.restart``) when its blob is clear of the image's
 edge and lies outside the box of the particles' predicted windows: the filter then keeps its prediction,
-leaves the weights as they are (particles a re-detection redrew on it at 1/N among them,
-normalised again) and flags the frame ``lost``. Estimates are never NaN once the filter is
+leaves the weights as they are (normalised again if a re-detection redrew particles on that frame)
+and flags the frame ``lost``. Estimates are never NaN once the filter is
 initialised.
 
 The blind start waits for a blob clear of the image's edge (``init.border_px``; a blob the edge
@@ -724,8 +724,9 @@ class Tracker:
                   log_lik: torch.Tensor, views_only: bool = False) -> tuple[torch.Tensor, bool]:
         """Re-detection (``RedetectConfig``): the worst-explaining particles redrawn around the blob's
         hypotheses that beat every particle by the margin, in place, at weight 1/N; returns the (N,)
-        log-likelihoods with theirs and whether any was redrawn. ``views_only``: the hypotheses keep the estimate's identity (the grid's α nearest
-        to the particles' circular mean and its two neighbours) and search the view."""
+        log-likelihoods with theirs and whether any was redrawn. ``views_only``: the hypotheses keep
+        the estimate's identity (the grid's α nearest to the particles' circular mean and its two
+        neighbours) and search the view."""
         rc = self.cfg.redetect
         wanted = (not rc.keep_range and self.cfg.init.ground_row is None and frame is not None
                   and self.segmenter.ready)  # the ground row places the hypotheses only without keep_range

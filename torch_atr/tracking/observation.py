@@ -215,7 +215,7 @@ def sample_windows(distance: torch.Tensor, uv: torch.Tensor, side: torch.Tensor,
               for i in range(2))  # (N, L) each: columns, rows
     columns = gx.to(distance.dtype)[:, None, :].expand(N, L, L)
     rows = gy.to(distance.dtype)[:, :, None].expand(N, L, L)
-    if distance.device.type == "cpu":  # a complex tensor's real view: one pass writes both (stacking took twice as long)
+    if distance.device.type == "cpu":  # a complex tensor's real view: one pass writes both (stacking: twice as long)
         grid = torch.view_as_real(torch.complex(columns, rows))
     else:  # complex tensors are not on every device (MPS)
         grid = torch.stack((columns, rows), dim=-1)
