@@ -1,6 +1,7 @@
 import dataclasses
 import math
 import os
+import re
 from pathlib import Path
 
 import pytest
@@ -288,3 +289,23 @@ def test_numbers_are_read_as_yaml_1_2_reads_them_not_as_octal_or_base_60(tmp_pat
         load_config(TrainConfig, path)
     path.write_text("seed: 010\n")
     assert load_config(TrainConfig, path).seed == 10
+
+
+def test_a_number_yaml_cannot_convert_is_named_with_its_file_or_override(tmp_path):
+    """An integer of 5000 digits (int's 4300-digit limit), one too long to print (hexadecimal), a
+    tagged ``!!int abc`` or lists nested thousands deep raised a bare ValueError, IndexError or
+    RecursionError naming neither the file nor the override."""
+    big = "1" * 5000
+    for override in (f"seed={big}", f"seed=0{big}", f"model.ridge={big}", f"model={{ridge: {big}}}",
+                     "seed=0x" + "f" * 5000, "seed=" + "[" * 3000 + "]" * 3000):
+        with pytest.raises(ConfigError, match=rf"^override {re.escape(repr(override))}: not a YAML value: "):
+            load_config(TrainConfig, None, [override])
+    path = tmp_path / "c.yaml"
+    for text, why in ((f"seed: {big}\n", "is not a number"), ("seed: 0x" + "f" * 5000 + "\n", "more than 900 digits"),
+                      ("seed: !!int abc\n", "'abc' is not a number"), ("seed: !!int ''\n", "'' is not a number"),
+                      ("seed: !!float abc\n", "'abc' is not a number"), ("seed: " + "[" * 3000 + "\n", "nested")):
+        path.write_text(text)
+        with pytest.raises(ConfigError, match=rf"^{re.escape(str(path))}: not valid YAML: .*{re.escape(why)}"):
+            load_config(TrainConfig, path)
+    path.write_text("seed: !!int 12\nmodel:\n  ridge: !!float 0.5\n")
+    assert (load_config(TrainConfig, path).seed, load_config(TrainConfig, path).model.ridge) == (12, 0.5)

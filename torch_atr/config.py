@@ -214,12 +214,28 @@ class _UniqueKeyLoader(yaml.SafeLoader):
             return value
         digits = value.replace("_", "").lstrip("+-")
         if len(digits) > 1 and digits[0] == "0" and digits[1].isdigit():
-            return int(value.replace("_", ""), 10)
-        return super().construct_yaml_int(node)
+            return self._number(node, lambda: int(value.replace("_", ""), 10))
+        return self._number(node, lambda: super(_UniqueKeyLoader, self).construct_yaml_int(node))
 
     def construct_yaml_float(self, node):
         value = self.construct_scalar(node)
-        return value if ":" in value else super().construct_yaml_float(node)
+        return value if ":" in value else self._number(node, lambda: super(_UniqueKeyLoader, self)
+                                                             .construct_yaml_float(node))
+
+    @staticmethod
+    def _number(node, convert):
+        """``convert()``; a value it cannot convert (an integer of more than 4300 digits, ``!!int abc``)
+        or an integer too long to print in a message (a hexadecimal one of 5000 digits) raises a YAML
+        error at the node naming the value, not int's bare ValueError."""
+        try:
+            number = convert()
+        except (ValueError, IndexError) as exc:
+            raise yaml.constructor.ConstructorError(None, None, f"{show(node.value)} is not a number ({exc})",
+                                                    node.start_mark) from None
+        if isinstance(number, int) and number.bit_length() > 3000:
+            raise yaml.constructor.ConstructorError(None, None, f"{show(node.value)} is not a number a config "
+                                                    "takes (more than 900 digits)", node.start_mark)
+        return number
 
 
 # YAML 1.1 reads a number with an exponent and no dot (1e-3, 5E+2) as text; YAML 1.2, and a reader
@@ -234,7 +250,10 @@ _UniqueKeyLoader.add_constructor("tag:yaml.org,2002:float", _UniqueKeyLoader.con
 
 def parse_yaml(text: str):
     """``text`` parsed by the safe loader, refusing repeated keys."""
-    return yaml.load(text, Loader=_UniqueKeyLoader)  # noqa: S506 - a SafeLoader subclass
+    try:
+        return yaml.load(text, Loader=_UniqueKeyLoader)  # noqa: S506 - a SafeLoader subclass
+    except RecursionError:  # [[[[...]]]] thousands deep
+        raise yaml.YAMLError("nested too deeply to read") from None
 
 
 def read_yaml(path: Path):
