@@ -160,6 +160,19 @@ def test_digit_runs_compare_as_whole_numbers_as_ls_v_does():
     assert sorted(["shot_2024.10.png", "shot_2024.2.png"], key=natural_key) == ["shot_2024.2.png", "shot_2024.10.png"]
     stamps = ["t_0.750.png", "t_1.250.png", "t_1.500.png", "t_10.000.png"]
     assert sorted(reversed(stamps), key=natural_key) == stamps
+    # ² and ① are digits to str.isdigit, not to int(): a name or folder ending in one raised ValueError.
+    assert sorted(["area2².png", "area10².png", "scan1²", "①", "scan1"], key=natural_key) == [
+        "area2².png", "area10².png", "scan1", "scan1²", "①"]
+
+
+
+def test_images_in_a_folder_named_with_a_superscript_open(tmp_path):
+    folder = tmp_path / "field1²"  # its path's parts are sort keys too
+    folder.mkdir()
+    for k in (10, 2):
+        cv2.imwrite(str(folder / f"img{k}.png"), np.full((H, W), k, np.uint8))
+    seq = open_sequence(f"video:{folder}")
+    assert [int(seq.frame(i)[0, 0]) for i in range(len(seq))] == [2, 10]
 
 
 def test_mixed_image_sizes(tmp_path):

@@ -33,7 +33,8 @@ def natural_key(name: str) -> list:
     """Sort key that orders embedded numbers by value: ``img2 < img10``. Each run of digits is one
     whole number, as ``ls -v`` reads it (``cam1.2 < cam1.10``), so the decimals of time stamps
     compare right only when they have a fixed width (``t_1.250 < t_1.500``)."""
-    return [int(part) if part.isdigit() else part.lower() for part in re.split(r"(\d+)", name)]
+    # The odd parts are the digit runs (str.isdigit also takes ², which int() refuses).
+    return [int(part) if i % 2 else part.lower() for i, part in enumerate(re.split(r"(\d+)", name))]
 
 
 def _file_order(path: Path) -> tuple[list, str]:
