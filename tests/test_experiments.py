@@ -78,7 +78,8 @@ def test_another_seed_or_start_is_refused_not_added_beside_the_run(run):
     assert sorted(os.listdir(out / "sequences")) == before and (out / "report.md").read_text() == report
 
 
-@pytest.mark.parametrize("damage", ['{"format": "torch_atr.sensiac_like_seq', "[1, 2]", "\udcff"])
+@pytest.mark.parametrize("damage", ['{"format": "torch_atr.sensiac_like_seq', "[1, 2]", "\udcff",
+                                    '{"seed": ' + "1" * 5000 + "}"])  # past int's 4300 digits: a bare ValueError
 def test_a_damaged_result_file_is_named(run, tmp_path, damage):
     """A result file cut short, or not a JSON object, raised json's bare error (or an AttributeError)
     naming no file: the resume names it."""

@@ -282,7 +282,7 @@ def read_result(path: Path) -> dict:
     that is not one (damaged, or put there by hand) raises ConfigError naming it."""
     try:
         result = json.loads(path.read_text(encoding="utf-8"))
-    except (UnicodeDecodeError, json.JSONDecodeError, RecursionError) as exc:
+    except (ValueError, RecursionError) as exc:  # UnicodeDecodeError, JSONDecodeError, a 5000-digit integer
         raise ConfigError(f"{path} is not a result file ({type(exc).__name__}: {exc}); remove it or use another "
                           "--out") from None
     if not isinstance(result, dict):
