@@ -194,6 +194,8 @@ def test_the_constructor_checks_what_from_dict_checks(args, kwargs, message):
     (K_CV * 2, RVEC, TVEC, r"\[0, 0, 1\]\] \(this camera has no skew\); got .*\[0\.0, 0\.0, 2\.0\]\]"),
     (K_CV, cv2.Rodrigues(RVEC)[0], TVEC, r"rvec to hold 3 numbers .*got shape \(3, 3\)"),  # a rotation matrix
     (K_CV, RVEC, TVEC[:2], r"tvec to hold 3 numbers .*got shape \(2,\)"),
+    (K_CV, [np.nan, 0.1, 0.2], TVEC, r"rvec to be finite; got \[nan, 0.1, 0.2\]"),  # was named R[0][0]
+    (K_CV, RVEC, [0.0, np.inf, 1.0], r"tvec to be finite; got \[0.0, inf, 1.0\]"),
 ])
 def test_from_opencv_names_a_matrix_it_cannot_take(K, rvec, tvec, message):
     """A (2, 3) K was read as fx, fy, cx, cy and a skew dropped, silently; a flat K or a rotation

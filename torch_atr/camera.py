@@ -172,6 +172,8 @@ class Camera(nn.Module):
             if value.size != 3:
                 raise ValueError(f"Expected {name} to hold 3 numbers (shape (3,), (3, 1) or (1, 3)); "
                                  f"got shape {value.shape}")
+            if not np.isfinite(value).all():  # a NaN rvec was reported as R[0][0]
+                raise ValueError(f"Expected {name} to be finite; got {value.ravel().tolist()}")
         if K.shape != (3, 3):
             raise ValueError(f"Expected K to have shape (3, 3); got {K.shape}")
         if K[0, 1] != 0 or K[1, 0] != 0 or K[2].tolist() != [0.0, 0.0, 1.0]:
