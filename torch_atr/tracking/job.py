@@ -80,7 +80,7 @@ def absolute_spec(spec: str) -> str:
     if scheme.lower() == "synthetic":
         _, options = parse_spec_options(rest, has_target=False)
         vehicle = options.get("vehicle", "")
-        if Path(vehicle).is_file():  # a file, as the simulator reads it (no ~); else a catalog name
+        if os.path.isfile(vehicle):  # a file, as the simulator reads it (no ~); else a name, too long ones too
             options["vehicle"] = os.path.abspath(vehicle)
         return f"{scheme}:" + ",".join(f"{k}={v}" for k, v in options.items())
     return spec
