@@ -244,6 +244,9 @@ _UniqueKeyLoader.add_implicit_resolver("tag:yaml.org,2002:float", re.compile(r"^
                                                                             r"[eE][-+]?[0-9]+$"), list("-+0123456789."))
 
 
+# YAML 1.1 has no integer 08 or 09 (not octal), so they were text while 010 read as 10: decimal too.
+_UniqueKeyLoader.add_implicit_resolver("tag:yaml.org,2002:int", re.compile(r"^[-+]?0[0-9_]+$"),
+                                       list("-+0"))
 _UniqueKeyLoader.add_constructor("tag:yaml.org,2002:int", _UniqueKeyLoader.construct_yaml_int)
 _UniqueKeyLoader.add_constructor("tag:yaml.org,2002:float", _UniqueKeyLoader.construct_yaml_float)
 
