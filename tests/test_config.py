@@ -278,7 +278,8 @@ def test_numbers_are_read_as_yaml_1_2_reads_them_not_as_octal_or_base_60(tmp_pat
     1:30 is no number: its key refuses it, in a file and in an override."""
     assert load_config(TrainConfig, None, ["views.azimuth_step_deg=010", "seed=0_12"]).views.azimuth_step_deg == 10
     assert load_config(TrainConfig, None, ["seed=012"]).seed == 12
-    assert load_config(TrainConfig, None, ["seed=09"]).seed == 9 and load_config(TrainConfig, None, ["seed=0_9"]).seed == 9
+    assert load_config(TrainConfig, None, ["seed=09"]).seed == 9  # not octal in YAML 1.1: was text
+    assert load_config(TrainConfig, None, ["seed=0_9"]).seed == 9
     assert load_config(TrainConfig, None, ["seed=0x10"]).seed == 16  # hexadecimal, as YAML 1.2 has it too
     with pytest.raises(ConfigError, match=r"^override seed=1:30: seed: expected an integer; got '1:30'$"):
         load_config(TrainConfig, None, ["seed=1:30"])
