@@ -1,5 +1,6 @@
 """Sequence abstraction, open_sequence and our folder format: round trips and malformed input."""
 
+import errno
 import fcntl
 import json
 import logging
@@ -235,28 +236,62 @@ save_sequence(KilledAtFrame2(np.full((4, 3, 4), 9, np.uint8)), target, progress=
 """
 
 
-@pytest.mark.parametrize("when", ["writing", "swapping"])
-def test_the_next_save_removes_what_a_killed_save_left(tmp_path, when):
-    """A save killed (SIGKILL: no clean-up runs) while writing its frames, or between moving the
-    earlier sequence aside and renaming the new one in, leaves a hidden folder beside the target;
-    the next save of that target removes it."""
-    target = tmp_path / "s"
-    save_sequence(ListSequence([np.full((3, 4), 5, np.uint8)]), target, progress=False)
+def _kill_a_save(target: Path, when: str) -> None:
+    """Run ``_KILLED_SAVE`` of ``target`` in a child process, killed while ``when``."""
     repo = Path(__file__).resolve().parents[1]
     child = subprocess.run([sys.executable, "-c", _KILLED_SAVE, str(target), when], cwd=repo,
                            env={**os.environ, "PYTHONPATH": str(repo)}, capture_output=True, text=True)
     assert child.returncode == -signal.SIGKILL, child.stderr
-    left = [p for p in tmp_path.iterdir() if p.name != "s"]
-    assert left and all(p.name.startswith(".s.") and p.is_dir() for p in left)
+
+
+LONG_NAME = "n" * 250  # the file system allows 255 bytes; a hidden folder named after it in full would not fit
+
+
+@pytest.mark.parametrize("name", ["s", LONG_NAME])
+@pytest.mark.parametrize("when", ["writing", "swapping"])
+def test_the_next_save_removes_what_a_killed_save_left(tmp_path, when, name):
+    """A save killed (SIGKILL: no clean-up runs) while writing its frames, or between moving the
+    earlier sequence aside and renaming the new one in, leaves a hidden folder beside the target;
+    the next save of that target removes it, a target with a long name too."""
+    target = tmp_path / name
+    save_sequence(ListSequence([np.full((3, 4), 5, np.uint8)]), target, progress=False)
+    _kill_a_save(target, when)
+    left = [p for p in tmp_path.iterdir() if p.name != name]
+    assert left and all(p.name.startswith(f".{name[:32]}") and p.is_dir() for p in left)
     if when == "writing":  # the earlier sequence is untouched
         assert len(left) == 1 and open_sequence(str(target)).frame(0)[0, 0] == 5
     else:  # the new sequence and, moved aside, the earlier one are in leftovers; the target is gone
-        aside = [p / "s" for p in left if (p / "s").is_dir()]
+        aside = [p / name for p in left if (p / name).is_dir()]
         assert len(left) == 2 and len(aside) == 1 and not target.exists()
         assert open_sequence(str(aside[0])).frame(0)[0, 0] == 5
     save_sequence(ListSequence([np.full((3, 4), 7, np.uint8)]), target, progress=False, overwrite=True)
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["s"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == [name]
     assert open_sequence(str(target)).frame(0)[0, 0] == 7
+
+
+def test_long_names_sharing_a_beginning_keep_each_others_leftovers(tmp_path):
+    """A killed save of one long-named target is left alone by saves of another whose name begins
+    alike, and removed by the next save of its own."""
+    mine, other = tmp_path / LONG_NAME, tmp_path / (LONG_NAME[:-1] + "o")
+    save_sequence(ListSequence([np.full((3, 4), 5, np.uint8)]), other, progress=False)
+    _kill_a_save(other, "writing")
+    left = {p.name for p in tmp_path.iterdir()} - {other.name}
+    assert len(left) == 1
+    save_sequence(ListSequence([np.full((3, 4), 7, np.uint8)]), mine, progress=False)
+    save_sequence(ListSequence([np.full((3, 4), 8, np.uint8)]), mine, progress=False, overwrite=True)
+    assert {p.name for p in tmp_path.iterdir()} == left | {mine.name, other.name}
+    save_sequence(ListSequence([np.full((3, 4), 9, np.uint8)]), other, progress=False, overwrite=True)
+    assert {p.name for p in tmp_path.iterdir()} == {mine.name, other.name}
+    assert open_sequence(str(mine)).frame(0)[0, 0] == 8 and open_sequence(str(other)).frame(0)[0, 0] == 9
+
+
+def test_a_name_too_long_for_the_file_system_is_refused_naming_it(tmp_path):
+    target = tmp_path / ("n" * 256)
+    with pytest.raises(OSError) as info:
+        save_sequence(ListSequence([np.zeros((3, 4), np.uint8)]), target, progress=False)
+    too_long = errno.ENAMETOOLONG
+    assert str(info.value) == f"[Errno {too_long}] save_sequence: cannot write {target}: {os.strerror(too_long)}"
+    assert list(tmp_path.iterdir()) == []
 
 
 def test_a_save_removes_only_unheld_leftovers_of_its_own_target(tmp_path):

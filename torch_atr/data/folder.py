@@ -13,15 +13,18 @@
 :func:`save_sequence` writes the folder into a temporary folder beside the target and renames
 it into place at the end, so a crash leaves no half-written sequence; it replaces only an empty
 folder or (with ``overwrite=True``) an earlier sequence folder. A save that was killed leaves its
-hidden temporary folder (``.NAME.XXXXXXXX.saving`` or ``.NAME.XXXXXXXX.superseded``), which the
-next save of the same folder removes. :class:`FolderSequence` reads it lazily: opening checks the
-file list and parses the small CSV, frames are read on demand.
+hidden temporary folder (``.STEM.XXXXXXXX.saving`` or ``.STEM.XXXXXXXX.superseded``), which the
+next save of the same folder removes. STEM is the folder's NAME, or for a NAME of more than 64 bytes
+its first characters (at most 32 bytes), '~' and 16 hex digits of its SHA-256: a hidden name is at
+most 85 bytes, so any NAME the file system allows can be saved. :class:`FolderSequence` reads it
+lazily: opening checks the file list and parses the small CSV, frames are read on demand.
 """
 
 from __future__ import annotations
 
 import csv
 import fcntl
+import hashlib
 import io
 import json
 import logging
@@ -48,8 +51,10 @@ FORMAT = "torch_atr.sequence"
 FORMAT_VERSION = 1
 _FRAME_RE = re.compile(r"\d{6,}\.png")
 FRAME_RULE = "(H, W) uint8/uint16 or (H, W, 3) uint8"
-_WRITING = ".saving"  # .NAME.XXXXXXXX.saving: a save's new sequence until it is renamed to NAME
-_SUPERSEDED = ".superseded"  # .NAME.XXXXXXXX.superseded: holds NAME, the sequence a save replaces, until deleted
+_WRITING = ".saving"  # .STEM.XXXXXXXX.saving: a save's new sequence until it is renamed to NAME
+_SUPERSEDED = ".superseded"  # .STEM.XXXXXXXX.superseded: holds NAME, the sequence a save replaces, until deleted
+_STEM_BYTES = 64  # a longer NAME is shortened in its hidden folders' names (_hidden_stem)
+_STEM_PREFIX_BYTES = 32  # how much of a shortened NAME they keep
 _WRITTEN = frozenset({"frames", "truth.csv", "camera.json", "meta.json"})  # what a save writes in its folder
 
 
@@ -263,7 +268,11 @@ def save_sequence(seq: Sequence, folder: str | os.PathLike, progress: bool = Tru
     if not math.isnan(height):
         real(f"{seq.name} (not saved): camera_height_m (metres, or NaN)", height, lo=0, hi=MAX_CAMERA_HEIGHT_M,
              lo_open=True)
-    if folder.exists():
+    try:
+        exists = folder.exists()
+    except OSError as exc:  # a name too long for the file system: one line naming it
+        raise OSError(exc.errno, f"save_sequence: cannot write {folder}: {exc.strerror}") from None
+    if exists:
         if not folder.is_dir():
             raise FileExistsError(f"{folder} exists and is not a folder")
         if any(folder.iterdir()):
@@ -332,7 +341,7 @@ def _is_sequence_folder(folder: Path) -> bool:
 
 def _swap_in(tmp: Path, folder: Path) -> None:
     """Rename ``tmp`` to ``folder``. An existing ``folder`` is first moved into a held
-    ``.NAME.XXXXXXXX.superseded`` folder, put back if the rename fails, and deleted after it."""
+    ``.STEM.XXXXXXXX.superseded`` folder, put back if the rename fails, and deleted after it."""
     if not folder.exists():
         os.replace(tmp, folder)
         return
@@ -350,12 +359,29 @@ def _swap_in(tmp: Path, folder: Path) -> None:
         os.close(lock)
 
 
+def _hidden_stem(name: str) -> str:
+    """The STEM of the hidden folders ``.STEM.XXXXXXXX{kind}`` of a save of a folder named ``name``:
+    ``name`` itself up to ``_STEM_BYTES`` bytes; a longer one's first characters (at most
+    ``_STEM_PREFIX_BYTES`` bytes), '~' and the first 16 hex digits of its SHA-256, so that those folders'
+    names stay far below the file system's 255-byte limit whatever the length of ``name``."""
+    encoded = os.fsencode(name)
+    if len(encoded) <= _STEM_BYTES:
+        return name
+    prefix = name[:_STEM_PREFIX_BYTES]
+    while len(os.fsencode(prefix)) > _STEM_PREFIX_BYTES:  # whole characters only
+        prefix = prefix[:-1]
+    return f"{prefix}~{hashlib.sha256(encoded).hexdigest()[:16]}"
+
+
 def _held_folder(folder: Path, kind: str) -> tuple[Path, int]:
-    """A new empty folder ``.NAME.XXXXXXXX{kind}`` beside ``folder`` and an open descriptor that
-    holds an exclusive ``flock`` on it until the caller closes it. The kernel drops the lock when
-    the process ends, however it ends, so one that nobody holds was left by a killed save
-    (:func:`_remove_left_by_killed_saves`)."""
-    path = Path(tempfile.mkdtemp(prefix=f".{folder.name}.", suffix=kind, dir=folder.parent))
+    """A new empty folder ``.STEM.XXXXXXXX{kind}`` beside ``folder`` (STEM: :func:`_hidden_stem`) and
+    an open descriptor that holds an exclusive ``flock`` on it until the caller closes it. The kernel
+    drops the lock when the process ends, however it ends, so one that nobody holds was left by a
+    killed save (:func:`_remove_left_by_killed_saves`)."""
+    try:
+        path = Path(tempfile.mkdtemp(prefix=f".{_hidden_stem(folder.name)}.", suffix=kind, dir=folder.parent))
+    except OSError as exc:  # name the folder the user asked for, not our hidden one
+        raise OSError(exc.errno, f"save_sequence: cannot write {folder}: {exc.strerror}") from None
     fd = os.open(path, os.O_RDONLY | os.O_DIRECTORY)
     try:
         fcntl.flock(fd, fcntl.LOCK_EX)
@@ -365,11 +391,11 @@ def _held_folder(folder: Path, kind: str) -> tuple[Path, int]:
 
 
 def _remove_left_by_killed_saves(folder: Path, kind: str, holds: frozenset[str]) -> None:
-    """Delete the ``.NAME.XXXXXXXX{kind}`` folders beside ``folder`` (see :func:`_held_folder`) that
+    """Delete the ``.STEM.XXXXXXXX{kind}`` folders beside ``folder`` (see :func:`_held_folder`) that
     no live save holds and that hold nothing but entries named in ``holds``: those that killed saves
     of ``folder`` left. Anything else (a file or link of that name, a folder with other entries, one
     the file system cannot lock) stays; one that cannot be removed is logged, not raised."""
-    pattern = re.compile(rf"\.{re.escape(folder.name)}\.{TEMP_CHARS}{re.escape(kind)}")
+    pattern = re.compile(rf"\.{re.escape(_hidden_stem(folder.name))}\.{TEMP_CHARS}{re.escape(kind)}")
     for candidate in folder.parent.iterdir():
         if not pattern.fullmatch(candidate.name) or candidate.is_symlink() or not candidate.is_dir():
             continue
