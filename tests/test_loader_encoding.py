@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from torch_atr.vehicles import load_vehicle
+from torch_atr.vehicles import load_catalog_folder, load_vehicle
 from torch_atr.vehicles.catalog import default_meshes_root
 
 PICKUP = default_meshes_root() / "pickup" / "gazebo_pickup.obj"
@@ -52,3 +52,28 @@ def test_a_non_utf8_text_format_not_read_here_is_refused_naming_the_file(tmp_pat
     path.write_bytes(text.replace("solid", "solid Kühler", 1).encode("latin-1"))
     with pytest.raises(ValueError, match=r"could not read mesh .*box\.stl: its text is not UTF-8; save it as UTF-8$"):
         load_vehicle(path)
+
+
+LATIN1_URDF = ('<?xml version="1.0" encoding="ISO-8859-1"?>\n<robot name="Kübelwagen"><!-- Größe in Metern -->'
+               '<link name="Karosserie"><visual><geometry><box size="3.7 1.6 1.1"/></geometry></visual></link></robot>')
+
+
+def test_a_urdf_declared_latin1_loads_as_its_declaration_says(tmp_path):
+    """XML names its encoding in its declaration; the URDF loads like the same robot in UTF-8."""
+    path = tmp_path / "kuebel.urdf"
+    path.write_bytes(LATIN1_URDF.encode("latin-1"))
+    np.testing.assert_allclose(load_vehicle(path).mesh.extents, [3.7, 1.6, 1.1], atol=1e-9)
+
+
+@pytest.mark.parametrize("text, message", [
+    (LATIN1_URDF.replace(' encoding="ISO-8859-1"', ""), r"invalid URDF XML: not well-formed \(invalid token\)"),
+    (LATIN1_URDF.replace("ISO-8859-1", "klingon"), "invalid URDF XML: unknown encoding: klingon")])
+def test_a_urdf_in_another_encoding_than_declared_names_the_catalog_entry(tmp_path, text, message):
+    """Latin-1 bytes without a declaration (XML's default is UTF-8), or an encoding Python does not
+    know: a one-line error naming the manifest entry and the file, as for any other broken URDF."""
+    (tmp_path / "kuebel.urdf").write_bytes(text.encode("latin-1"))
+    trimesh.creation.box(extents=(4.5, 1.8, 1.5)).export(tmp_path / "car.obj")
+    (tmp_path / "catalog.yaml").write_text("vehicles:\n  - {file: kuebel.urdf, class: car, scale: 1}\n"
+                                           "  - {file: car.obj, class: car, scale: 1}\n")
+    with pytest.raises(ValueError, match=rf"catalog.yaml: vehicles\[0\] \(kuebel.urdf\): .*kuebel.urdf: {message}"):
+        load_catalog_folder(tmp_path)

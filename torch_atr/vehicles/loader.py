@@ -445,9 +445,9 @@ def _geometry(geom: ET.Element, urdf: Path, where: str) -> trimesh.Trimesh:
 
 
 def _load_urdf(path: Path, rotation: np.ndarray) -> _Rig:
-    try:
-        root = ET.fromstring(path.read_text(encoding="utf-8"))
-    except ET.ParseError as exc:
+    try:  # bytes: the parser honours the XML declaration's encoding (UTF-8 without one)
+        root = ET.fromstring(path.read_bytes())
+    except (ET.ParseError, LookupError) as exc:  # LookupError: an encoding Python does not know
         raise ValueError(f"{path}: invalid URDF XML: {exc}") from exc
     if root.tag != "robot":
         raise ValueError(f"{path}: expected a <robot> root element; got <{root.tag}>")
