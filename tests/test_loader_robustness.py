@@ -149,3 +149,19 @@ def test_zero_extent_mesh_names_file_and_size(tmp_path):
     plane.write_text("v 0 0 0\nv 4 0 0\nv 4 2 0\nv 0 2 0\nf 1 2 3\nf 1 3 4\n")
     with pytest.raises(ValueError, match=r"plane\.obj: size 4 × 2 × 0 m: flat along z .*a vehicle has a size"):
         load_vehicle(plane)
+
+
+def test_a_loader_error_of_any_value_error_type_is_named_with_its_entry(tmp_path, monkeypatch):
+    """An error whose type takes more than a message (UnicodeDecodeError, as a non-UTF-8 URDF once
+    raised) is reported as a ValueError naming the entry, not a TypeError from re-raising its type."""
+    from torch_atr.vehicles import catalog
+
+    def undecodable(path, **kwargs):
+        raise UnicodeDecodeError("utf-8", b"\xe9", 0, 1, "invalid continuation byte")
+
+    monkeypatch.setattr(catalog, "load_vehicle", undecodable)
+    (tmp_path / "catalog.yaml").write_text("vehicles:\n  - {file: a.urdf, class: car, scale: 1}\n"
+                                           "  - {file: b.urdf, class: car, scale: 1}\n")
+    with pytest.raises(ValueError, match=r"catalog\.yaml: vehicles\[0\] \(a\.urdf\): 'utf-8' codec can't decode byte "
+                                         r"0xe9 in position 0: invalid continuation byte$"):
+        load_catalog_folder(tmp_path)

@@ -149,8 +149,9 @@ def load_catalog_folder(folder: str | Path) -> list[Vehicle]:
     for i, entry in enumerate(read_catalog_manifest(folder)):
         try:
             vehicles.append(_load_entry(folder, entry))
-        except (FileNotFoundError, ValueError) as exc:
-            raise type(exc)(f"{folder / CATALOG_MANIFEST}: vehicles[{i}] ({entry.file}): {exc}") from exc
+        except (FileNotFoundError, ValueError) as exc:  # as the base type: a subclass may not take one message
+            kind = FileNotFoundError if isinstance(exc, FileNotFoundError) else ValueError
+            raise kind(f"{folder / CATALOG_MANIFEST}: vehicles[{i}] ({entry.file}): {exc}") from exc
     return sorted(vehicles, key=lambda v: (CLASS_NAMES.index(v.cls), v.name))
 
 
