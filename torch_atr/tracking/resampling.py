@@ -35,10 +35,12 @@ def _check_weights(weights: torch.Tensor) -> None:
 
 
 def _inverse_cdf(weights: torch.Tensor, points: torch.Tensor) -> torch.Tensor:
-    """Indices j with C_{j−1} <= point < C_j for sorted points in [0, 1), C the cumulative weights."""
-    cdf = torch.cumsum(weights, 0)
-    cdf[-1] = 1.0  # rounding must not leave points beyond the last particle
-    return torch.searchsorted(cdf, points, right=True).clamp_max(weights.shape[0] - 1)
+    """Indices j with C_{j−1} <= point < C_j for sorted points in [0, 1), C the cumulative weights
+    divided by their total, in float64: C ends at exactly 1 after the last particle of non-zero
+    weight, so weights summing to 1 only within rounding send no point to trailing zero weights."""
+    cdf = torch.cumsum(weights, 0, dtype=torch.float64)
+    cdf = cdf / cdf[-1]
+    return torch.searchsorted(cdf, points.to(cdf), right=True).clamp_max(weights.shape[0] - 1)
 
 
 def systematic_resample(weights: torch.Tensor, generator: torch.Generator | None = None) -> torch.Tensor:
@@ -46,7 +48,8 @@ def systematic_resample(weights: torch.Tensor, generator: torch.Generator | None
     _check_weights(weights)
     n = weights.shape[0]
     u = torch.rand((), generator=generator, dtype=weights.dtype, device=weights.device)
-    return _inverse_cdf(weights, (torch.arange(n, dtype=weights.dtype, device=weights.device) + u) / n)
+    # points in float64: in float32 (N − 1 + u) / N rounds to 1 for u near 1
+    return _inverse_cdf(weights, (torch.arange(n, dtype=torch.float64, device=weights.device) + u) / n)
 
 
 def stratified_resample(weights: torch.Tensor, generator: torch.Generator | None = None) -> torch.Tensor:
@@ -54,7 +57,8 @@ def stratified_resample(weights: torch.Tensor, generator: torch.Generator | None
     _check_weights(weights)
     n = weights.shape[0]
     u = torch.rand(n, generator=generator, dtype=weights.dtype, device=weights.device)
-    return _inverse_cdf(weights, (torch.arange(n, dtype=weights.dtype, device=weights.device) + u) / n)
+    # points in float64: in float32 (N − 1 + u) / N rounds to 1 for u near 1
+    return _inverse_cdf(weights, (torch.arange(n, dtype=torch.float64, device=weights.device) + u) / n)
 
 
 def multinomial_resample(weights: torch.Tensor, generator: torch.Generator | None = None) -> torch.Tensor:
