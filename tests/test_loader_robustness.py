@@ -165,3 +165,19 @@ def test_a_loader_error_of_any_value_error_type_is_named_with_its_entry(tmp_path
     with pytest.raises(ValueError, match=r"catalog\.yaml: vehicles\[0\] \(a\.urdf\): 'utf-8' codec can't decode byte "
                                          r"0xe9 in position 0: invalid continuation byte$"):
         load_catalog_folder(tmp_path)
+
+
+def test_relative_obj_indices_count_back_from_their_face_line(tmp_path):
+    """OBJ ``f -8 -7 -6``: the 8th, 7th and 6th vertices declared before that line (OBJ spec), in a
+    file written one object at a time (its vertices, then its faces); trimesh alone counts back
+    from the file's last vertex, giving every object's faces the last object's vertices."""
+    blocks = []
+    for size, centre in (((4.0, 2.0, 1.5), (0.0, 0.0, 0.75)), ((2.0, 1.8, 0.8), (-0.5, 0.0, 1.9))):  # body, cabin
+        part = trimesh.creation.box(extents=size)
+        lines = [f"v {x:g} {y:g} {z:g}" for x, y, z in part.vertices + centre]
+        lines += ["f " + " ".join(str(i - len(part.vertices)) for i in face) for face in part.faces]
+        blocks.append("\n".join(lines))
+    path = tmp_path / "van.obj"
+    path.write_text("o body\n" + blocks[0] + "\no cabin\n" + blocks[1] + "\n")
+    # body x [-2, 2], y [-1, 1], z [0, 1.5]; cabin x [-1.5, 0.5], y [-0.9, 0.9], z [1.5, 2.3]
+    np.testing.assert_allclose(load_vehicle(path).mesh.bounds, [[-2.0, -1.0, 0.0], [2.0, 1.0, 2.3]], atol=1e-12)

@@ -28,6 +28,7 @@ import dataclasses
 import io
 import logging
 import math
+import re
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -348,17 +349,46 @@ def _mesh_text(path: Path) -> tuple[str, str]:
         return data.decode("latin-1"), " (not UTF-8 text: read as Latin-1)"
 
 
+def _obj_absolute_indices(text: str) -> str:
+    """OBJ text with its relative face indices made absolute.
+
+    A face's ``-k`` is the k-th ``v`` (``vt``, ``vn``) declared before that face line (OBJ
+    specification); trimesh counts it back from the file's last one instead (trimesh issue 2364),
+    which tangles the faces of a file that declares vertices after its first relative face
+    (objects written one block of ``v`` and ``f -3 -2 -1`` lines after another).
+    """
+    if not re.search(r"^[ \t]*f[ \t][^\n]*-", text, flags=re.MULTILINE):  # no relative index: nothing to do
+        return text
+    counts = {"v": 0, "vt": 0, "vn": 0}  # declared so far
+
+    def absolute(kind: str, index: str) -> str:
+        return str(counts[kind] + int(index) + 1) if index.startswith("-") and index[1:].isdigit() else index
+
+    lines = text.splitlines(keepends=True)
+    for i, line in enumerate(lines):
+        words = line.split()
+        if words and words[0] in counts:
+            counts[words[0]] += 1
+        elif words and words[0] == "f":  # corners v, v/vt, v//vn or v/vt/vn
+            corners = ["/".join(absolute(kind, n) for kind, n in zip(counts, w.split("/"))) for w in words[1:]]
+            lines[i] = " ".join(["f", *corners]) + "\n"
+    return "".join(lines)
+
+
 def _read_mesh(path: Path, process: bool) -> trimesh.Trimesh:
     """The mesh a file holds, as one Trimesh (merged and cleaned by trimesh when ``process``);
     ValueError naming the file when it cannot be read, holds no triangles or has non-finite
     vertices. The file is read unprocessed first: trimesh's processing drops the faces of a NaN
-    vertex without a word. OBJ and OFF text is decoded by :func:`_mesh_text`; other text formats
+    vertex without a word. OBJ and OFF text is decoded by :func:`_mesh_text` (and an OBJ's relative
+    face indices resolved by :func:`_obj_absolute_indices`); other text formats
     (ASCII STL, PLY) trimesh decodes itself, guessing a non-UTF-8 encoding only when the optional
     ``charset_normalizer`` is installed, and refused here (saying so) when it is not."""
     note = ""
     try:
         if path.suffix.lower() in _TEXT_MESHES:
             text, note = _mesh_text(path)
+            if path.suffix.lower() == ".obj":
+                text = _obj_absolute_indices(text)
             mesh = trimesh.load(io.StringIO(text), file_type=path.suffix.lower()[1:], force="mesh", process=False,
                                 resolver=trimesh.resolvers.FilePathResolver(path))  # mtllib beside the file
         else:
