@@ -117,6 +117,8 @@ class ShapeAppearance(nn.Module):
         psi = self.model.rbf(theta, phi)  # (N, P)
         first, weights = self.model.identity.local_basis(alpha)
         N, r = alpha.shape[0], self.basis.shape[1]
+        if N == 0:  # no span groups, and torch.cat needs one
+            return psi.new_empty(0, r)
         order = torch.argsort(first)  # particles grouped by span: one contiguous slice per group
         spans, counts = torch.unique_consecutive(first[order], return_counts=True)
         groups = psi[order].split(counts.tolist())
@@ -147,7 +149,7 @@ class ShapeAppearance(nn.Module):
         if self.method == "IV":
             return (z - self(alpha, theta, phi).to(z)).square().sum(dim=(1, 2))
         c = self.coords(*self.snap(alpha, theta, phi)[:3])  # (N, r)
-        flat = z.reshape(z.shape[0], -1).to(c)
+        flat = z.flatten(1).to(c)  # (N, L²); reshape(N, -1) is ambiguous for N = 0
         return flat.square().sum(1) - 2 * ((flat @ self.basis) * c).sum(1) + ((c @ self.gram) * c).sum(1)
 
     def forward(self, alpha: torch.Tensor, theta: torch.Tensor, phi: torch.Tensor) -> torch.Tensor:
