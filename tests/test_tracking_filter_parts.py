@@ -168,3 +168,16 @@ def test_systematic_points_do_not_round_onto_a_last_particle_of_zero_weight():
     w = torch.cat([torch.full((n - 1,), 1 / (n - 1)), torch.zeros(1)])
     assert torch.rand((), generator=torch.Generator().manual_seed(2469)) > 1 - 2 ** -11
     assert (resample(w, "systematic", torch.Generator().manual_seed(2469)) < n - 1).all()
+
+
+def test_estimates_of_no_particles_are_refused():
+    """The weighted mean and covariance of no particles came out as zeros (a vehicle at the camera),
+    the circular mean as 0 and the class posterior as all zeros."""
+    none = torch.zeros(0, dtype=torch.float64)
+    with pytest.raises(ValueError, match="Expected at least one particle; got weights of shape \\(0,\\)"):
+        weighted_mean_cov(torch.zeros(0, 4, dtype=torch.float64), none)
+    with pytest.raises(ValueError, match="at least one particle"):
+        circular_mean(none, none)
+    with pytest.raises(ValueError, match="at least one particle"):
+        class_posterior(torch.zeros(0, dtype=torch.long), none, 3)
+

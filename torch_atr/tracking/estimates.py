@@ -19,6 +19,8 @@ from torch_atr.pose import wrap_angle
 
 def _check(values: torch.Tensor, weights: torch.Tensor, dims: tuple) -> None:
     check_shape("weights", weights, ("N",))
+    if weights.shape[0] == 0:
+        raise ValueError(f"Expected at least one particle; got weights of shape {tuple(weights.shape)}")
     check_shape("values", values, (weights.shape[0], *dims))
 
 
