@@ -181,3 +181,19 @@ def test_relative_obj_indices_count_back_from_their_face_line(tmp_path):
     path.write_text("o body\n" + blocks[0] + "\no cabin\n" + blocks[1] + "\n")
     # body x [-2, 2], y [-1, 1], z [0, 1.5]; cabin x [-1.5, 0.5], y [-0.9, 0.9], z [1.5, 2.3]
     np.testing.assert_allclose(load_vehicle(path).mesh.bounds, [[-2.0, -1.0, 0.0], [2.0, 1.0, 2.3]], atol=1e-12)
+
+
+@pytest.mark.parametrize("index, encoding", [(8, "binary"), (99, "ascii"), (-1, "ascii")])
+@pytest.mark.parametrize("size", ["scale: 1", "length: 4.5"])
+def test_a_triangle_indexing_a_vertex_the_file_lacks_names_the_entry(tmp_path, index, encoding, size):
+    """A PLY box (8 vertices, 0 to 7) with one more triangle using vertex ``index``: trimesh keeps
+    it, so it raised IndexError through train.py (or, -1, silently took the last vertex)."""
+    box = trimesh.creation.box(extents=[4.5, 1.8, 1.5])
+    broken = trimesh.Trimesh(box.vertices, np.vstack([box.faces, [[0, 1, index]]]), process=False, validate=False)
+    (tmp_path / "car.ply").write_bytes(trimesh.exchange.ply.export_ply(broken, encoding=encoding))
+    box.export(tmp_path / "van.obj")
+    (tmp_path / "catalog.yaml").write_text(f"vehicles:\n  - {{file: car.ply, class: car, {size}}}\n"
+                                           "  - {file: van.obj, class: minivan, scale: 1}\n")
+    with pytest.raises(ValueError, match=r"catalog\.yaml: vehicles\[0\] \(car\.ply\): mesh file .*car\.ply has 1 "
+                                         r"triangles of 13 indexing a vertex it lacks \(it has 8 vertices\)$"):
+        load_catalog_folder(tmp_path)

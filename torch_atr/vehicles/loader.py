@@ -377,12 +377,13 @@ def _obj_absolute_indices(text: str) -> str:
 
 def _read_mesh(path: Path, process: bool) -> trimesh.Trimesh:
     """The mesh a file holds, as one Trimesh (merged and cleaned by trimesh when ``process``);
-    ValueError naming the file when it cannot be read, holds no triangles or has non-finite
-    vertices. The file is read unprocessed first: trimesh's processing drops the faces of a NaN
-    vertex without a word. OBJ and OFF text is decoded by :func:`_mesh_text` (and an OBJ's relative
-    face indices resolved by :func:`_obj_absolute_indices`); other text formats
-    (ASCII STL, PLY) trimesh decodes itself, guessing a non-UTF-8 encoding only when the optional
-    ``charset_normalizer`` is installed, and refused here (saying so) when it is not."""
+    ValueError naming the file when it cannot be read, holds no triangles, a triangle with a vertex
+    index out of range, or non-finite vertices. The file is read unprocessed first: trimesh's
+    processing drops the faces of a NaN vertex without a word. OBJ and OFF text is decoded by
+    :func:`_mesh_text` (and an OBJ's relative face indices resolved by
+    :func:`_obj_absolute_indices`); other text formats (ASCII STL, PLY) trimesh decodes itself,
+    guessing a non-UTF-8 encoding only when the optional ``charset_normalizer`` is installed, and
+    refused here (saying so) when it is not."""
     note = ""
     try:
         if path.suffix.lower() in _TEXT_MESHES:
@@ -399,6 +400,10 @@ def _read_mesh(path: Path, process: bool) -> trimesh.Trimesh:
         raise ValueError(f"could not read mesh {path}{note}: {exc}") from exc
     if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
         raise ValueError(f"mesh file {path} holds no triangles{note}")
+    outside = int(((mesh.faces < 0) | (mesh.faces >= len(mesh.vertices))).any(axis=1).sum())
+    if outside:  # trimesh keeps them (PLY, glTF): an IndexError later, or a negative one wraps round
+        raise ValueError(f"mesh file {path} has {outside} triangles of {len(mesh.faces)} indexing a vertex it lacks "
+                         f"(it has {len(mesh.vertices)} vertices)")
     bad = int((~np.isfinite(mesh.vertices).all(axis=1)).sum())
     if bad:
         raise ValueError(f"mesh file {path} has {bad} non-finite (NaN or infinite) vertices of {len(mesh.vertices)}")
