@@ -223,3 +223,46 @@ def test_from_opencv_refuses_distortion_terms_it_cannot_keep():
         cam = Camera.from_opencv(K_CV, dist, RVEC, TVEC, 640, 512)  # None was a NaN k1: "dist to be finite"
         ref, _ = cv2.projectPoints(pts, RVEC, TVEC, K_CV, dist if dist is not None and dist.size else None)
         np.testing.assert_allclose(cam.project(torch.from_numpy(pts))[0].numpy(), ref.reshape(-1, 2), atol=1e-6)
+
+
+@pytest.mark.parametrize("change, message", [
+    ({"fx": 1e300}, r"focal lengths in \[0\.001, 1e\+08\] px; got fx=1e\+300"),
+    ({"fy": 1e-300}, r"focal lengths in \[0\.001, 1e\+08\] px; got fy=1e-300"),
+    ({"fx": math.nan}, r"got fx=nan"),
+    ({"cx": -1e30}, r"principal point with coordinates in \[-1e\+08, 1e\+08\] px; got cx=-1e\+30"),
+    ({"cy": math.inf}, r"got cy=inf"),
+    ({"width": 1e30}, r"whole image size of 1 to 65535 px a side; got width=1e\+30"),
+    ({"height": 65536}, r"whole image size of 1 to 65535 px a side; got height=65536\.0"),
+    ({"width": 0}, r"got width=0\.0"),
+    ({"dist": [0.1, 0.0, 0.0, 0.0, 1e300]},
+     r"dist to be finite, each of magnitude at most 1e\+06; got dist\[4\]=1e\+300"),
+    ({"dist": [0.1, -2e6, 0.0, 0.0, 0.0]}, r"got dist\[1\]=-2000000\.0"),
+    ({"t": [0.0, 0.0, 1e10]}, r"t to be finite, each of magnitude at most 1e\+09 m; got t\[2\]=10000000000\.0"),
+])
+def test_the_constructor_refuses_absurd_magnitudes(change, message):
+    """Distortion of 1e300, a width of 1e30 px or a focal length of 1e300 were taken and projected
+    to inf or NaN; each is refused naming the argument and its value."""
+    args = {"fx": 500.0, "fy": 500.0, "cx": 320.0, "cy": 240.0, "width": 640, "height": 480}
+    with pytest.raises(ValueError, match=message):
+        Camera(**{**args, **change})
+    bounds = {"fx": 1e8, "fy": 1e-3, "cx": -1e8, "cy": 1e8, "width": 65535, "height": 1,
+              "dist": [1e6, -1e6, 1e6, -1e6, 1e6], "t": [1e9, -1e9, 1e9]}
+    cam = Camera(**{**args, **{k: bounds[k] for k in change}})  # the bounds themselves are taken
+    assert cam.to_dict()[next(iter(change))] == bounds[next(iter(change))]
+
+
+def test_files_and_opencv_results_with_absurd_magnitudes_are_refused_naming_them():
+    d = {**_camera().to_dict(), "dist": [0.0, 0.0, 0.0, 0.0, 1e300]}
+    with pytest.raises(InputError, match=r"^calib\.json: Expected dist to be finite.*got dist\[4\]=1e\+300$"):
+        Camera.from_dict(d, source="calib.json")
+    with pytest.raises(InputError, match=r"^calib\.json: Expected focal lengths .*got fy=1e\+300$"):
+        Camera.from_dict({**_camera().to_dict(), "fy": 1e300}, source="calib.json")
+    with pytest.raises(ValueError, match=r"got fx=1e\+300"):
+        Camera.from_opencv(K_CV * [[1e300 / 820, 1, 1], [1, 1, 1], [1, 1, 1]], DIST_CV, RVEC, TVEC, 640, 512)
+    with pytest.raises(ValueError, match=r"got dist\[2\]=1e\+300"):
+        Camera.from_opencv(K_CV, [0.0, 0.0, 1e300], RVEC, TVEC, 640, 512)
+    with pytest.raises(ValueError, match=r"Expected tvec to be finite, each of magnitude at most 1e\+09 m; "
+                                         r"got tvec\[1\]=1e\+300"):
+        Camera.from_opencv(K_CV, DIST_CV, RVEC, [0.0, 1e300, 1.0], 640, 512)
+    with pytest.raises(ValueError, match=r"got width=1e\+30"):
+        Camera.from_opencv(K_CV, DIST_CV, RVEC, TVEC, 1e30, 512)

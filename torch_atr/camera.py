@@ -7,7 +7,6 @@ with y flipped; :meth:`Camera.from_opencv` and :meth:`Camera.opencv_pose` conver
 
 from __future__ import annotations
 
-import math
 import numbers
 
 import cv2
@@ -21,6 +20,14 @@ from torch_atr.validate import InputError, image_size, integer, real, rotation, 
 # Sensor frame (y up) <-> OpenCV camera frame (y down).
 _FLIP_Y = np.diag([1.0, -1.0, 1.0])
 
+# Bounds on a camera's numbers, generous around any real camera, so that an absurd value (a typed
+# 1e300) fails where the camera is made, naming it, not as inf or NaN in a later projection.
+MAX_SIDE_PX = 65535  # width, height: JPEG's limit, above any sensor (the largest are ~20000 px a side)
+FOCAL_RANGE_PX = (1e-3, 1e8)  # fx, fy: 1e8 px is a 100 m lens at 1 µm pixels; 1e-3 px a field of view over 179.7°
+MAX_PRINCIPAL_PX = 1e8  # |cx|, |cy|: a principal point far outside any image, as a crop window shifts it
+MAX_DISTORTION = 1e6  # |k1|, |k2|, |p1|, |p2|, |k3|: real lenses fit with terms of order 1, wide ones up to ~100s
+MAX_TRANSLATION_M = 1e9  # |t| per axis: beyond the Moon
+
 
 def _number(name: str, value) -> float:
     """A Python, NumPy or one-element torch real number as a float; ValueError naming it otherwise."""
@@ -31,29 +38,53 @@ def _number(name: str, value) -> float:
     return float(value)
 
 
+def _check_entries(name: str, value: torch.Tensor, bound: float, unit: str) -> None:
+    """ValueError naming the first entry of ``value`` (a flat tensor) that is not finite or has a
+    magnitude above ``bound``."""
+    bad = ~(value.abs() <= bound)  # NaN compares False: bad
+    if bool(bad.any()):
+        i = int(bad.nonzero()[0, 0])
+        raise ValueError(f"Expected {name} to be finite, each of magnitude at most {bound:g}{unit}; "
+                         f"got {name}[{i}]={value[i].item()!r}")
+
+
 class Camera(nn.Module):
     """A pinhole camera with intrinsics, distortion and a world -> sensor pose.
 
+    Each number is bounded generously around real cameras (the module's constants), so that a
+    typed 1e300 fails here, naming it, not as inf or NaN later: K, dist and t are finite in float32,
+    and so are the rays of the image's pixels (:meth:`pixel_rays`: |u - cx| / fx <= 1.0007e11).
+
     Args:
-        fx, fy: focal lengths in pixels.
-        cx, cy: principal point in pixels.
-        width, height: image size in pixels.
-        dist: (5,) OpenCV distortion (k1, k2, p1, p2, k3); zeros if None.
+        fx, fy: focal lengths in pixels, in [1e-3, 1e8] (``FOCAL_RANGE_PX``).
+        cx, cy: principal point in pixels, each in [-1e8, 1e8] (``MAX_PRINCIPAL_PX``).
+        width, height: image size in pixels, whole numbers in [1, 65535] (``MAX_SIDE_PX``).
+        dist: (5,) OpenCV distortion (k1, k2, p1, p2, k3), each in [-1e6, 1e6] (``MAX_DISTORTION``);
+            zeros if None.
         R: (3, 3) rotation world -> sensor; identity if None (world = sensor frame).
-        t: (3,) translation world -> sensor in metres: p_s = R p_w + t; zeros if None.
+        t: (3,) translation world -> sensor in metres: p_s = R p_w + t, each in [-1e9, 1e9]
+            (``MAX_TRANSLATION_M``); zeros if None.
+    Raises:
+        ValueError naming the argument and its value when one is not a number, is NaN or infinite,
+        or is outside its bounds.
     """
 
     def __init__(self, fx: float, fy: float, cx: float, cy: float, width: int, height: int,
                  dist=None, R=None, t=None, dtype: torch.dtype = torch.float64):
         super().__init__()
         fx, fy, cx, cy = (_number(name, v) for name, v in (("fx", fx), ("fy", fy), ("cx", cx), ("cy", cy)))
-        if not (0 < fx < math.inf and 0 < fy < math.inf):
-            raise ValueError(f"Expected positive finite focal lengths; got fx={fx}, fy={fy}")
-        if not (math.isfinite(cx) and math.isfinite(cy)):
-            raise ValueError(f"Expected a finite principal point; got cx={cx}, cy={cy}")
+        lo, hi = FOCAL_RANGE_PX
+        for name, value in (("fx", fx), ("fy", fy)):
+            if not lo <= value <= hi:  # NaN compares False
+                raise ValueError(f"Expected focal lengths in [{lo:g}, {hi:g}] px; got {name}={value!r}")
+        for name, value in (("cx", cx), ("cy", cy)):
+            if not abs(value) <= MAX_PRINCIPAL_PX:
+                raise ValueError(f"Expected a principal point with coordinates in [-{MAX_PRINCIPAL_PX:g}, "
+                                 f"{MAX_PRINCIPAL_PX:g}] px; got {name}={value!r}")
         width, height = _number("width", width), _number("height", height)
-        if not (width > 0 and height > 0 and float(width).is_integer() and float(height).is_integer()):
-            raise ValueError(f"Expected a positive whole image size in pixels; got {width} x {height}")
+        for name, value in (("width", width), ("height", height)):
+            if not (1 <= value <= MAX_SIDE_PX and value.is_integer()):
+                raise ValueError(f"Expected a whole image size of 1 to {MAX_SIDE_PX} px a side; got {name}={value!r}")
         self.width, self.height = int(width), int(height)
         K = torch.tensor([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]], dtype=dtype)
         dist = torch.zeros(5, dtype=dtype) if dist is None else torch.as_tensor(dist, dtype=dtype).flatten()
@@ -62,9 +93,8 @@ class Camera(nn.Module):
         check_shape("dist", dist, (5,))
         check_shape("R", R, (3, 3))
         check_shape("t", t, (3,))
-        for name, value in (("dist", dist), ("t", t)):
-            if not bool(torch.isfinite(value).all()):
-                raise ValueError(f"Expected {name} to be finite; got {value.tolist()}")
+        _check_entries("dist", dist, MAX_DISTORTION, "")
+        _check_entries("t", t, MAX_TRANSLATION_M, " m")
         rotation("R", R.tolist())  # orthonormal rows: a rotation, or a left-handed frame's (det ±1)
         self.register_buffer("K", K)
         self.register_buffer("dist", dist)
@@ -163,7 +193,8 @@ class Camera(nn.Module):
         5 (none, or None as OpenCV takes it) are padded with zeros. This camera has k1, k2, p1, p2,
         k3 only, so more than 5 are taken only when every one beyond the 5th is zero; otherwise
         ValueError, since dropping them would move the projected pixels. So is a K other than
-        [[fx, 0, cx], [0, fy, cy], [0, 0, 1]]: this camera has no skew.
+        [[fx, 0, cx], [0, fy, cy], [0, 0, 1]]: this camera has no skew. Every number is then checked
+        against the bounds of :class:`Camera` (tvec's as t's).
         """
         import cv2
 
@@ -174,6 +205,7 @@ class Camera(nn.Module):
                                  f"got shape {value.shape}")
             if not np.isfinite(value).all():  # a NaN rvec was reported as R[0][0]
                 raise ValueError(f"Expected {name} to be finite; got {value.ravel().tolist()}")
+        _check_entries("tvec", torch.from_numpy(tvec.ravel()), MAX_TRANSLATION_M, " m")  # t negates tvec[1]
         if K.shape != (3, 3):
             raise ValueError(f"Expected K to have shape (3, 3); got {K.shape}")
         if K[0, 1] != 0 or K[1, 0] != 0 or K[2].tolist() != [0.0, 0.0, 1.0]:
@@ -221,8 +253,9 @@ class Camera(nn.Module):
 
         fx, fy: finite numbers > 0; cx, cy: finite numbers; width, height: integers within
         :data:`~torch_atr.validate.MAX_IMAGE_SIDE`; dist: 5 finite numbers, R: a rotation
-        (orthonormal rows; det ±1), t: 3 finite numbers, each optional or null. A missing, unknown
-        or bad key raises :class:`~torch_atr.validate.InputError` naming ``source`` and the key.
+        (orthonormal rows; det ±1), t: 3 finite numbers, each optional or null; then every number
+        within the bounds of :class:`Camera`. A missing, unknown or bad key raises
+        :class:`~torch_atr.validate.InputError` naming ``source`` and the key.
         """
         if not isinstance(d, dict):
             raise InputError(f"{source}: expected an object of camera keys; got {type(d).__name__}")
@@ -245,4 +278,7 @@ class Camera(nn.Module):
         dist = None if d.get("dist") is None else vector(key("dist"), d["dist"], 5)
         R = None if d.get("R") is None else rotation(key("R"), d["R"])
         t = None if d.get("t") is None else vector(key("t"), d["t"], 3)
-        return cls(fx, fy, cx, cy, width, height, dist=dist, R=R, t=t)
+        try:
+            return cls(fx, fy, cx, cy, width, height, dist=dist, R=R, t=t)
+        except ValueError as exc:  # out of the camera's bounds: the message names the key and value
+            raise InputError(f"{source}: {exc}") from None
