@@ -181,3 +181,11 @@ def test_estimates_of_no_particles_are_refused():
     with pytest.raises(ValueError, match="at least one particle"):
         class_posterior(torch.zeros(0, dtype=torch.long), none, 3)
 
+
+def test_mean_resultant_length_of_equal_angles_is_one():
+    """Equal angles have R = 1 exactly; float32 weights that sum to 1 + 1.2e-7 gave R above 1,
+    outside the documented [0, 1]."""
+    w = torch.full((1000,), 1e-3)
+    assert w.sum().item() > 1
+    mean, r = circular_mean(torch.full((1000,), 0.3), w)
+    assert r.item() == 1.0 and mean.item() == pytest.approx(0.3, abs=1e-6)

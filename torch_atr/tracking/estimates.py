@@ -41,7 +41,7 @@ def circular_mean(angles: torch.Tensor, weights: torch.Tensor) -> tuple[torch.Te
     """
     _check(angles, weights, ())
     s, c = (weights * torch.sin(angles)).sum(), (weights * torch.cos(angles)).sum()
-    return wrap_angle(torch.atan2(s, c)), torch.hypot(s, c)
+    return wrap_angle(torch.atan2(s, c)), torch.hypot(s, c).clamp_max(1.0)  # weights' rounding: Σ w may pass 1
 
 
 def class_posterior(classes: torch.Tensor, weights: torch.Tensor, num_classes: int) -> torch.Tensor:
