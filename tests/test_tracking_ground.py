@@ -53,3 +53,12 @@ def test_ground_contact_puts_every_particle_half_its_height_above_the_ground(mod
     ground_y = float(camera_centre(seq.camera)[1]) - seq.camera_height_m
     expected = ground_y + interpolate_periodic(half_heights(model), tracker.particles[:, ALPHA])
     torch.testing.assert_close(tracker.particles[:, Y], expected)
+
+
+def test_periodic_interpolation_of_a_non_finite_alpha_is_nan():
+    """NaN or infinite α (a diverged particle) made the index −2⁶³ and raised "index
+    -9223372036854775808 is out of bounds" (on a GPU, a device-side assert); now NaN like any
+    other arithmetic on NaN, and the finite entries unchanged."""
+    table = torch.tensor([1.0, 3.0, 2.0, 5.0], dtype=torch.float64)
+    got = interpolate_periodic(table, torch.tensor([math.nan, math.inf, -math.inf, math.pi / 4], dtype=torch.float64))
+    assert got[:3].isnan().all() and got[3].item() == pytest.approx(2.0)

@@ -51,11 +51,11 @@ def half_heights(model, grid: int = 256) -> torch.Tensor:
 
 def interpolate_periodic(table: torch.Tensor, alpha: torch.Tensor) -> torch.Tensor:
     """Linear interpolation of a table sampled at α = 2π k / G (periodic): table (G,), alpha (N,)
-    radians. Returns (N,)."""
+    radians. Returns (N,); NaN where alpha is not finite."""
     check_shape("table", table, ("G",))
     check_shape("alpha", alpha, ("N",))
     g = table.shape[0]
     position = torch.remainder(alpha, 2 * math.pi) * (g / (2 * math.pi))
-    low = position.floor().long().clamp_max(g - 1)
+    low = position.floor().long().clamp(0, g - 1)  # NaN (from a non-finite alpha) casts to −2⁶³
     frac = (position - low).to(table.dtype)
     return table[low] * (1 - frac) + table[(low + 1) % g] * frac
