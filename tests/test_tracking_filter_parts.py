@@ -189,3 +189,12 @@ def test_mean_resultant_length_of_equal_angles_is_one():
     assert w.sum().item() > 1
     mean, r = circular_mean(torch.full((1000,), 0.3), w)
     assert r.item() == 1.0 and mean.item() == pytest.approx(0.3, abs=1e-6)
+
+
+@pytest.mark.parametrize("classes", [[0, 3], [-1, 0]])
+def test_class_posterior_names_classes_out_of_range(classes):
+    """A class index outside [0, C) raised "index out of range in self" (on a GPU, a device-side assert)."""
+    with pytest.raises(ValueError, match=r"Expected classes in \[0, 3\); got min -?\d, max \d"):
+        class_posterior(torch.tensor(classes), torch.tensor([0.5, 0.5]), 3)
+    with pytest.raises(ValueError, match="Expected integer classes; got torch.float32"):
+        class_posterior(torch.tensor([0.0, 1.0]), torch.tensor([0.5, 0.5]), 3)

@@ -50,4 +50,9 @@ def class_posterior(classes: torch.Tensor, weights: torch.Tensor, num_classes: i
     classes: (N,) int64 in [0, C); weights: (N,); num_classes: C. Returns (C,).
     """
     _check(classes, weights, ())
+    if classes.is_floating_point() or classes.dtype == torch.bool:
+        raise ValueError(f"Expected integer classes; got {classes.dtype}")
+    if not bool(((classes >= 0) & (classes < num_classes)).all()):  # index_add_ would fail unclearly
+        raise ValueError(f"Expected classes in [0, {num_classes}); got min {int(classes.min())}, "
+                         f"max {int(classes.max())}")
     return torch.zeros(num_classes, dtype=weights.dtype, device=weights.device).index_add_(0, classes, weights)
