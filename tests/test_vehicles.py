@@ -326,6 +326,23 @@ def test_unsupported_joint_type(tmp_path):
         load_vehicle(_arm(tmp_path, "floating", ""))
 
 
+@pytest.mark.parametrize("old, new, message", [
+    ('<axis xyz="0 0 1"/>', '<axis xyz="0 0 0"/>',
+     r"joint 'yaw': axis xyz is 0 0 0; a revolute joint needs a direction"),
+    ('<origin xyz="0.5 0 1" rpy="0 0 0"/>', '<origin xyz="0.5 0 1" rpy="0 nan 0"/>',
+     r"joint 'yaw' origin rpy: expected 3 finite numbers; got '0 nan 0'"),
+])
+def test_a_joint_without_a_finite_origin_or_a_direction_is_named(tmp_path, old, new, message):
+    """pytorch-kinematics poses every part at NaN for these (reported as 'size nan: flat along x')."""
+    path = tmp_path / "arm.urdf"
+    path.write_text(ARM.replace(old, new))
+    with pytest.raises(ValueError, match=rf"arm\.urdf: {message}"):
+        load_vehicle(path)
+    fixed = ARM.replace('type="revolute"', 'type="fixed"')  # a fixed joint has no axis: 0 0 0 is fine
+    path.write_text(fixed.replace('<axis xyz="0 0 1"/>', '<axis xyz="0 0 0"/>'))
+    np.testing.assert_allclose(load_vehicle(path).mesh.extents, [3.5, 2.0, 1.6], atol=1e-9)  # test above: the box
+
+
 BOX_LINK = '<link name="{}"><visual><geometry><box size="1 1 1"/></geometry></visual></link>'
 FIXED = '<joint name="{}" type="fixed"><parent link="{}"/><child link="{}"/></joint>'
 

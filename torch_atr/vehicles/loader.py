@@ -506,6 +506,11 @@ def _load_urdf(path: Path, rotation: np.ndarray) -> _Rig:
     limits: dict[str, tuple[float, float]] = {}
     for j in joints:
         where = f"{path}: joint {j.get('name')!r}"
+        _origin(j, where)  # finite numbers, as a visual's: pytorch-kinematics takes NaN and poses every part at NaN
+        if j.get("type") in ("revolute", "continuous", "prismatic"):
+            axis = j.find("axis")
+            if not _floats(None if axis is None else axis.get("xyz"), 3, (1.0, 0.0, 0.0), f"{where} axis xyz").any():
+                raise ValueError(f"{where}: axis xyz is 0 0 0; a {j.get('type')} joint needs a direction")
         lim = j.find("limit")
         if lim is not None:  # pytorch-kinematics' parser requires both attributes
             lim.set("effort", lim.get("effort", "0"))
