@@ -1,4 +1,6 @@
-"""ShapeAppearance at its edges: empty particle sets."""
+"""ShapeAppearance at its edges: empty particle sets, non-finite queries."""
+
+import math
 
 import pytest
 import torch
@@ -19,3 +21,23 @@ def test_no_particles_give_no_templates(model, method):
         assert app.squared_errors(torch.zeros(0, 16, 16), none, none, none).shape == (0,)
         observed = torch.ones(0, 16, 16, dtype=torch.bool)
         assert app.squared_errors(torch.zeros(0, 16, 16), none, none, none, observed).shape == (0,)
+
+
+@pytest.mark.parametrize("method", METHODS)
+def test_a_non_finite_query_predicts_nan_in_every_method(model, method):
+    """Snapping took a NaN α to vehicle 0 (II, IV) and a NaN θ or φ to view 0 (III, IV), so such a
+    particle was weighed as a real shape where Method I, and the filter's −inf for a non-finite
+    likelihood, give it none. The finite queries keep their values."""
+    K, V, S = model.core.num_vehicles, model.rbf.num_centres, model.template.size_px
+    templates = torch.ones(K, V, S, S) if method == "IV" else None
+    app = ShapeAppearance(model, method, 16, templates)
+    alpha = torch.tensor([math.nan, 1.0, 1.0, math.inf, 1.0])
+    theta = torch.tensor([1.0, math.nan, 1.0, 1.0, 1.0])
+    phi = torch.tensor([0.1, 0.1, math.nan, 0.1, 0.1])
+    with torch.no_grad():
+        y = app(alpha, theta, phi)
+        errors = app.squared_errors(torch.zeros(5, 16, 16), alpha, theta, phi)
+        finite = app(alpha[4:], theta[4:], phi[4:])
+    assert y[:4].isnan().all(dim=(1, 2)).all() and errors[:4].isnan().all()
+    assert finite.isfinite().all() and errors[4].isfinite()
+    torch.testing.assert_close(y[4:], finite, atol=1e-6, rtol=0)  # a matmul's rows vary in the last bit with N

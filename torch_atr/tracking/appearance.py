@@ -99,16 +99,19 @@ class ShapeAppearance(nn.Module):
     def snap(self, alpha: torch.Tensor, theta: torch.Tensor, phi: torch.Tensor
              ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor | None, torch.Tensor | None]:
         """The method's (α, θ, φ) for (N,) queries, and the snapped vehicle and view indices (N,)
-        (None where the method keeps that variable continuous)."""
+        (None where the method keeps that variable continuous). A non-finite α, or Θ with a
+        non-finite angle, is kept as it is (its index is arbitrary), so that its shape is NaN."""
         model = self.model
         vehicle = view = None
         if self.method in ("II", "IV"):
             vehicle = model.identity.nearest_vehicles(alpha, 1)[:, 0]
-            alpha = model.alphas[vehicle]
+            alpha = model.alphas[vehicle].to(alpha).where(alpha.isfinite(), alpha)
         if self.method in ("III", "IV"):
             centres = model.rbf.centres_u.to(theta)  # (V, 3)
             view = torch.cdist(view_vectors(theta, phi), centres).argmin(dim=1)
-            theta, phi = model.rbf.centres_theta[view].to(theta), model.rbf.centres_phi[view].to(theta)
+            finite = theta.isfinite() & phi.isfinite()
+            theta, phi = (model.rbf.centres_theta[view].to(theta).where(finite, theta),
+                          model.rbf.centres_phi[view].to(theta).where(finite, phi))
         return alpha, theta, phi, vehicle, view
 
     def coords(self, alpha: torch.Tensor, theta: torch.Tensor, phi: torch.Tensor) -> torch.Tensor:
@@ -157,7 +160,8 @@ class ShapeAppearance(nn.Module):
         (N, L, L) in the model's dtype."""
         alpha, theta, phi, vehicle, view = self.snap(*self._queries(alpha, theta, phi))
         if self.method == "IV":
-            y = self.templates[vehicle, view]  # (N, L²)
+            finite = alpha.isfinite() & theta.isfinite() & phi.isfinite()
+            y = self.templates[vehicle, view].masked_fill(~finite[:, None], torch.nan)  # (N, L²)
         else:
             y = self.coords(alpha, theta, phi) @ self.basis.T  # (N, L²)
         return y.view(-1, self.size, self.size)
