@@ -301,7 +301,9 @@ def test_a_number_yaml_cannot_convert_is_named_with_its_file_or_override(tmp_pat
     big = "1" * 5000
     for override in (f"seed={big}", f"seed=0{big}", f"model.ridge={big}", f"model={{ridge: {big}}}",
                      "seed=0x" + "f" * 5000, "seed=" + "[" * 3000 + "]" * 3000):
-        with pytest.raises(ConfigError, match=rf"^override {re.escape(repr(override))}: not a YAML value: "):
+        quoted = repr(override)  # over 240 characters: its first 40, '…' and its length
+        with pytest.raises(ConfigError, match=rf"^override {re.escape(quoted[:40])}… \({len(quoted)} characters\): "
+                                              rf"not a YAML value: "):
             load_config(TrainConfig, None, [override])
     path = tmp_path / "c.yaml"
     for text, why in ((f"seed: {big}\n", "is not a number"), ("seed: 0x" + "f" * 5000 + "\n", "more than 900 digits"),
@@ -312,3 +314,40 @@ def test_a_number_yaml_cannot_convert_is_named_with_its_file_or_override(tmp_pat
             load_config(TrainConfig, path)
     path.write_text("seed: !!int 12\nmodel:\n  ridge: !!float 0.5\n")
     assert (load_config(TrainConfig, path).seed, load_config(TrainConfig, path).model.ridge) == (12, 0.5)
+
+
+def test_an_override_error_quotes_a_huge_value_shortened():
+    """seed= and 100 000 digits, or 50 000 letters for a number's key, made a message as long: each
+    value, key or override over 240 characters is now quoted by its first 40, '…' and its length."""
+    cases = [
+        (["seed=" + "1" * 100_000], "override 'seed=" + "1" * 34 + "… (100007 characters): not a YAML value: '"
+         + "1" * 39 + "… (100002 characters) is not a number (Exceeds the limit (4300 digits)"),
+        (["seed=" + "a" * 50_000], "override seed=" + "a" * 35 + "… (50005 characters): seed: expected an integer; "
+         "got '" + "a" * 39 + "… (50002 characters)"),
+        (["seed=" + "9" * 900], "override seed=" + "9" * 35 + "… (905 characters): seed must be in [0, 2**64 - 1]; "
+         "got " + "9" * 40 + "… (900 characters)"),
+        (["model.pixel_rank=" + "9" * 800], "override model.pixel_rank=" + "9" * 23 + "… (817 characters): "
+         "model.pixel_rank must be in [1, 262144] or null; got " + "9" * 40 + "… (800 characters)"),
+        (["x" * 50_000 + "=1"], "override " + "x" * 40 + "… (50002 characters): unknown config key(s) " + "x" * 40
+         + "… (50000 characters); known: catalog,"),
+        (["b" * 50_000], "override '" + "b" * 39 + "… (50002 characters) is not of the form key=value"),
+        (["y" * 300 + "=1", "y" * 300 + "=2"], "overrides '" + "y" * 39 + "… (304 characters) and '" + "y" * 39
+         + "… (304 characters) both set " + "y" * 40 + "… (300 characters); give one"),
+    ]
+    for overrides, start in cases:
+        with pytest.raises(ConfigError) as info:
+            load_config(TrainConfig, None, overrides, unique=True)
+        assert str(info.value).startswith(start)
+        assert len(str(info.value)) < 500 and "\n" not in str(info.value)
+    # up to 240 characters a value or an override is quoted whole, as it was up to 200
+    exact = [("seed=abc", "override seed=abc: seed: expected an integer; got 'abc'"),
+             ("seed=" + "a" * 198, "override seed=" + "a" * 198 + ": seed: expected an integer; "
+              "got '" + "a" * 198 + "'"),
+             ("seed=" + "a" * 238, "override seed=" + "a" * 35 + "… (243 characters): seed: expected an integer; "
+              "got '" + "a" * 238 + "'"),
+             ("seed=" + "a" * 239, "override seed=" + "a" * 35 + "… (244 characters): seed: expected an integer; "
+              "got '" + "a" * 39 + "… (241 characters)")]
+    for override, message in exact:
+        with pytest.raises(ConfigError) as info:
+            load_config(TrainConfig, None, [override])
+        assert str(info.value) == message
