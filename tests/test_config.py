@@ -351,3 +351,20 @@ def test_an_override_error_quotes_a_huge_value_shortened():
         with pytest.raises(ConfigError) as info:
             load_config(TrainConfig, None, [override])
         assert str(info.value) == message
+
+
+
+@pytest.mark.parametrize("section, key, value", [("filter", "method", "x" * 50_000),
+                                                 ("segmentation", "history", -10 ** 5000),
+                                                 ("scene", "frames", -10 ** 5000)],
+                         ids=["filter", "segmentation", "scene"])
+def test_bad_values_of_a_section_are_quoted_shortened(section, key, value):
+    """A huge bad value makes a short message: a 50 000-character method, and integers of 5001 digits,
+    which repr refuses (it raised ValueError 'Exceeds the limit (4300 digits)' from the message)."""
+    from torch_atr.data.synthetic import SceneConfig
+    from torch_atr.segmentation import SegmentationConfig
+    from torch_atr.tracking.filter import FilterConfig
+    cls = {"filter": FilterConfig, "segmentation": SegmentationConfig, "scene": SceneConfig}[section]
+    with pytest.raises(ConfigError, match=f"^{section}: bad value.s. {key}=") as info:
+        cls(**{key: value})
+    assert len(str(info.value)) < 1000

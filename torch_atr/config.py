@@ -2,7 +2,7 @@
 
 Unknown keys, repeated keys, values of the wrong type and non-finite numbers are errors that
 name the key and the file or the override at fault. A message quotes a value, key or override whole
-up to 240 characters, a longer one by its first 40, '…' and its length (:func:`_cut`).
+up to 240 characters, a longer one by its first 40, '…' and its length (``validate.cut``).
 """
 
 from __future__ import annotations
@@ -20,27 +20,12 @@ from typing import Any, TypeVar
 
 import yaml
 
-from torch_atr.validate import InputError, read_text
+from torch_atr.validate import InputError, cut, read_text, show
 
 T = TypeVar("T")
 
 MAX_CONFIG_BYTES = 2 ** 20  # a config file is a few hundred bytes
 MAX_TEMPLATE_PX = 512  # H = W of a template: 512² pixels x 150 views x 36 vehicles is already 5.7 GB in float32
-_WHOLE = 240  # characters of a value, key or override quoted whole: over validate.show's 200, with a key
-_HEAD = 40  # characters of a longer one quoted, before '…' and its length
-
-
-def _cut(text: str) -> str:
-    """``text`` (a value, key or override as a message quotes it) whole up to ``_WHOLE`` characters, so
-    that every value quoted whole before (``validate.show`` quotes 200) still is, with its key; a longer
-    one as its first ``_HEAD``, '…' and its length, so that a huge override (``seed=`` and 100 000 digits)
-    still makes a short one-line message."""
-    return text if len(text) <= _WHOLE else f"{text[:_HEAD]}… ({len(text)} characters)"
-
-
-def _show(value: Any) -> str:
-    """``repr(value)`` for an error message, shortened by :func:`_cut`."""
-    return _cut(repr(value))
 
 
 class ConfigError(InputError):
@@ -64,7 +49,7 @@ class TemplateConfig:
 
     def __post_init__(self) -> None:
         if not 8 <= self.size_px <= MAX_TEMPLATE_PX:
-            raise ConfigError(f"template.size_px must be in [8, {MAX_TEMPLATE_PX}]; got {_show(self.size_px)}")
+            raise ConfigError(f"template.size_px must be in [8, {MAX_TEMPLATE_PX}]; got {show(self.size_px)}")
         if not 0.1 <= self.window_m <= 1000:
             raise ConfigError(f"template.window_m must be in [0.1, 1000] metres; got {self.window_m}")
         if not 0.5 <= self.tau_px <= self.size_px:
@@ -96,14 +81,14 @@ def check_type(key: str, value: Any, tp: Any) -> Any:
                 continue
         arms = typing.get_args(tp)
         quote = " (quote it for text)" if str in arms and isinstance(value, (int, float)) else ""
-        raise ConfigError(f"{key}: expected {' or '.join(_describe(arm) for arm in arms)}; got {_show(value)}{quote}")
+        raise ConfigError(f"{key}: expected {' or '.join(_describe(arm) for arm in arms)}; got {show(value)}{quote}")
     if tp is type(None):
         if value is None:
             return None
-        raise ConfigError(f"{key}: expected null; got {_show(value)}")
+        raise ConfigError(f"{key}: expected null; got {show(value)}")
     if origin in (list, tuple):
         if not isinstance(value, (list, tuple)):
-            raise ConfigError(f"{key}: expected a list; got {_show(value)}")
+            raise ConfigError(f"{key}: expected a list; got {show(value)}")
         args = typing.get_args(tp)
         arm = args[0] if args else Any
         items = [check_type(f"{key}[{i}]", v, arm) for i, v in enumerate(value)]
@@ -114,16 +99,16 @@ def check_type(key: str, value: Any, tp: Any) -> Any:
         if isinstance(value, tp):
             return value
         if not isinstance(value, dict):
-            raise ConfigError(f"{key}: expected a mapping; got {_show(value)}")
+            raise ConfigError(f"{key}: expected a mapping; got {show(value)}")
         return _build(tp, value, prefix=f"{key}.")
     if tp is bool:
         if isinstance(value, bool):
             return value
-        raise ConfigError(f"{key}: expected true/false; got {_show(value)}")
+        raise ConfigError(f"{key}: expected true/false; got {show(value)}")
     if tp is int:
         if isinstance(value, int) and not isinstance(value, bool):
             return value
-        raise ConfigError(f"{key}: expected an integer; got {_show(value)}")
+        raise ConfigError(f"{key}: expected an integer; got {show(value)}")
     if tp is float:
         number = None
         if isinstance(value, (int, float)) and not isinstance(value, bool):
@@ -132,14 +117,14 @@ def check_type(key: str, value: Any, tp: Any) -> Any:
             except OverflowError:  # an integer beyond float's range
                 number = math.inf
         if number is None:
-            raise ConfigError(f"{key}: expected a number; got {_show(value)}")
+            raise ConfigError(f"{key}: expected a number; got {show(value)}")
         if not math.isfinite(number):
-            raise ConfigError(f"{key}: expected a finite number; got {_show(value)}")
+            raise ConfigError(f"{key}: expected a finite number; got {show(value)}")
         return number
     if tp is str:
         if isinstance(value, str):
             return value
-        raise ConfigError(f"{key}: expected a string; got {_show(value)}")
+        raise ConfigError(f"{key}: expected a string; got {show(value)}")
     raise ConfigError(f"{key}: unsupported config type {tp}")
 
 
@@ -180,7 +165,7 @@ def _build(cls: type[T], data: dict, prefix: str = "", base: Any = None) -> T:
     if unknown:
         homes = [home for key in unknown for home in _homes(cls, key, prefix)] or [
             prefix + near for key in unknown for near in _nearest(str(key), sorted(fields))]
-        raise ConfigError(f"unknown config key(s) {', '.join(_cut(prefix + str(k)) for k in unknown)}; "
+        raise ConfigError(f"unknown config key(s) {', '.join(cut(prefix + str(k)) for k in unknown)}; "
                           f"known: {', '.join(prefix + k for k in sorted(fields))}"
                           + (f" (did you mean {' or '.join(homes)}?)" if homes else ""))
     kwargs = {}
@@ -198,7 +183,7 @@ def config_from_dict(cls: type[T], data: dict) -> T:
     """Build the config dataclass ``cls`` from plain data (e.g. a checkpoint's), with the checks
     of :func:`load_config`; ``ConfigError`` names the key."""
     if not isinstance(data, dict):
-        raise ConfigError(f"expected a mapping of {cls.__name__} keys; got {_show(data)}")
+        raise ConfigError(f"expected a mapping of {cls.__name__} keys; got {show(data)}")
     return _build(cls, data)
 
 
@@ -218,7 +203,7 @@ class _UniqueKeyLoader(yaml.SafeLoader):
                     continue
                 if repeated:
                     raise yaml.constructor.ConstructorError(
-                        None, None, f"key {_show(key)} repeated (first on line {first[key]})", key_node.start_mark)
+                        None, None, f"key {show(key)} repeated (first on line {first[key]})", key_node.start_mark)
                 first[key] = key_node.start_mark.line + 1
         return super().construct_mapping(node, deep=deep)
 
@@ -246,10 +231,10 @@ class _UniqueKeyLoader(yaml.SafeLoader):
         try:
             number = convert()
         except (ValueError, IndexError) as exc:
-            raise yaml.constructor.ConstructorError(None, None, f"{_show(node.value)} is not a number ({exc})",
+            raise yaml.constructor.ConstructorError(None, None, f"{show(node.value)} is not a number ({exc})",
                                                     node.start_mark) from None
         if isinstance(number, int) and number.bit_length() > 3000:
-            raise yaml.constructor.ConstructorError(None, None, f"{_show(node.value)} is not a number a config "
+            raise yaml.constructor.ConstructorError(None, None, f"{show(node.value)} is not a number a config "
                                                     "takes (more than 900 digits)", node.start_mark)
         return number
 
@@ -289,12 +274,12 @@ def read_yaml(path: Path):
 def _set_dotted(data: dict, dotted: str, value: Any) -> None:
     parts = dotted.split(".")
     if not all(parts):
-        raise ConfigError(f"{_show(dotted)} is not a dotted key (empty part)")
+        raise ConfigError(f"{show(dotted)} is not a dotted key (empty part)")
     node = data
     for part in parts[:-1]:
         node = node.setdefault(part, {})
         if not isinstance(node, dict):
-            raise ConfigError(f"{_cut(part)} is not a section")
+            raise ConfigError(f"{cut(part)} is not a section")
     node[parts[-1]] = value
 
 
@@ -329,19 +314,19 @@ def load_config(cls: type[T], path: str | Path | None = None, overrides: list[st
     for item in overrides or []:
         key, sep, raw = item.partition("=")
         if not sep or not key.strip():
-            raise ConfigError(f"{what} {_show(item)} is not of the form key=value")
+            raise ConfigError(f"{what} {show(item)} is not of the form key=value")
         try:
             leaves = _leaves(cls, key.strip(), _override_value(cls, key.strip(), raw))
             for leaf, value in leaves:
                 _set_dotted(data, leaf, value)
         except yaml.YAMLError as exc:
-            raise ConfigError(f"{what} {_show(item)}: not a YAML value: {' '.join(str(exc).split())}") from None
+            raise ConfigError(f"{what} {show(item)}: not a YAML value: {' '.join(str(exc).split())}") from None
         except ConfigError as exc:
-            raise ConfigError(f"{what} {_show(item)}: {exc}") from None
+            raise ConfigError(f"{what} {show(item)}: {exc}") from None
         for leaf, value in leaves:
             earlier = next((other for other, k, v in parsed if unique and k == leaf and v != value), None)
             if earlier is not None:
-                raise ConfigError(f"{what}s {_show(earlier)} and {_show(item)} both set {_cut(leaf)}; give one")
+                raise ConfigError(f"{what}s {show(earlier)} and {show(item)} both set {cut(leaf)}; give one")
             parsed.append((item, leaf, value))
     try:
         return _build(cls, data)
@@ -351,14 +336,14 @@ def load_config(cls: type[T], path: str | Path | None = None, overrides: list[st
         alone = [item for item, key, value in parsed if not _builds_with(cls, base, key, value)]
         named = [item for item, key, _ in parsed if _mentions(str(exc), key)]
         at_fault = alone or named or [item for item, _, _ in parsed]
-        label = f"{what}{'s' if len(at_fault) > 1 else ''} {', '.join(map(_cut, at_fault))}" if at_fault else "config"
+        label = f"{what}{'s' if len(at_fault) > 1 else ''} {', '.join(map(cut, at_fault))}" if at_fault else "config"
         raise ConfigError(f"{label}: {exc}") from None
 
 
 def check_seed(key: str, seed: int) -> None:
     """Raise ConfigError unless ``seed`` is one torch's generators take: [0, 2**64 - 1]."""
     if not 0 <= seed < 2 ** 64:
-        raise ConfigError(f"{key} must be in [0, 2**64 - 1]; got {_show(seed)}")
+        raise ConfigError(f"{key} must be in [0, 2**64 - 1]; got {show(seed)}")
 
 
 def _key_type(cls: type, dotted: str) -> Any:
@@ -428,7 +413,7 @@ class ModelConfig:
     def __post_init__(self) -> None:
         if self.pixel_rank is not None and not 1 <= self.pixel_rank <= MAX_TEMPLATE_PX ** 2:
             raise ConfigError(f"model.pixel_rank must be in [1, {MAX_TEMPLATE_PX ** 2}] or null; "
-                              f"got {_show(self.pixel_rank)}")
+                              f"got {show(self.pixel_rank)}")
         if not 0 <= self.ridge <= 1000:
             raise ConfigError(f"model.ridge must be in [0, 1000]; got {self.ridge}")
         # Chords between unit view vectors are at most 2: wider kernels make every Ψ column alike.
@@ -437,6 +422,6 @@ class ModelConfig:
         if self.class_penalty is not None and not 0 <= self.class_penalty <= 1e12:
             raise ConfigError(f"model.class_penalty must be in [0, 1e12] or null; got {self.class_penalty}")
         if not 0 <= self.width_steps <= 100_000:
-            raise ConfigError(f"model.width_steps must be in [0, 100000]; got {_show(self.width_steps)}")
+            raise ConfigError(f"model.width_steps must be in [0, 100000]; got {show(self.width_steps)}")
         if not 0 < self.width_lr <= 10:
             raise ConfigError(f"model.width_lr must be in (0, 10]; got {self.width_lr}")

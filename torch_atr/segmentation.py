@@ -54,6 +54,7 @@ from scipy.stats import median_abs_deviation
 
 from torch_atr._checks import describe_array, to_grey
 from torch_atr.config import ConfigError
+from torch_atr.validate import show
 
 logger = logging.getLogger(__name__)
 
@@ -102,7 +103,7 @@ class SegmentationConfig:
         }
         bad = [k for k, ok in checks.items() if not ok]
         if bad:
-            raise ConfigError("segmentation: bad value(s) " + ", ".join(f"{k}={getattr(self, k)!r}" for k in bad)
+            raise ConfigError("segmentation: bad value(s) " + ", ".join(f"{k}={show(getattr(self, k))}" for k in bad)
                               + " (history, warmup_frames, learning_interval >= 1; var_threshold > 0; learning_rate in [0, 1] or -1; "
                               "open_px, close_px, min_area_px, headroom >= 0; 0 <= low < high <= 100 percentiles; "
                               "thin_threshold 0 or in (0, var_threshold))")

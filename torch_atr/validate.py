@@ -33,7 +33,8 @@ MAX_IMAGE_SIDE = 16384
 MAX_IMAGE_PIXELS = 2 ** 26
 MAX_TEXT_BYTES = 64 * 2 ** 20
 MAX_JSON_BYTES = 16 * 2 ** 20
-_SHOW = 200  # characters of a bad value quoted in a message
+_WHOLE = 240  # characters of a value, key or override a message quotes whole
+_HEAD = 40  # characters quoted of a longer one, before '…' and its length
 
 
 class InputError(ValueError):
@@ -43,10 +44,21 @@ class InputError(ValueError):
     """
 
 
+def cut(text: str) -> str:
+    """``text`` (a value, key or override as a message quotes it) whole up to 240 characters, a longer
+    one as its first 40, '…' and its length: a huge override (``seed=`` and 100 000 digits) still makes
+    a short one-line message."""
+    return text if len(text) <= _WHOLE else f"{text[:_HEAD]}… ({len(text)} characters)"
+
+
 def show(value: Any) -> str:
-    """``repr(value)``, shortened to about 200 characters for an error message."""
-    text = repr(value)
-    return text if len(text) <= _SHOW else f"{text[:_SHOW - 15]}...{text[-10:]} ({len(text)} characters)"
+    """``repr(value)`` for an error message, shortened by :func:`cut`; an integer too long for ``repr``
+    (Python's limit of 4300 digits) as its number of digits."""
+    try:
+        text = repr(value)
+    except ValueError:
+        return f"an integer of {len(format(value, 'x')) * math.log10(16):.0f} digits or so"
+    return cut(text)
 
 
 def _bounds(lo: float | None, hi: float | None, lo_open: bool = False) -> str:

@@ -288,7 +288,7 @@ class SceneConfig:
             checks[key] = (value is None or (abs(value) <= _MAX_K and (key == "top_delta_k" or value > ZERO_COUNT_K)),
                            f"null or in [-{_MAX_K:g}, {_MAX_K:g}] K" if key == "top_delta_k"
                            else f"null or in ({ZERO_COUNT_K:g}, {_MAX_K:g}] K")
-        bad = [f"{k}={getattr(self, k)!r} (expected {why})" for k, (ok, why) in checks.items() if not ok]
+        bad = [f"{k}={show(getattr(self, k))} (expected {why})" for k, (ok, why) in checks.items() if not ok]
         if bad:
             raise ConfigError("scene: bad value(s) " + "; ".join(bad))
 

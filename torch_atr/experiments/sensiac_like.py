@@ -30,6 +30,7 @@ from torch_atr.data.sequence import Sequence
 from torch_atr.io import atomic_write_text
 from torch_atr.tracking import METHODS, TrackerConfig
 from torch_atr.tracking.filter import column
+from torch_atr.validate import show
 from torch_atr.vehicles.specs import SPLITS
 
 log = logging.getLogger(__name__)
@@ -65,7 +66,7 @@ class SensiacLikeConfig:
         if bad:
             raise ConfigError(f"methods: unknown {bad}; expected some of {METHODS}")
         if self.init not in ("blind", "truth"):
-            raise ConfigError(f"init must be 'blind' or 'truth'; got {self.init!r}")
+            raise ConfigError(f"init must be 'blind' or 'truth'; got {show(self.init)}")
         if not 0 < self.circle_diameter_m <= 1e4:
             raise ConfigError(f"circle_diameter_m must be in (0, 10000]; got {self.circle_diameter_m}")
         if not 1 <= self.frames <= 100_000 or not 1 <= self.particles <= 10_000_000:

@@ -52,6 +52,7 @@ from torch_atr.experiments.sensiac_like import (HELDOUT_PREFIX, FrameCache, chec
                                                 worker_templates)
 from torch_atr.io import atomic_write_text
 from torch_atr.tracking import METHODS, TrackerConfig
+from torch_atr.validate import show
 
 log = logging.getLogger(__name__)
 
@@ -96,7 +97,7 @@ class VisibleConfig:
         if not self.methods or bad:
             raise ConfigError(f"methods: expected some of {METHODS}; got {self.methods}")
         if self.init not in ("blind", "truth"):
-            raise ConfigError(f"init must be 'blind' or 'truth'; got {self.init!r}")
+            raise ConfigError(f"init must be 'blind' or 'truth'; got {show(self.init)}")
         if not 1 <= self.frames <= 100_000 or not 1 <= self.particles <= 10_000_000:
             raise ConfigError(f"frames in [1, 1e5] and particles in [1, 1e7]; got {self.frames}, {self.particles}")
         if not (0.25 <= self.image_scale <= 2 and 3 <= self.boards <= 100 and math.isfinite(self.start_deg)):

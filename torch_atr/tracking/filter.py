@@ -103,6 +103,7 @@ from torch_atr.tracking.observation import (
     sees_image,
 )
 from torch_atr.tracking.resampling import SCHEMES, effective_sample_size, resample
+from torch_atr.validate import show
 
 log = logging.getLogger(__name__)
 
@@ -149,7 +150,7 @@ class FilterConfig:
             "max_foreground": 0 < self.max_foreground <= 1,
             "fps": math.isfinite(self.fps) and 0 < self.fps <= 10_000,
         }
-        bad = [f"{k}={getattr(self, k)!r}" for k, ok in checks.items() if not ok]
+        bad = [f"{k}={show(getattr(self, k))}" for k, ok in checks.items() if not ok]
         if bad:
             raise ConfigError("filter: bad value(s) " + ", ".join(bad) + f" (particles in [1, 1e7]; method in "
                               f"{METHODS}; sigma in [1e-4, 1e3]; likelihood_px in [1, 512]; resample in {SCHEMES}; "
