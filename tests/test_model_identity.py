@@ -205,6 +205,20 @@ def test_class_arcs_cover_the_circle_once(seed):
     assert {c for c, _, _ in arcs} == set_labels
 
 
+@pytest.mark.parametrize("seed", range(3))
+def test_classify_at_an_arc_start_is_that_arcs_class(seed):
+    """Midway between two classes' vehicles the nearest αₖ is a tie, which argmin settled by vehicle
+    index or rounding; the arc's start belongs to its arc (the half-open arcs of class_arcs), and the
+    α just before it to the arc before."""
+    m, _, labels, _ = _manifold(K=8, seed=6 + seed)
+    arcs = m.class_arcs()
+    for (c, start, _), (c_before, _, _) in zip(arcs, arcs[-1:] + arcs[:-1]):
+        assert m.classify(torch.tensor([start, start - 1e-12], dtype=torch.float64)).tolist() == [c, c_before]
+        for turns in (1, -2):  # α is wrapped mod 2π (which rounds the start itself)
+            at = torch.tensor([start + 1e-9, start - 1e-9], dtype=torch.float64) + turns * TWO_PI
+            assert m.classify(at).tolist() == [c, c_before]
+
+
 def test_single_class_arc_is_whole_circle():
     vectors = torch.eye(4, dtype=torch.float64)
     m = IdentityManifold.fit(vectors, torch.zeros(4, dtype=torch.long), torch.arange(4))

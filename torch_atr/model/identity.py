@@ -285,8 +285,16 @@ class IdentityManifold(nn.Module):
         return self.circular_distances(alpha).argsort(dim=-1, stable=True)[:, :k]
 
     def classify(self, alpha: torch.Tensor) -> torch.Tensor:
-        """Class index of the nearest αₖ, i.e. the class whose arc holds alpha: (N,). Returns (N,) int64."""
-        return self.labels[self.circular_distances(alpha).argmin(dim=-1)]
+        """Class index of the arc of :meth:`class_arcs` that holds alpha: (N,) radians (wrapped mod 2π),
+        i.e. of the nearest αₖ. An α midway between two classes' vehicles, an arc's start, is the
+        arc's class, as :meth:`class_arcs` has it (the nearest αₖ is a tie there). Returns (N,) int64."""
+        check_shape("alpha", alpha, ("N",))
+        arcs = self.class_arcs()  # contiguous, sorted by start: each ends where the next starts
+        device = self.labels.device
+        starts = torch.tensor([start for _, start, _ in arcs], dtype=torch.float64, device=device)
+        labels = torch.tensor([label for label, _, _ in arcs], device=device)
+        at = torch.remainder(alpha.to(device, torch.float64), TWO_PI)
+        return labels[torch.searchsorted(starts, at, right=True) - 1]  # before the first start: the last arc's
 
     def class_arcs(self) -> list[tuple[int, float, float]]:
         """The arcs owned by each class, sorted by start.
