@@ -123,8 +123,8 @@ def car(tmp_path) -> Path:
 
 
 @pytest.mark.parametrize("kwargs, message", [
-    (dict(up_axis="z", forward_axis="-z"), "up_axis 'z' and forward_axis '-z' must be perpendicular"),
-    (dict(up_axis="Y"), "up_axis must be one of"),
+    (dict(up_axis="z", forward_axis="-z"), "the up axis 'z' and the forward axis '-z' must be perpendicular"),
+    (dict(up_axis="Y"), "the up axis must be one of"),
     (dict(scale="0.01"), "scale: expected a finite number > 0; got '0.01'"),
     (dict(scale=True), "scale: expected a finite number > 0; got True"),
     (dict(min_thickness="0.05"), "min_thickness: expected a finite number >= 0; got '0.05'"),

@@ -169,6 +169,20 @@ def test_training_on_a_catalog_folder(tmp_path, caplog):
         training_templates(model, trained_catalog(extra))
 
 
+def test_a_catalog_given_as_its_manifest_file(tmp_path):
+    """catalog=PATH/catalog.yaml is the folder's catalog (it was 'not found: PATH/catalog.yaml/catalog.yaml')."""
+    folder = tmp_path / "mine"
+    _own_catalog(folder)
+    vehicles = load_catalog_folder(folder / "catalog.yaml")
+    assert [(v.name, v.cls) for v in vehicles] == [("m1a2_abrams", "tank"), ("toyota_hilux", "pickup"),
+                                                   ("camry", "car"), ("vw_golf", "car")]
+    np.testing.assert_allclose(vehicles[2].mesh.bounds, load_catalog_vehicle("toyota_camry").mesh.bounds, atol=1e-6)
+    (folder / "catalog.yaml").rename(folder / "other.yaml")  # any manifest file, its folder holding the files
+    assert [v.name for v in load_catalog_folder(folder / "other.yaml")] == [v.name for v in vehicles]
+    with pytest.raises(FileNotFoundError, match=f"catalog manifest not found: {folder / 'catalog.yaml'}"):
+        load_catalog_folder(folder)
+
+
 def test_catalog_manifest_errors_name_the_entry(tmp_path):
     folder = tmp_path / "mine"
     _own_catalog(folder)
@@ -181,7 +195,7 @@ def test_catalog_manifest_errors_name_the_entry(tmp_path):
         ("  - {file: camry_cm.obj, class: car, length: 4.88, scale: 0.01}", r"vehicles\[4\].*exactly one of 'length'"),
         ("  - {file: camry_cm.obj, class: car, scale: -1}", r"vehicles\[4\].*scale must be a positive number"),
         ("  - {file: camry_cm.obj, class: car, scale: 0.01, colour: red}", r"vehicles\[4\].*unknown keys \['colour'\]"),
-        ("  - {file: camry_cm.obj, class: car, scale: 0.01, up: y, forward: y}", r"vehicles\[4\].*perpendicular"),
+        ("  - {file: camry_cm.obj, class: car, scale: 0.01, up: y, forward: y}", r"vehicles\[4\].*: the up axis 'y' and the forward axis 'y' must be perpendicular"),
         ("  - {file: vw_golf/vw_golf.urdf, class: car, scale: 1.0}", r"names must be unique.*vw_golf"),
         ("  - {file: camry_cm.obj, class: car, scale: 1, scale: 2}", r"YAML: key 'scale' repeated \(first on line 6"),
         ("  - {file: camry_cm.obj, class: car, scale: 0.01, name: ''}", r"vehicles\[4\].*name must not be empty"),

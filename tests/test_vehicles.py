@@ -473,7 +473,7 @@ def test_body_rotation_is_proper():
             assert np.linalg.det(r) == pytest.approx(1.0)
             np.testing.assert_allclose(r @ np.array(AXIS_VEC[fw], float), [1, 0, 0])
             np.testing.assert_allclose(r @ np.array(AXIS_VEC[up], float), [0, 0, 1])
-    with pytest.raises(ValueError, match="up_axis"):
+    with pytest.raises(ValueError, match="the up axis must be one of"):
         body_rotation("w", "x")
 
 

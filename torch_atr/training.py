@@ -127,7 +127,7 @@ class TrainConfig:
     log_dir: str = "runs"
     tensorboard: bool = True
     seed: int = 0
-    catalog: str = "train"  # "train": the shipped training split; else a folder with a catalog.yaml manifest
+    catalog: str = "train"  # "train": the shipped training split; else a catalog folder or its catalog.yaml
     evaluate_test_split: bool = True  # fit α for each held-out test vehicle and report its class
     template: TemplateConfig = field(default_factory=TemplateConfig)
     views: ViewGridConfig = field(default_factory=ViewGridConfig)

@@ -70,8 +70,15 @@ _ENTRY_KEYS = {"file": "file", "class": "cls", "up": "up", "forward": "forward",
                "name": "name"}
 
 
+def _manifest(folder: str | Path) -> Path:
+    """The manifest of a catalog given as its folder (``folder/catalog.yaml``) or as the manifest file."""
+    path = Path(folder)
+    return path if path.is_file() else path / CATALOG_MANIFEST
+
+
 def read_catalog_manifest(folder: str | Path) -> list[CatalogEntry]:
-    """The entries of ``folder/catalog.yaml``: a mapping whose single key ``vehicles`` lists one
+    """The entries of ``folder/catalog.yaml`` (``folder`` may also be the manifest file itself, whose
+    folder then holds the files it lists): a mapping whose single key ``vehicles`` lists one
     mapping per vehicle with the keys ``file`` and ``class``, exactly one of ``length`` and
     ``scale``, and optionally ``up``, ``forward`` (default z, x) and ``name``.
 
@@ -84,7 +91,7 @@ def read_catalog_manifest(folder: str | Path) -> list[CatalogEntry]:
     Raises ValueError naming the file and the entry (``vehicles[i] (file)``) for an unknown or
     missing key, a bad value, bad axes or a repeated name; FileNotFoundError without the manifest.
     """
-    path = Path(folder) / CATALOG_MANIFEST
+    path = _manifest(folder)
     if not path.is_file():
         raise FileNotFoundError(f"catalog manifest not found: {path} (a catalog folder needs a {CATALOG_MANIFEST})")
     data = read_yaml(path)
@@ -136,7 +143,7 @@ def read_catalog_manifest(folder: str | Path) -> list[CatalogEntry]:
 
 
 def load_catalog_folder(folder: str | Path) -> list[Vehicle]:
-    """The vehicles of a catalog folder (:func:`read_catalog_manifest`) in the body frame, by
+    """The vehicles of a catalog folder or its manifest (:func:`read_catalog_manifest`) in the body frame, by
     class (CLASS_NAMES order), then name, as :func:`load_catalog` orders the shipped split.
 
     An entry with ``length`` is scaled so that its untrimmed extent along ``forward`` is that
@@ -144,14 +151,14 @@ def load_catalog_folder(folder: str | Path) -> list[Vehicle]:
     front is then trimmed like any other.
     Errors name the manifest entry as well as the file.
     """
-    folder = Path(folder)
+    manifest = _manifest(folder)
     vehicles = []
-    for i, entry in enumerate(read_catalog_manifest(folder)):
+    for i, entry in enumerate(read_catalog_manifest(manifest)):
         try:
-            vehicles.append(_load_entry(folder, entry))
+            vehicles.append(_load_entry(manifest.parent, entry))
         except (FileNotFoundError, ValueError) as exc:  # as the base type: a subclass may not take one message
             kind = FileNotFoundError if isinstance(exc, FileNotFoundError) else ValueError
-            raise kind(f"{folder / CATALOG_MANIFEST}: vehicles[{i}] ({entry.file}): {exc}") from exc
+            raise kind(f"{manifest}: vehicles[{i}] ({entry.file}): {exc}") from exc
     return sorted(vehicles, key=lambda v: (CLASS_NAMES.index(v.cls), v.name))
 
 

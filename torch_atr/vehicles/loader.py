@@ -64,13 +64,13 @@ def body_rotation(up_axis: str, forward_axis: str) -> np.ndarray:
     ``up_axis`` / ``forward_axis`` name the file axes ("x", "y", "z", "-x", "-y", "-z") that
     point up and forward; the body's +Y (left) is up × forward, so the map is a proper rotation.
     """
-    for what, axis in (("up_axis", up_axis), ("forward_axis", forward_axis)):
+    for what, axis in (("up", up_axis), ("forward", forward_axis)):  # a manifest's keys are up and forward
         if axis not in _AXES:
-            raise ValueError(f"{what} must be one of {sorted(_AXES)}; got {axis!r}")
+            raise ValueError(f"the {what} axis must be one of {sorted(_AXES)}; got {axis!r}")
     up = np.array(_AXES[up_axis])
     fwd = np.array(_AXES[forward_axis])
     if abs(float(up @ fwd)) > 0.5:
-        raise ValueError(f"up_axis {up_axis!r} and forward_axis {forward_axis!r} must be perpendicular")
+        raise ValueError(f"the up axis {up_axis!r} and the forward axis {forward_axis!r} must be perpendicular")
     return np.stack([fwd, np.cross(up, fwd), up])  # rows: body X, Y, Z in file coordinates
 
 
