@@ -444,3 +444,9 @@ def test_surface_parts_by_hand():
     np.testing.assert_array_equal(surface_parts(box, points, faces, "pickup"), pickup)
     with pytest.raises(ValueError, match=r"\(N, 3\)"):
         surface_parts(box, points[:, :2], faces, "tank")
+
+
+def test_a_focal_length_the_camera_refuses_is_named_as_the_scenes():
+    """Camera refuses fx below 1e-3 px; the scene said focal_px=1e-4 was fine and the error then named fx."""
+    with pytest.raises(ConfigError, match=r"^scene: bad value\(s\) focal_px=0.0001 \(expected in \[0.001, 1e6\]\)"):
+        SceneConfig(focal_px=1e-4)

@@ -119,7 +119,7 @@ import torch
 import trimesh
 
 from torch_atr._checks import check_shape
-from torch_atr.camera import Camera
+from torch_atr.camera import FOCAL_RANGE_PX, Camera
 from torch_atr.config import ConfigError, load_config
 from torch_atr.data.sequence import MAX_CAMERA_HEIGHT_M, FrameTruth, Sequence, parse_spec_options, register_scheme
 from torch_atr.pose import VehiclePose, body_to_world, view_of_pose
@@ -251,7 +251,7 @@ class SceneConfig:
             "width": (1 <= self.width <= MAX_FRAME_SIDE, f"in [1, {MAX_FRAME_SIDE}]"),
             "height": (1 <= self.height <= MAX_FRAME_SIDE and self.width * self.height <= MAX_FRAME_PIXELS,
                        f"in [1, {MAX_FRAME_SIDE}], width x height at most {MAX_FRAME_PIXELS}"),
-            "focal_px": (0 < self.focal_px <= 1e6, "in (0, 1e6]"),
+            "focal_px": (FOCAL_RANGE_PX[0] <= self.focal_px <= 1e6, f"in [{FOCAL_RANGE_PX[0]:g}, 1e6]"),  # Camera's
             "camera_height_m": (0 < self.camera_height_m <= MAX_CAMERA_HEIGHT_M, f"in (0, {MAX_CAMERA_HEIGHT_M:g}]"),
             "tilt_deg": (self.tilt_deg is None or -45 <= self.tilt_deg <= 45, "in [-45, 45] or null"),
             "ground_gradient_k": (abs(self.ground_gradient_k) <= _MAX_K, f"in [-{_MAX_K:g}, {_MAX_K:g}]"),
