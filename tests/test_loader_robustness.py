@@ -197,3 +197,35 @@ def test_a_triangle_indexing_a_vertex_the_file_lacks_names_the_entry(tmp_path, i
     with pytest.raises(ValueError, match=r"catalog\.yaml: vehicles\[0\] \(car\.ply\): mesh file .*car\.ply has 1 "
                                          r"triangles of 13 indexing a vertex it lacks \(it has 8 vertices\)$"):
         load_catalog_folder(tmp_path)
+
+
+def _box_link(name: str, size: str) -> str:
+    return f'<link name="{name}"><visual><geometry><box size="{size}"/></geometry></visual></link>'
+
+
+def _joint(name: str, parent: str, child: str, kind: str = "fixed", limit: str = "") -> str:
+    return (f'<joint name="{name}" type="{kind}"><parent link="{parent}"/><child link="{child}"/>'
+            f'<origin xyz="0 0 1.5"/><axis xyz="0 0 1"/>{limit}</joint>')
+
+
+@pytest.mark.parametrize("joints", ["", _joint("j", "hull", "turret")])
+def test_two_links_of_one_name_are_refused_naming_the_link(tmp_path, joints):
+    """A second link 'turret' (9 m box) replaced the first (2 m box) unseen; which one a URDF means is unknowable."""
+    path = tmp_path / "tank.urdf"
+    path.write_text(f'<robot name="t">{_box_link("hull", "7 3.5 1.5")}{_box_link("turret", "2 2 0.8")}'
+                    f'{_box_link("turret", "9 9 9")}{joints}</robot>')
+    with pytest.raises(ValueError, match=r"tank\.urdf: two links are named 'turret'; a URDF's link names must be "
+                                         r"unique$"):
+        load_vehicle(path)
+
+
+def test_two_joints_of_one_name_are_refused_naming_the_joint(tmp_path):
+    """Two revolute joints 'yaw' (limits [0, 1] and [0, 0.1]): the second one's limits held for both."""
+    limit = '<limit lower="0" upper="{}"/>'
+    path = tmp_path / "arm.urdf"
+    path.write_text(f'<robot name="a">{_box_link("a", "4 2 1.5")}{_box_link("b", "1 1 1")}{_box_link("c", "1 1 1")}'
+                    f'{_joint("yaw", "a", "b", "revolute", limit.format(1))}'
+                    f'{_joint("yaw", "b", "c", "revolute", limit.format(0.1))}</robot>')
+    with pytest.raises(ValueError, match=r"arm\.urdf: two joints are named 'yaw'; a URDF's joint names must be "
+                                         r"unique$"):
+        load_vehicle(path)

@@ -489,6 +489,14 @@ def _load_urdf(path: Path, rotation: np.ndarray) -> _Rig:
     links = root.findall("link")
     if not links or any(not l.get("name") for l in links):
         raise ValueError(f"{path}: a URDF needs named <link> elements")
+    joints = root.findall("joint")
+    for kind, elems in (("link", links), ("joint", joints)):  # a later namesake replaced the earlier one unseen
+        seen: set[str | None] = set()
+        for e in elems:
+            if e.get("name") in seen:
+                raise ValueError(f"{path}: two {kind}s are named {e.get('name')!r}; a URDF's {kind} names must be "
+                                 f"unique")
+            seen.add(e.get("name"))
     parts = []
     for link in links:
         for k, vis in enumerate(link.findall("visual")):
@@ -502,7 +510,6 @@ def _load_urdf(path: Path, rotation: np.ndarray) -> _Rig:
     if not parts:
         raise ValueError(f"{path}: no <visual> geometry in any link")
 
-    joints = root.findall("joint")
     limits: dict[str, tuple[float, float]] = {}
     for j in joints:
         where = f"{path}: joint {j.get('name')!r}"
