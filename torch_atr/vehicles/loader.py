@@ -188,7 +188,8 @@ def load_vehicle(
 
     Raises:
         FileNotFoundError: the file, or a mesh a URDF references, is missing (message names it).
-        ValueError: broken XML, a missing or non-positive geometry size, unreadable or empty
+        ValueError: broken XML, two links or joints of one name, joints that do not form a tree (a cycle, a
+            link with two parent joints), a missing or non-positive geometry size, unreadable or empty
             mesh, unknown class, bad axes, joints or joint limits, a size above
             ``MAX_EXTENT_M`` (100 m) along an axis once scaled (checked before any trimming) or of
             zero, a scale or min_thickness that is not a number, an empty name.
@@ -479,6 +480,33 @@ def _geometry(geom: ET.Element, urdf: Path, where: str) -> trimesh.Trimesh:
     raise ValueError(f"{where}: unsupported geometry <{g.tag}>")
 
 
+def _check_tree(path: Path, joints: list[ET.Element]) -> None:
+    """ValueError naming the file and the joints when a link is the child of two joints or the joints form a
+    cycle (pytorch-kinematics recursed round a cycle until Python's recursion limit); a URDF's joints form a tree.
+    A joint without ``<parent>`` or ``<child>`` is left to pytorch-kinematics, whose error names it."""
+    parent: dict[str | None, tuple[str | None, str | None]] = {}  # child link -> (joint, parent link)
+    for j in joints:
+        p, c = j.find("parent"), j.find("child")
+        if p is None or c is None:
+            continue
+        if c.get("link") in parent:
+            raise ValueError(f"{path}: link {c.get('link')!r} is the child of joints {parent[c.get('link')][0]!r} "
+                             f"and {j.get('name')!r}; a link has at most one parent joint")
+        parent[c.get("link")] = (j.get("name"), p.get("link"))
+    done: set[str | None] = set()  # links whose chain up to a root is known to end
+    for start in parent:
+        trail: dict[str | None, None] = {}  # links walked up from start, in order
+        link = start
+        while link in parent and link not in done and link not in trail:
+            trail[link] = None
+            link = parent[link][1]
+        if link in trail:
+            cycle = list(trail)[list(trail).index(link):]
+            raise ValueError(f"{path}: joints {[parent[l][0] for l in cycle]} form a cycle through links {cycle}; "
+                             f"a URDF's joints form a tree")
+        done.update(trail)
+
+
 def _load_urdf(path: Path, rotation: np.ndarray) -> _Rig:
     try:  # bytes: the parser honours the XML declaration's encoding (UTF-8 without one)
         root = ET.fromstring(path.read_bytes())
@@ -540,6 +568,7 @@ def _load_urdf(path: Path, rotation: np.ndarray) -> _Rig:
             raise ValueError(f"{path}: {len(links)} links but no joint connecting them")
         chain, names = None, ()
     else:
+        _check_tree(path, joints)
         try:
             chain = pk.build_chain_from_urdf(ET.tostring(root, encoding="unicode")).to(dtype=torch.float64)
         except Exception as exc:  # the parser raises assorted types on inconsistent URDFs
