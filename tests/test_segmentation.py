@@ -440,6 +440,24 @@ def test_nan_pixels_are_no_data_not_foreground():
     assert not seg(np.full((H, W), np.nan, np.float32)).any()  # a frame of no data has no target
 
 
+def test_pixels_without_data_in_the_warm_up_frames_are_never_foreground():
+    """A dead patch NaN in half the warm-up frames, another infinite in all but two: a frame with
+    no target has no foreground, whether those pixels have data in it or not (MOG2 had learned
+    the stand-in 0 as a second mode, and the background image a blend that matched neither)."""
+    rng = np.random.default_rng(3)
+    texture = _background(rng)
+    frames = [_frame("float32", texture, [], rng) for _ in range(30)]
+    for k, frame in enumerate(frames):
+        frame[10:20, 10:20] = np.nan if k < 15 else frame[10:20, 10:20]
+        frame[40:45, 50:55] = np.inf if k < 28 else frame[40:45, 50:55]
+    seg = ForegroundSegmenter(SegmentationConfig(warmup_frames=30))
+    seg.warm_up(frames)
+    frame = _frame("float32", texture, [], rng)
+    assert not seg(frame).any()
+    frame[10:20, 10:20], frame[40:45, 50:55] = np.nan, np.nan
+    assert not seg(frame).any()
+
+
 def test_colour_frames_are_rgb_like_the_sequences():
     """Sequences give RGB: a colour frame segments like its grey (RGB weights), not with R and B swapped."""
     rgb = np.zeros((H, W, 3), np.uint8)

@@ -35,7 +35,9 @@ times its width on each side (room for targets warmer or colder than any backgro
 to [0, 255]; values outside are clipped. uint8 grey frames are used as they are; colour frames
 (H, W, 3, RGB, as the sequences give them) are converted to grey first. A pixel that is NaN or
 infinite in a float frame has no data: it takes the background's value, so it is never
-foreground (and is left out of the gain fit).
+foreground (and is left out of the gain fit); in a warm-up frame, the same pixel's value in the
+nearest warm-up frame that has one (MOG2 would learn a made-up value there as a second mode, and
+the pixel, blended into the background image, would then be foreground wherever it has no data).
 """
 
 from __future__ import annotations
@@ -467,6 +469,17 @@ def _grey_frames(frames: Iterable[np.ndarray], what: str, limit: int | None = No
     return greys
 
 
+def _from_nearest(stack: np.ndarray, skip: np.ndarray) -> np.ndarray:
+    """Each value of ``stack`` (K, H, W) where ``skip`` (K, H, W) bool is set replaced by the same
+    pixel's value in the nearest frame before it where it is not, else the nearest after it; kept
+    where it is set in every frame. Returns (K, H, W) of ``stack``'s dtype."""
+    k = np.arange(stack.shape[0])[:, None, None]
+    before = np.maximum.accumulate(np.where(skip, -1, k), axis=0)  # the last kept frame up to each
+    after = np.minimum.accumulate(np.where(skip, k.size, k)[::-1], axis=0)[::-1]  # the first kept from each
+    source = np.where(before >= 0, before, np.where(after < k.size, after, k))
+    return np.take_along_axis(stack, source, axis=0)
+
+
 def static_background_frames(frames: Iterable[np.ndarray]) -> list[np.ndarray]:
     """Warm-up frames with what moves taken out, for a sequence without target-free frames.
 
@@ -487,17 +500,13 @@ def static_background_frames(frames: Iterable[np.ndarray]) -> list[np.ndarray]:
         K grey (H, W) frames of that dtype, for :meth:`ForegroundSegmenter.warm_up`.
     """
     stack = np.stack(_grey_frames(frames, "static_background_frames"))  # (K, H, W)
-    k = np.arange(stack.shape[0])[:, None, None]
     work = np.float64 if stack.dtype == np.float64 else np.float32
     out = np.empty_like(stack)
     for r in range(0, stack.shape[1], _MEDIAN_ROWS):
         block = stack[:, r:r + _MEDIAN_ROWS].astype(work)
         sigma = median_abs_deviation(block, axis=0, scale="normal")
         moving = np.abs(block - np.median(block, axis=0)) > _MOVING_SIGMAS * sigma
-        before = np.maximum.accumulate(np.where(moving, -1, k), axis=0)  # the last still frame up to each
-        after = np.minimum.accumulate(np.where(moving, k.size, k)[::-1], axis=0)[::-1]  # the first from each
-        source = np.where(before >= 0, before, after)  # at least half the frames are still
-        out[:, r:r + _MEDIAN_ROWS] = np.take_along_axis(stack[:, r:r + _MEDIAN_ROWS], source, axis=0)
+        out[:, r:r + _MEDIAN_ROWS] = _from_nearest(stack[:, r:r + _MEDIAN_ROWS], moving)  # half the frames are still
     return list(out)
 
 
@@ -699,6 +708,8 @@ class ForegroundSegmenter:
             span = float(hi - lo) or 1.0  # a flat background still gets a valid map
             self.levels = (float(lo) - cfg.headroom * span, float(lo) + (1 + cfg.headroom) * span)
             logger.debug("IR normalisation: [%.1f, %.1f] -> [0, 255]", *self.levels)
+            if finite.size < pixels.size:  # no data: MOG2 learns the pixel's value in the nearest frame with it
+                greys = list(_from_nearest(np.stack(greys), ~np.isfinite(pixels)))
         self._mog = _TiledMOG2(greys[0].shape, cfg.history, cfg.var_threshold, cfg.detect_shadows)
         for grey in greys:
             self._mog.apply(self.display(grey), -1)
