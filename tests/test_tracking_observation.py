@@ -6,6 +6,7 @@ import math
 import numpy as np
 import pytest
 import torch
+from scipy import ndimage
 
 from references import bilinear
 from torch_atr.camera import Camera
@@ -14,8 +15,9 @@ from torch_atr.data.synthetic import SceneConfig, SyntheticSequence
 from torch_atr.pose import VehiclePose, view_of_pose
 from torch_atr.render import render_mask, render_templates
 from torch_atr.shape import iou, signed_distance, signed_distance_px
-from torch_atr.tracking.observation import (cut_edges, log_likelihood, mask_box, observe, observed_cells,
-                                            place_silhouette, project_windows, sample_windows, sees_image)
+from torch_atr.tracking.observation import (cut_edges, frame_distance, log_likelihood, mask_box, observe,
+                                            observed_cells, place_silhouette, project_windows, sample_windows,
+                                            sees_image)
 
 CFG = TemplateConfig()
 
@@ -185,3 +187,24 @@ def test_observed_cells_against_every_cell(cut):
     assert not observed_cells(nan, torch.ones(1, 2, dtype=torch.float64), L, (H, W), cut)[0].any()
     with pytest.raises(ValueError, match="side"):
         observed_cells(uv, side[:3], L, (H, W), cut)
+
+
+def test_frame_distance_is_the_whole_frames_near_the_blob():
+    """The region's distance equals scipy's signed distance of the whole frame wherever it is within
+    the margin of the blob; an infinite margin is the whole frame (it raised OverflowError), and a
+    NaN or negative one is refused by name."""
+    mask = np.zeros((20, 30), dtype=bool)
+    mask[6:11, 4:12] = True
+    mask[9, 12:15] = True
+    whole = ndimage.distance_transform_edt(mask) - ndimage.distance_transform_edt(~mask)
+    for margin in (1.0, 2.5, 7.0, 1e9, math.inf):
+        distance, (u0, v0) = frame_distance(mask, margin)
+        h, w = distance.shape
+        region = whole[v0:v0 + h, u0:u0 + w]
+        near = np.abs(region) <= margin
+        np.testing.assert_allclose(distance.numpy()[near], region[near], rtol=0, atol=1e-5)
+        if margin > 30:
+            assert (u0, v0, h, w) == (0, 0, 20, 30)
+    for bad in (math.nan, -1.0):
+        with pytest.raises(ValueError, match="margin"):
+            frame_distance(mask, bad)

@@ -171,14 +171,17 @@ def frame_distance(mask: np.ndarray, margin: float) -> tuple[torch.Tensor, tuple
 
     Args:
         mask: (H, W) bool, non-empty.
-        margin: pixels (e.g. τ in image pixels of the largest window, plus a little).
+        margin: pixels >= 0 (e.g. τ in image pixels of the largest window, plus a little; ``inf``:
+            the whole frame).
     Returns:
         distance: (h, w) float32 tensor; origin: (u0, v0), the frame pixel of its (0, 0).
     """
     box = mask_box(mask)
     if box is None:
         raise ValueError("Expected a non-empty mask")
-    pad = int(math.ceil(margin)) + 1
+    if not margin >= 0:  # NaN too
+        raise ValueError(f"Expected margin to be >= 0 pixels; got {margin!r}")
+    pad = int(math.ceil(min(margin, max(mask.shape)))) + 1  # beyond the image's size: the whole frame
     r0, r1 = max(box[1] - pad, 0), min(box[3] + pad + 1, mask.shape[0])
     c0, c1 = max(box[0] - pad, 0), min(box[2] + pad + 1, mask.shape[1])
     return signed_distance_px(mask[r0:r1, c0:c1]), (c0, r0)
