@@ -258,3 +258,24 @@ def test_a_link_with_two_parent_joints_is_refused(tmp_path):
     with pytest.raises(ValueError, match=r"tank\.urdf: link 'gun' is the child of joints 'j2' and 'j3'; a link has at "
                                          r"most one parent joint$"):
         load_vehicle(path)
+
+
+def _corners_obj(path: Path, lo: float, hi: float) -> None:
+    """An OBJ box with every coordinate lo or hi (written exactly as repr prints them)."""
+    corners = [(x, y, z) for x in (lo, hi) for y in (lo, hi) for z in (lo, hi)]
+    faces = trimesh.creation.box().faces + 1  # the unit box's corners are in the same order
+    path.write_text("".join(f"v {x!r} {y!r} {z!r}\n" for x, y, z in corners)
+                    + "".join(f"f {a} {b} {c}\n" for a, b, c in faces))
+
+
+@pytest.mark.parametrize("lo, hi, extent", [(-1e308, 1e308, "inf"), (0.0, 4e-320, f"{4e-320:g}")])
+def test_an_unusable_extent_for_a_length_names_the_extent_not_a_scale(tmp_path, lo, hi, extent):
+    """An extent of 2e308 overflows float64 (length / inf made scale 0.0) and one of 4e-320 is denormal (4.5 / it
+    made scale inf): the error said 'scale: expected a finite number > 0', a key the entry does not set."""
+    _corners_obj(tmp_path / "odd.obj", lo, hi)
+    trimesh.creation.box(extents=[4.5, 1.8, 1.5]).export(tmp_path / "van.obj")
+    (tmp_path / "catalog.yaml").write_text("vehicles:\n  - {file: odd.obj, class: car, length: 4.5}\n"
+                                           "  - {file: van.obj, class: minivan, scale: 1}\n")
+    with pytest.raises(ValueError, match=rf"vehicles\[0\] \(odd\.obj\): .*odd\.obj: the extent along the forward axis "
+                                         rf"'x' is {re.escape(extent)} file units, unusable for a length in metres"):
+        load_catalog_folder(tmp_path)

@@ -231,7 +231,8 @@ def forward_extent(path: str | Path, *, up_axis: str = "z", forward_axis: str = 
 
     :func:`load_vehicle` with ``scale = L / forward_extent(...)`` makes the vehicle L metres long
     (less any thin protrusion at its front, which is trimmed in metres). ValueError naming the file
-    for a zero extent.
+    and the extent for one no such scale can be computed from: zero, beyond float64 (coordinates near
+    ±1e308), or so small (denormal, 1e-320) that a length up to ``MAX_EXTENT_M`` over it is infinite.
     """
     path = Path(path)
     if not path.is_file():
@@ -243,9 +244,12 @@ def forward_extent(path: str | Path, *, up_axis: str = "z", forward_axis: str = 
     else:
         mesh = _read_mesh(path, process=False)
         forward = mesh.vertices[np.unique(mesh.faces)] @ rotation[0]  # a vertex no face uses is no part of it
-    extent = float(np.ptp(forward))
-    if not extent > 0:
-        raise ValueError(f"{path}: extent along forward_axis {forward_axis!r} is {extent}; expected a positive length")
+    with np.errstate(over="ignore"):  # an overflow is the inf refused below
+        extent = float(np.ptp(forward))
+    if not (extent > 0 and math.isfinite(extent) and math.isfinite(MAX_EXTENT_M / extent)):
+        raise ValueError(f"{path}: the extent along the forward axis {forward_axis!r} is {extent:g} file units, "
+                         f"unusable for a length in metres (length / extent must be a finite scale > 0); expected a "
+                         f"finite extent of at least {MAX_EXTENT_M / np.finfo(np.float64).max:.3g}")
     return extent
 
 
