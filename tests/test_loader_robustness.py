@@ -279,3 +279,17 @@ def test_an_unusable_extent_for_a_length_names_the_extent_not_a_scale(tmp_path, 
     with pytest.raises(ValueError, match=rf"vehicles\[0\] \(odd\.obj\): .*odd\.obj: the extent along the forward axis "
                                          rf"'x' is {re.escape(extent)} file units, unusable for a length in metres"):
         load_catalog_folder(tmp_path)
+
+
+@pytest.mark.parametrize("half, size", [(5e306, "length: 4.5"), (2.25e12, "scale: 1.0e-12")])
+def test_a_file_in_huge_units_loads_at_its_size_in_metres(tmp_path, half, size):
+    """A 4.5 m cube 1e307 file units across (given a length) or in picometres (given a scale): trimesh merged its
+    vertices in file units on a 1e-8 grid held as int64, which overflowed, every vertex became one, and the
+    error said 'size 0 × 0 × 0 m: flat along x'."""
+    _corners_obj(tmp_path / "odd.obj", -half, half)
+    trimesh.creation.box(extents=[4.5, 1.8, 1.5]).export(tmp_path / "van.obj")
+    (tmp_path / "catalog.yaml").write_text(f"vehicles:\n  - {{file: odd.obj, class: car, {size}}}\n"
+                                           "  - {file: van.obj, class: minivan, scale: 1}\n")
+    cube = {v.name: v for v in load_catalog_folder(tmp_path)}["odd"]
+    np.testing.assert_allclose(cube.mesh.extents, [4.5, 4.5, 4.5], rtol=1e-12)
+    assert len(cube.mesh.vertices) == 8

@@ -217,9 +217,14 @@ def load_vehicle(
         return Vehicle(name, cls, mesh, path, MappingProxyType(values), rig)
     if joints:
         raise ValueError(f"{path} is a plain mesh and has no joints; got {sorted(joints)}")
-    mesh = _read_mesh(path, process=True)
-    v, faces = mesh.vertices @ rotation.T, np.asarray(mesh.faces)
-    _check_size(path, v, scale)  # before thick_bounds, whose cost grows with the extent
+    mesh = _read_mesh(path)
+    _check_size(path, mesh.vertices[np.unique(mesh.faces)] @ rotation.T, scale)  # before thick_bounds (its cost
+    # grows with the extent) and before merging: trimesh merges vertices on a 1e-8 grid held as int64, so it merges
+    # in metres, not file units (coordinates beyond ±9e10 overflowed the grid and every vertex became one)
+    transform = np.eye(4)
+    transform[:3, :3] = rotation
+    mesh = mesh.apply_transform(transform).process()
+    v, faces = mesh.vertices, np.asarray(mesh.faces)
     if min_thickness > 0:
         v, faces = _clip_to_box(v, faces, thick_bounds(v, faces, min_thickness))
     v = v + _centring_offset(v)
@@ -242,7 +247,7 @@ def forward_extent(path: str | Path, *, up_axis: str = "z", forward_axis: str = 
         rig = _load_urdf(path, rotation)
         forward = rig.mesh(_rest_pose(rig.limits)).vertices[:, 0]
     else:
-        mesh = _read_mesh(path, process=False)
+        mesh = _read_mesh(path)
         forward = mesh.vertices[np.unique(mesh.faces)] @ rotation[0]  # a vertex no face uses is no part of it
     with np.errstate(over="ignore"):  # an overflow is the inf refused below
         extent = float(np.ptp(forward))
@@ -380,12 +385,12 @@ def _obj_absolute_indices(text: str) -> str:
     return "".join(lines)
 
 
-def _read_mesh(path: Path, process: bool) -> trimesh.Trimesh:
-    """The mesh a file holds, as one Trimesh (merged and cleaned by trimesh when ``process``);
+def _read_mesh(path: Path) -> trimesh.Trimesh:
+    """The mesh a file holds, as one unprocessed Trimesh (vertices not merged);
     ValueError naming the file when it cannot be read, holds no triangles, a triangle with a vertex
-    index out of range, or non-finite vertices. The file is read unprocessed first: trimesh's
-    processing drops the faces of a NaN vertex without a word. OBJ and OFF text is decoded by
-    :func:`_mesh_text` (and an OBJ's relative face indices resolved by
+    index out of range, or non-finite vertices. It is read unprocessed: trimesh's processing drops the
+    faces of a NaN vertex without a word, and :func:`load_vehicle` merges vertices in metres. OBJ and
+    OFF text is decoded by :func:`_mesh_text` (and an OBJ's relative face indices resolved by
     :func:`_obj_absolute_indices`); other text formats (ASCII STL, PLY) trimesh decodes itself,
     guessing a non-UTF-8 encoding only when the optional ``charset_normalizer`` is installed, and
     refused here (saying so) when it is not."""
@@ -412,7 +417,7 @@ def _read_mesh(path: Path, process: bool) -> trimesh.Trimesh:
     bad = int((~np.isfinite(mesh.vertices).all(axis=1)).sum())
     if bad:
         raise ValueError(f"mesh file {path} has {bad} non-finite (NaN or infinite) vertices of {len(mesh.vertices)}")
-    return mesh.process() if process else mesh
+    return mesh
 
 
 def _floats(text: str | None, n: int, default: tuple[float, ...] | None, where: str) -> np.ndarray:
@@ -479,7 +484,7 @@ def _geometry(geom: ET.Element, urdf: Path, where: str) -> trimesh.Trimesh:
         if not g.get("filename"):
             raise ValueError(f"{where}: <mesh> without a filename")
         s = _positive(g, "scale", 3, where, default=(1.0, 1.0, 1.0))
-        mesh = _read_mesh(_mesh_path(urdf, g.get("filename"), where), process=False)
+        mesh = _read_mesh(_mesh_path(urdf, g.get("filename"), where))
         return trimesh.Trimesh(mesh.vertices * s, mesh.faces, process=False)
     raise ValueError(f"{where}: unsupported geometry <{g.tag}>")
 
