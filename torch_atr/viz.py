@@ -414,9 +414,9 @@ _TENSORBOARD_ESTIMATES = {"x": "x_m", "y": "y_m", "z": "z_m", "heading": "headin
 
 def log_track_tensorboard(folder: str | Path, result, figures: dict) -> None:
     """Per-frame scalars, each tag with its unit (the estimate's position, heading, speed, α and
-    view; ESS, overlap, lost; the class posterior ``recognition/p_<class>`` and, where the class
-    is known, ``recognition/correct``; the errors where the truth is known) and the figures, to
-    TensorBoard event files in ``folder``."""
+    view; ESS, overlap, lost; the class posterior ``recognition/p_<class>`` and, where the true
+    class is one of the model's (those metrics.json's recognition counts), ``recognition/correct``;
+    the errors where the truth is known) and the figures, to TensorBoard event files in ``folder``."""
     from torch.utils.tensorboard import SummaryWriter
 
     from torch_atr.evaluation import wrapped_abs
@@ -431,7 +431,7 @@ def log_track_tensorboard(folder: str | Path, result, figures: dict) -> None:
             for name in row:
                 if name.startswith("p_"):
                     writer.add_scalar(f"recognition/{name}", row[name], step)
-            if "class" in row and row.get("true_class"):
+            if "class" in row and f"p_{row.get('true_class')}" in row:  # a true class of the model's (metrics.json's)
                 writer.add_scalar("recognition/correct", float(row["class"] == row["true_class"]), step)
             errors = {"error/horizontal_m": abs(row.get("x", math.nan) - row.get("true_x", math.nan)),
                       "error/range_m": abs(row.get("z", math.nan) - row.get("true_z", math.nan)),
