@@ -1,3 +1,4 @@
+import errno
 import os
 import signal
 import subprocess
@@ -7,6 +8,7 @@ from pathlib import Path
 
 import pytest
 
+from torch_atr import io as atomic_io
 from torch_atr.io import (RUN_CLAIM, OutputExistsError, atomic_path, atomic_write_csv, atomic_write_text,
                           check_output_dir, check_output_file, check_writable, claimed_output_dir, created_folders)
 
@@ -297,3 +299,23 @@ def test_a_file_that_cannot_be_set_aside_leaves_every_earlier_output_in_place(tm
     with claimed_output_dir(run, "run", replaces=()):  # the next claim deletes files set aside and left
         pass
     assert sorted(p.name for p in run.iterdir() if p.name != RUN_CLAIM) == ["a.json", "b.png", "c.png"]
+
+
+def test_a_failed_rename_names_the_target_keeps_the_old_file_and_no_temp(tmp_path, monkeypatch):
+    """A full disk at the rename said '[Errno 28] No space left on device', no file named; a folder in the way
+    named our temporary file."""
+    target = tmp_path / "report.json"
+    target.write_text("old")
+    (tmp_path / "frames").mkdir()
+
+    def full(*args, **kwargs):
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+
+    with pytest.raises(OSError, match=rf"^\[Errno {errno.EISDIR}\] cannot write {tmp_path / 'frames'}: "):
+        atomic_write_text("new", tmp_path / "frames")
+    monkeypatch.setattr(atomic_io.os, "replace", full)
+    with pytest.raises(OSError, match=rf"^\[Errno {errno.ENOSPC}\] cannot write {target}: No space left on device$"):
+        atomic_write_text("new", target)
+    assert target.read_text() == "old"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["frames", "report.json"]
+    assert list((tmp_path / "frames").iterdir()) == []

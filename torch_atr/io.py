@@ -101,7 +101,10 @@ def atomic_path(path: str | os.PathLike, suffix: str = "") -> Iterator[Path]:
         os.umask(umask)
         os.chmod(tmp, 0o666 & ~umask)  # mkstemp makes 0600; give the file a plain file's mode
         yield tmp_path
-        os.replace(tmp_path, path)
+        try:
+            os.replace(tmp_path, path)
+        except OSError as exc:  # a full disk, a folder in the way: named as above
+            raise OSError(exc.errno, f"cannot write {path}: {exc.strerror}") from None
     finally:
         tmp_path.unlink(missing_ok=True)
         os.close(fd)
