@@ -111,3 +111,31 @@ def test_the_figures_a_run_writes_are_the_named_ones(tmp_path):
     theta, phi = model.rbf.centres_theta.double(), model.rbf.centres_phi.double()
     names = list(viz.model_figures(model, masks, theta, phi, math.radians(12), math.radians(10)))
     assert set(names) == set(viz.MODEL_FIGURES)
+
+
+def _drawn_pixels(fig, colour: str) -> list[int]:
+    """Per axes, the pixels of ``colour`` inside it, legends left out."""
+    from matplotlib.colors import to_rgb
+
+    for ax in fig.axes:
+        ax.get_legend().remove()
+    fig.canvas.draw()
+    image = np.asarray(fig.canvas.buffer_rgba())[..., :3].astype(int)
+    hit = (np.abs(image - np.array(to_rgb(colour)) * 255).max(axis=2) < 40)[::-1]  # rows from the bottom
+    counts = []
+    for ax in fig.axes:
+        (x0, y0), (x1, y1) = ax.get_window_extent().get_points().astype(int)
+        counts.append(int(hit[y0:y1, x0:x1].sum()))
+    return counts
+
+
+def test_error_figure_draws_frames_without_a_neighbour():
+    """A one-frame run, or frames with a lost frame (no estimate) either side: a line alone drew no
+    pixel of them, three empty panels."""
+    truth = {"true_x": 0.5, "true_z": 900.0, "true_theta": 1.0}
+    estimate = {"x": 0.8, "z": 905.0, "theta": 1.2}
+    one = [{"frame": 0, "time_s": 0.0, "lost": 0, **estimate, **truth}]
+    gaps = [{"frame": i, "time_s": i / 30, "lost": i % 2, **truth, **(estimate if i % 2 == 0 else {})}
+            for i in range(5)]
+    for rows in (one, gaps):
+        assert all(count > 0 for count in _drawn_pixels(viz.error_figure(rows, "t"), "C0"))

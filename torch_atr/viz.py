@@ -326,7 +326,7 @@ def error_figure(rows: list[dict], title: str):
     fig, axes = plt.subplots(len(errors), 1, figsize=(9, 1.2 + 1.9 * len(errors)), sharex=True, squeeze=False)
     axes = axes[:, 0]
     for ax, (name, unit, e) in zip(axes, errors):
-        ax.plot(t, e, lw=1.0, label=f"{name}: mean {np.nanmean(e):.2f} {unit}")
+        ax.plot(t, e, ".-", lw=1.0, ms=2.5, label=f"{name}: mean {np.nanmean(e):.2f} {unit}")  # a lone frame too
         ax.set(ylabel=f"error ({unit})")
         ax.legend(loc="upper right", fontsize=8)
         ax.grid(alpha=0.3)
