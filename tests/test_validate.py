@@ -121,6 +121,8 @@ def test_read_text_names_file_line_and_byte(tmp_path):
     ("[" * 100_000, "nested too deeply"),
     ('{"a": 1,}', r"line 1, column 9: not valid JSON"),
     ("[1, 2]", "expected a JSON object; got list"),
+    ('{"fx": 800, "fy": 800, "fx": 80}', r"not valid JSON \(key 'fx' appears twice in one object"),
+    ('{"cam": {"R": 1, "t": 2, "R": 3}}', r"not valid JSON \(key 'R' appears twice in one object"),
 ])
 def test_read_json_object_refuses_non_finite_numbers_and_bad_json(tmp_path, text, message):
     path = tmp_path / "meta.json"

@@ -214,9 +214,18 @@ def _finite_float(text: str) -> float:
     return x
 
 
+def _unique_keys(pairs: list[tuple[str, Any]]) -> dict:
+    d: dict = {}
+    for key, value in pairs:
+        if key in d:
+            raise ValueError(f"key {show(key)} appears twice in one object, so one of its values would be dropped")
+        d[key] = value
+    return d
+
+
 def read_json_object(path: str | os.PathLike, missing: str, max_bytes: int = MAX_JSON_BYTES) -> dict:
     """The JSON object in ``path``, with only finite numbers (``NaN``, ``Infinity`` and ``1e400``
-    are refused).
+    are refused) and no key twice in one object (Python's ``json`` keeps the last without a word).
 
     A missing file raises FileNotFoundError(``missing``); anything else wrong an InputError naming
     the file (and the line and column of a syntax error).
@@ -226,12 +235,12 @@ def read_json_object(path: str | os.PathLike, missing: str, max_bytes: int = MAX
         raise FileNotFoundError(missing)
     text = read_text(path, max_bytes)
     try:
-        d = json.loads(text, parse_constant=_no_constant, parse_float=_finite_float)
+        d = json.loads(text, parse_constant=_no_constant, parse_float=_finite_float, object_pairs_hook=_unique_keys)
     except json.JSONDecodeError as exc:
         raise InputError(f"{path}, line {exc.lineno}, column {exc.colno}: not valid JSON ({exc.msg})") from None
     except RecursionError:
         raise InputError(f"{path}: JSON nested too deeply") from None
-    except ValueError as exc:  # a non-finite number, or an integer of more than 4300 digits
+    except ValueError as exc:  # a non-finite number, an integer of more than 4300 digits, a key twice
         raise InputError(f"{path}: not valid JSON ({exc})") from None
     if not isinstance(d, dict):
         raise InputError(f"{path}: expected a JSON object; got {type(d).__name__}")
