@@ -139,3 +139,15 @@ def test_error_figure_draws_frames_without_a_neighbour():
             for i in range(5)]
     for rows in (one, gaps):
         assert all(count > 0 for count in _drawn_pixels(viz.error_figure(rows, "t"), "C0"))
+
+
+def test_view_figure_legend_shows_the_estimate_of_a_late_start():
+    """A run whose first frames have no estimate (a blind start on a vehicle driving in): the
+    legend's 'estimate' took the colour of frame 0, transparent, and showed nothing."""
+    rows = [{"frame": i, "time_s": i / 30, "lost": 1, "mask_area_px": 0} for i in range(3)]
+    rows += [{"frame": i, "time_s": i / 30, "lost": 0, "theta": 1.0 + 0.01 * i, "phi": 0.05} for i in range(3, 6)]
+    fig = viz.view_figure(rows, "late")
+    fig.canvas.draw()  # the handle takes the points' colours when drawn
+    legend = fig.axes[0].get_legend()
+    handles = dict(zip((t.get_text() for t in legend.get_texts()), legend.legend_handles))
+    assert (handles["estimate"].get_facecolor()[:, 3] > 0).all()

@@ -352,8 +352,9 @@ def view_figure(rows: list[dict], title: str):
                 transform=ax.get_xaxis_transform(), label="true azimuth (elevation unknown)")
     phi = np.degrees(column(rows, "phi"))
     theta = column(rows, "theta")
-    sc = ax.scatter(np.degrees(theta) % 360, phi, c=t, s=8, cmap="viridis", label="estimate")
-    if not np.isfinite(theta).any():
+    est = np.isfinite(theta) & np.isfinite(phi)  # a frame without an estimate is a transparent point (and the legend's)
+    sc = ax.scatter(np.degrees(theta[est]) % 360, phi[est], c=t[est], s=8, cmap="viridis", label="estimate")
+    if not est.any():
         _note_no_estimate(ax)
     shown = np.concatenate([phi[np.isfinite(phi)], true_phi[np.isfinite(true_phi)], [-5.0, 50.0]])  # training: 0°-40°
     ax.set(xlim=(0, 360), xticks=range(0, 361, 45), ylim=(shown.min() - 1, shown.max() + 1),
