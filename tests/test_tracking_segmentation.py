@@ -65,6 +65,26 @@ def test_fit_gain_recovers_gain_and_offset_despite_a_target():
     assert fit_gain(frame, np.full(frame.shape, 7.0), np.ones(frame.shape, dtype=bool)) == (1.0, 0.0)
 
 
+def test_fit_gain_leaves_out_pixels_without_data():
+    """A NaN or infinite pixel in a float frame (or background) is no data: the fit is that of the
+    other pixels (one NaN made it (1, 0), the fit's fallback for a background without contrast)."""
+    rng = np.random.default_rng(1)
+    background = rng.uniform(50, 200, size=(60, 80))
+    frame = 0.8 * background + 12 + rng.normal(0, 0.5, size=background.shape)
+    valid = np.ones(frame.shape, dtype=bool)
+    holes = np.zeros(frame.shape, dtype=bool)
+    holes[3, 3] = holes[10, 20:25] = holes[40, 7] = True
+    want = fit_gain(frame, background, ~holes)
+    assert want[0] == pytest.approx(0.8, abs=0.01) and want[1] == pytest.approx(12, abs=1.0)
+    for bad in (np.nan, np.inf, -np.inf):
+        dead = frame.copy()
+        dead[holes] = bad
+        assert fit_gain(dead, background, valid) == want
+        dead_background = background.copy()
+        dead_background[holes] = bad
+        assert fit_gain(frame, dead_background, valid) == want
+
+
 def test_brightness_ramp_breaks_a_frozen_background_not_the_compensated_one(car):
     ramp = Composite(car, gain_end=0.9)  # a 10 % drop in 1 s, as a cloud or a gain change
     frozen = ForegroundSegmenter(SegmentationConfig())

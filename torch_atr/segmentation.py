@@ -514,13 +514,17 @@ def fit_gain(frame: np.ndarray, background: np.ndarray, valid: np.ndarray) -> tu
     """Least-squares gain and offset with frame ≈ a·background + b over the valid pixels.
 
     The worst-fitting 20 % of the valid pixels are dropped and the fit repeated, so a target or a
-    second vehicle does not bias it. Returns (1, 0) when the background has no contrast there.
+    second vehicle does not bias it. Pixels NaN or infinite in either image have no data and are
+    left out. Returns (1, 0) when the background has no contrast there.
 
     Args:
         frame, background: (H, W) any real dtype; valid: (H, W) bool.
     """
     x = background[valid].astype(np.float64)
     y = frame[valid].astype(np.float64)
+    finite = np.isfinite(x) & np.isfinite(y)
+    if not finite.all():
+        x, y = x[finite], y[finite]
     a, b = 1.0, 0.0
     for _ in range(2):
         if x.size < 3 or x.std() < 1e-6:
