@@ -17,6 +17,7 @@ import argparse
 import dataclasses
 import logging
 import os
+import shlex
 from pathlib import Path
 
 from torch_atr import viz
@@ -126,7 +127,7 @@ def _track(cfg: TrackConfig, model: GenerativeShapeModel, tracker: Tracker | Blo
         log.info("no estimate: no frame had a target to start on")
     written = ["estimates.csv", "metrics.json", "config.yaml", *(f"{n}.png" for n in figures)]
     written += ["overlay.mp4"] * cfg.video
-    written += [f"TensorBoard events (tensorboard --logdir {out.parent})"] * cfg.tensorboard
+    written += [f"TensorBoard events (tensorboard --logdir {shlex.quote(str(out.parent))})"] * cfg.tensorboard
     log.info("wrote %s: %s", out, ", ".join(written))
     return metrics
 

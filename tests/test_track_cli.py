@@ -233,3 +233,21 @@ def test_an_uncalibrated_video_tracks_view_and_identity(tmp_path):
     metrics = track.main(["--sequence", str(folder), "--particles", "100", "--out", str(tmp_path / "tb"),
                           "--tensorboard", "--frames", "4"])
     assert metrics["aspect_error_rad"] is not None and any((tmp_path / "tb").glob("events.out.tfevents.*"))
+
+
+def test_the_tensorboard_command_it_names_works_for_a_folder_with_spaces(tmp_path, caplog):
+    """The summary's 'tensorboard --logdir FOLDER' left a folder with spaces unquoted: pasted into a
+    shell, it named 'runs' and two other words."""
+    import shlex
+
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    out = tmp_path / "my runs é" / "run 1"
+    caplog.set_level(logging.INFO, logger="track")
+    track.main(["--sequence", SHORT, "--particles", "50", "--frames", "1", "--out", str(out), "--tensorboard"])
+    wrote = next(r.getMessage() for r in caplog.records if r.getMessage().startswith(f"wrote {out}: "))
+    command = shlex.split(wrote.split("TensorBoard events (", 1)[1].rsplit(")", 1)[0])
+    assert command == ["tensorboard", "--logdir", str(out.parent)]
+    rows = list(csv.DictReader((out / "estimates.csv").open()))
+    events = EventAccumulator(str(out)).Reload()
+    assert [(e.step, e.value) for e in events.Scalars("estimate/x_m")] == [(0, pytest.approx(float(rows[0]["x"])))]
