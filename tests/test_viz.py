@@ -151,3 +151,14 @@ def test_view_figure_legend_shows_the_estimate_of_a_late_start():
     legend = fig.axes[0].get_legend()
     handles = dict(zip((t.get_text() for t in legend.get_texts()), legend.legend_handles))
     assert (handles["estimate"].get_facecolor()[:, 3] > 0).all()
+
+
+def test_error_figure_spans_the_run_as_the_alpha_figure_does():
+    """A blind start at 1 s of a 2 s run: the errors' time axis began at 1 s, where the identity
+    figure's begins at 0, and hid the second without an estimate."""
+    model = GenerativeShapeModel.from_checkpoint(CKPT)
+    rows = [{"frame": i, "time_s": i / 30, "lost": int(i < 30), "true_x": 0.5, "true_z": 900.0, "true_theta": 1.0,
+             **({"x": 0.8, "z": 905.0, "theta": 1.2, "alpha": 0.3} if i >= 30 else {})} for i in range(61)]
+    for ax in viz.error_figure(rows, "late").axes:
+        assert ax.get_xlim() == pytest.approx((0.0, 2.0))
+    assert viz.alpha_figure(rows, model, "late").axes[0].get_xlim() == pytest.approx((0.0, 2.0))

@@ -276,6 +276,13 @@ def _note_no_estimate(ax) -> None:
             ha="center", va="center", fontsize=10, bbox={"facecolor": "white", "alpha": 0.8, "lw": 0})
 
 
+def _span_run(ax, t: np.ndarray) -> None:
+    """Set the time axis of ``ax`` to the whole run, frames with an estimate or not; t: (T,) seconds."""
+    times = t[np.isfinite(t)]
+    if times.size and times.max() > times.min():
+        ax.set_xlim(times.min(), times.max())
+
+
 def alpha_figure(rows: list[dict], model, title: str):
     """α over time with the class arcs as coloured bands and the two nearest training vehicles
     of the sequence as dashed lines (Fig. 6.10). rows: estimate rows. Returns a Figure."""
@@ -296,9 +303,7 @@ def alpha_figure(rows: list[dict], model, title: str):
         a = float(model.alphas[model.vehicle_names.index(name)])
         ax.axhline(a, ls="--", lw=1.2, color="0.25" if k == 0 else "0.55", label=f"best match {k + 1}: {name}")
     ax.plot(t, alpha, ".", ms=3, color="k", label="estimated α")
-    times = t[np.isfinite(t)]
-    if times.size and times.max() > times.min():  # the whole run, estimated or not
-        ax.set_xlim(times.min(), times.max())
+    _span_run(ax, t)
     if not np.isfinite(alpha).any():
         _note_no_estimate(ax)
     true_class = next((r.get("true_class") for r in rows if r.get("true_class")), "")
@@ -331,6 +336,7 @@ def error_figure(rows: list[dict], title: str):
         ax.legend(loc="upper right", fontsize=8)
         ax.grid(alpha=0.3)
     axes[-1].set(xlabel="time (s)")
+    _span_run(axes[-1], t)
     axes[0].set_title(f"{title}: 3D tracking errors over time")
     fig.tight_layout()
     return fig
