@@ -636,6 +636,25 @@ def test_segmenters_threads_end_with_them():
     assert threading.active_count() <= start
 
 
+def test_a_malformed_predicted_pixel_is_refused_by_name_and_a_tensor_is_a_pixel():
+    """``near`` reaches the region compared first before the blob is chosen: anything but two
+    numbers is a ValueError naming it there too (it was 'too many values to unpack', a TypeError
+    from np.isfinite, or from subtracting a tensor), and a tensor (u, v) is a pixel like a tuple."""
+    import torch
+
+    seg, texture, rng = _warmed("uint8", 7, SegmentationConfig(warmup_frames=30, compensate_gain=False))
+    target = _rect(60, 50, 30, 14)
+    frame = _frame("uint8", texture, [target], rng)
+    box = (55.0, 45.0, 95.0, 70.0)
+    for near in [(1.0, 2.0, 3.0), "ab", (1.0, None), 5, np.array([[75.0, 57.0]])]:
+        with pytest.raises(ValueError, match="Expected near to be a pixel"):
+            seg(frame, near=near, exclude=box)
+    with pytest.raises(ValueError, match="Expected near to be finite"):
+        seg(frame, near=(np.inf, 57.0), exclude=box)
+    for near in [torch.tensor([75.0, 57.0]), np.array([75.0, 57.0]), (np.float32(75.0), 57)]:
+        assert _iou(seg(frame, near=near, exclude=box), target) > 0.8
+
+
 def test_a_malformed_predicted_box_is_refused_and_a_nan_one_is_no_prediction():
     """The box reaches the rows compared first even with gain fit and learning off: anything but
     four numbers is a ValueError naming it; a non-finite corner means no box."""

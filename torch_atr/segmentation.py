@@ -189,6 +189,20 @@ def _foreground_box(mask: np.ndarray, margin: int = 0) -> tuple[slice, slice] | 
             slice(max(int(cols[0]) - margin, 0), min(int(cols[-1]) + margin + 1, W)))
 
 
+def _check_near(near) -> tuple[float, float] | None:
+    """A predicted pixel ``near`` (u, v), any two real numbers (a tensor too), as finite floats;
+    None for None. ValueError naming it otherwise."""
+    if near is None:
+        return None
+    try:
+        u, v = (float(c) for c in near)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"Expected near to be a pixel (u, v); got {near!r}") from exc
+    if not (math.isfinite(u) and math.isfinite(v)):
+        raise ValueError(f"Expected near to be finite; got {near!r}")
+    return u, v
+
+
 def select_blob(mask: np.ndarray, near: tuple[float, float] | None = None, min_area: int = 0) -> np.ndarray:
     """Keep one 8-connected component of a mask: the target blob.
 
@@ -203,13 +217,7 @@ def select_blob(mask: np.ndarray, near: tuple[float, float] | None = None, min_a
     """
     _check_count("min_area", min_area)
     m = _check_mask(mask)
-    if near is not None:
-        try:
-            u, v = (float(c) for c in near)
-        except (TypeError, ValueError) as exc:
-            raise ValueError(f"Expected near to be a pixel (u, v); got {near!r}") from exc
-        if not (np.isfinite(u) and np.isfinite(v)):
-            raise ValueError(f"Expected near to be finite; got {near!r}")
+    near = _check_near(near)
     out = np.zeros_like(m)
     box = _foreground_box(m)  # components are found inside the foreground's box only
     if box is None:
@@ -224,6 +232,7 @@ def select_blob(mask: np.ndarray, near: tuple[float, float] | None = None, min_a
     if near is None:
         keep = int(np.argmax(np.where(valid, areas, -1)))
     else:  # the foreground pixel of a valid component nearest to (u, v)
+        u, v = near
         xy = cv2.findNonZero(m[box].view(np.uint8)).reshape(-1, 2)  # the foreground's (x, y) in the box
         cols, rows = xy[:, 0], xy[:, 1]
         own = labels[rows, cols]
@@ -743,6 +752,7 @@ class ForegroundSegmenter:
             raise RuntimeError("ForegroundSegmenter: call warm_up(frames) before segmenting frames")
         cfg = self.cfg
         grey, missing = self._grey(frame)
+        near = _check_near(near)  # before the region compared first reads it
         k, c = self._to_uint8_scale()
         if cfg.compensate_gain:  # on a fixed grid of pixels outside the target box
             rows, cols = self._samples
