@@ -1,4 +1,5 @@
 import errno
+import hashlib
 import os
 import signal
 import subprocess
@@ -53,6 +54,24 @@ def test_stale_temps_of_the_target_only_are_removed_and_live_ones_kept(tmp_path)
             assert tmp.exists()
     assert target.read_text() == "new"
     assert sorted(p.name for p in tmp_path.iterdir()) == sorted(["model.pt"] + [p.name for p in others])
+
+
+def test_a_long_legal_name_is_written_and_its_killed_writes_cleaned(tmp_path):
+    """A name of 241-255 bytes is legal, but '.NAME.XXXXXXXX.tmp' beside it was not ('File name too
+    long'); the temporary file is now named after a shortened stem, still found as a killed write's."""
+    name = "é" * 120 + ".json"  # 245 bytes in UTF-8
+    target = tmp_path / name
+    atomic_write_text("first", target)
+    def stem(n: str) -> str:  # its first 32 bytes (16 'é'), '~' and 16 hex digits of its SHA-256
+        return n[:16] + "~" + hashlib.sha256(n.encode()).hexdigest()[:16]
+
+    left = tmp_path / f".{stem(name)}.abcd1234.tmp"
+    left.write_text("left by a killed write")
+    other = tmp_path / f".{stem('é' * 121 + '.json')}.abcd1234.tmp"  # a longer name's
+    other.write_text("another target's")
+    atomic_write_text("second", target)
+    assert target.read_text() == "second"
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted([name, other.name])
 
 
 def _kill_mid_write(target: Path, code: str) -> None:

@@ -1,17 +1,18 @@
 """Safe writes: atomic files, temp files of killed writes cleaned up, nothing replaced unasked.
 
 :func:`atomic_path` writes a file so that it is either its old or its new content, never half
-written. Each write holds an exclusive ``flock`` on its temporary file ``.NAME.XXXXXXXX.tmp``;
-the next write of the same target deletes the temporary files of that target nobody holds, i.e.
-those of writes that were killed. :func:`check_output_file` and :func:`check_output_dir` decide
-whether an entry point may write an output: never over something that is not ours, and over our
-own only when the user said so (``--overwrite``).
+written. Each write holds an exclusive ``flock`` on its temporary file ``.STEM.XXXXXXXX.tmp``
+(STEM: :func:`hidden_stem`); the next write of the same target deletes the temporary files of that
+target nobody holds, i.e. those of writes that were killed. :func:`check_output_file` and
+:func:`check_output_dir` decide whether an entry point may write an output: never over something
+that is not ours, and over our own only when the user said so (``--overwrite``).
 """
 
 from __future__ import annotations
 
 import csv
 import fcntl
+import hashlib
 import io
 import json
 import logging
@@ -28,6 +29,8 @@ import torch
 log = logging.getLogger(__name__)
 
 TEMP_CHARS = "[a-z0-9_]{8}"  # tempfile's random part
+_STEM_BYTES = 64  # a longer NAME is shortened in its hidden files' names (hidden_stem)
+_STEM_PREFIX_BYTES = 32  # how much of a shortened NAME they keep
 _SET_ASIDE = ".replaced"  # claimed_output_dir: the suffix of a replaced run's files until the new run ends
 _TEMP_SUFFIX = r"(\.[A-Za-z0-9]{1,8})?"  # an extension after .tmp, for writers that go by it (.mp4)
 _ANY_TEMP = re.compile(rf"\..+\.{TEMP_CHARS}\.tmp{_TEMP_SUFFIX}")
@@ -58,9 +61,23 @@ def unheld(candidate: Path) -> Iterator[bool]:
         os.close(fd)
 
 
+def hidden_stem(name: str) -> str:
+    """The STEM of the hidden files and folders ``.STEM.XXXXXXXX.tmp`` (``.saving``, ...) that a write
+    of ``name`` makes beside it: ``name`` itself up to 64 bytes; a longer one's first characters (at most
+    32 bytes), '~' and the first 16 hex digits of its SHA-256, so that their names stay far below the
+    file system's 255-byte limit whatever the length of ``name``."""
+    encoded = os.fsencode(name)
+    if len(encoded) <= _STEM_BYTES:
+        return name
+    prefix = name[:_STEM_PREFIX_BYTES]
+    while len(os.fsencode(prefix)) > _STEM_PREFIX_BYTES:  # whole characters only
+        prefix = prefix[:-1]
+    return f"{prefix}~{hashlib.sha256(encoded).hexdigest()[:16]}"
+
+
 def _remove_stale_temps(path: Path) -> None:
-    """Delete ``.NAME.XXXXXXXX.tmp`` files beside ``path`` that no live write holds locked."""
-    pattern = re.compile(rf"\.{re.escape(path.name)}\.{TEMP_CHARS}\.tmp{_TEMP_SUFFIX}")
+    """Delete ``.STEM.XXXXXXXX.tmp`` files (:func:`hidden_stem`) beside ``path`` that no live write holds."""
+    pattern = re.compile(rf"\.{re.escape(hidden_stem(path.name))}\.{TEMP_CHARS}\.tmp{_TEMP_SUFFIX}")
     for candidate in path.parent.iterdir():
         if pattern.fullmatch(candidate.name):
             with unheld(candidate) as stale:
@@ -90,7 +107,7 @@ def atomic_path(path: str | os.PathLike, suffix: str = "") -> Iterator[Path]:
         raise ValueError(f"suffix must be empty or a short extension like '.mp4'; got {suffix!r}")
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp" + suffix, dir=path.parent)
+        fd, tmp = tempfile.mkstemp(prefix=f".{hidden_stem(path.name)}.", suffix=".tmp" + suffix, dir=path.parent)
     except OSError as exc:  # name the file the user asked for, not our temporary one
         raise OSError(exc.errno, f"cannot write {path}: {exc.strerror}") from None
     tmp_path = Path(tmp)

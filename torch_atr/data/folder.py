@@ -24,7 +24,6 @@ from __future__ import annotations
 
 import csv
 import fcntl
-import hashlib
 import io
 import json
 import logging
@@ -41,7 +40,7 @@ from tqdm import tqdm
 
 from torch_atr.data.sequence import (MAX_CAMERA_HEIGHT_M, TEXT_FIELDS, TRUTH_FIELDS, FrameTruth, Sequence,
                                      check_fps, load_camera_json, register_scheme)
-from torch_atr.io import TEMP_CHARS, strict_json, unheld
+from torch_atr.io import TEMP_CHARS, hidden_stem, strict_json, unheld
 from torch_atr.validate import (InputError, image_file_size, image_size, integer, parse_real, read_image,
                                 read_json_object, read_text, real, show)
 
@@ -53,8 +52,6 @@ _FRAME_RE = re.compile(r"\d{6,}\.png")
 FRAME_RULE = "(H, W) uint8/uint16 or (H, W, 3) uint8"
 _WRITING = ".saving"  # .STEM.XXXXXXXX.saving: a save's new sequence until it is renamed to NAME
 _SUPERSEDED = ".superseded"  # .STEM.XXXXXXXX.superseded: holds NAME, the sequence a save replaces, until deleted
-_STEM_BYTES = 64  # a longer NAME is shortened in its hidden folders' names (_hidden_stem)
-_STEM_PREFIX_BYTES = 32  # how much of a shortened NAME they keep
 _WRITTEN = frozenset({"frames", "truth.csv", "camera.json", "meta.json"})  # what a save writes in its folder
 
 
@@ -359,27 +356,13 @@ def _swap_in(tmp: Path, folder: Path) -> None:
         os.close(lock)
 
 
-def _hidden_stem(name: str) -> str:
-    """The STEM of the hidden folders ``.STEM.XXXXXXXX{kind}`` of a save of a folder named ``name``:
-    ``name`` itself up to ``_STEM_BYTES`` bytes; a longer one's first characters (at most
-    ``_STEM_PREFIX_BYTES`` bytes), '~' and the first 16 hex digits of its SHA-256, so that those folders'
-    names stay far below the file system's 255-byte limit whatever the length of ``name``."""
-    encoded = os.fsencode(name)
-    if len(encoded) <= _STEM_BYTES:
-        return name
-    prefix = name[:_STEM_PREFIX_BYTES]
-    while len(os.fsencode(prefix)) > _STEM_PREFIX_BYTES:  # whole characters only
-        prefix = prefix[:-1]
-    return f"{prefix}~{hashlib.sha256(encoded).hexdigest()[:16]}"
-
-
 def _held_folder(folder: Path, kind: str) -> tuple[Path, int]:
-    """A new empty folder ``.STEM.XXXXXXXX{kind}`` beside ``folder`` (STEM: :func:`_hidden_stem`) and
+    """A new empty folder ``.STEM.XXXXXXXX{kind}`` beside ``folder`` (STEM: ``io.hidden_stem``) and
     an open descriptor that holds an exclusive ``flock`` on it until the caller closes it. The kernel
     drops the lock when the process ends, however it ends, so one that nobody holds was left by a
     killed save (:func:`_remove_left_by_killed_saves`)."""
     try:
-        path = Path(tempfile.mkdtemp(prefix=f".{_hidden_stem(folder.name)}.", suffix=kind, dir=folder.parent))
+        path = Path(tempfile.mkdtemp(prefix=f".{hidden_stem(folder.name)}.", suffix=kind, dir=folder.parent))
     except OSError as exc:  # name the folder the user asked for, not our hidden one
         raise OSError(exc.errno, f"save_sequence: cannot write {folder}: {exc.strerror}") from None
     fd = os.open(path, os.O_RDONLY | os.O_DIRECTORY)
@@ -395,7 +378,7 @@ def _remove_left_by_killed_saves(folder: Path, kind: str, holds: frozenset[str])
     no live save holds and that hold nothing but entries named in ``holds``: those that killed saves
     of ``folder`` left. Anything else (a file or link of that name, a folder with other entries, one
     the file system cannot lock) stays; one that cannot be removed is logged, not raised."""
-    pattern = re.compile(rf"\.{re.escape(_hidden_stem(folder.name))}\.{TEMP_CHARS}{re.escape(kind)}")
+    pattern = re.compile(rf"\.{re.escape(hidden_stem(folder.name))}\.{TEMP_CHARS}{re.escape(kind)}")
     for candidate in folder.parent.iterdir():
         if not pattern.fullmatch(candidate.name) or candidate.is_symlink() or not candidate.is_dir():
             continue
