@@ -158,7 +158,9 @@ def clean_mask(mask: np.ndarray, open_px: int, close_px: int) -> np.ndarray:
         open_px, close_px: kernel diameters in pixels; 0 or 1 skips that step.
     Returns:
         (H, W) bool. Pixels outside the image count as neither foreground nor background
-        (OpenCV's default border), so the frame edge neither erodes nor grows the mask.
+        (OpenCV's default border), so the frame edge neither erodes nor grows the mask. An even
+        diameter's kernel has no centre: the erosion uses it and the dilation its point reflection,
+        as scipy.ndimage does (``morphologyEx`` uses one kernel for both, which shifts the mask a pixel).
     """
     _check_count("open_px", open_px)
     _check_count("close_px", close_px)
@@ -170,9 +172,14 @@ def clean_mask(mask: np.ndarray, open_px: int, close_px: int) -> np.ndarray:
     # Only the foreground's box is filtered, grown by more than the opening and the closing reach:
     # beyond that margin the result is background, and inside it the same as the whole frame's.
     region = m[box].view(np.uint8)
-    for op, size in ((cv2.MORPH_OPEN, open_px), (cv2.MORPH_CLOSE, close_px)):
-        if size > 1:
-            region = cv2.morphologyEx(region, op, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (size, size)))
+    for opening, size in ((True, open_px), (False, close_px)):
+        if size > 1:  # erosion by the kernel, dilation by its point reflection
+            kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (size, size))
+            reflected, a, b = np.ascontiguousarray(kernel[::-1, ::-1]), (size // 2,) * 2, (size - 1 - size // 2,) * 2
+            if opening:
+                region = cv2.dilate(cv2.erode(region, kernel, anchor=a), reflected, anchor=b)
+            else:
+                region = cv2.erode(cv2.dilate(region, reflected, anchor=b), kernel, anchor=a)
     out[box] = region.view(bool)
     return out
 
