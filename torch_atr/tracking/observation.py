@@ -14,8 +14,14 @@ pixels (:func:`~torch_atr.shape.signed_distance_px`). Per particle j with centre
 4. the likelihood, eq. 5.2: log wⱼ = −mean((zⱼ − yⱼ)²) / (2σ²) against the predicted template yⱼ.
 
 Outside the frame the distance of the nearest border pixel is used (``padding_mode="border"``).
-Where the blob is clear of an edge that is right: the target is one connected blob, so beyond
-that edge lies background, whose distance clips like the edge's. Beyond an edge that cuts the
+Where the blob is clear of an edge by τ or more (in the window's image pixels) that is right: the
+target is one connected blob, so beyond that edge lies background, whose distance clips like the
+edge's. Nearer the edge it falls short: beyond the edge the distance keeps the edge pixel's value
+(a blob 2 px from the edge reads its 3 px at cells 5 and 9 px from the blob), so such a frame's
+windows take the background beyond that edge for nearer the vehicle than it is (τ is about 11 image
+px at 1000 m, more nearer). Extending the distance past the image would mend it; for the blind
+start's and the blob tracker's whole-frame distances that costs several frames' worth of distance
+transform, and it is not done. Beyond an edge that cuts the
 blob (:func:`cut_edges`) nothing is known, and the padding would carry the blob's edge pixels on
 as if the vehicle went on; there the tracker compares only the cells it observes
 (:func:`observed_cells`): eq. 5.2's sum runs over them, with its divisor L² kept, so the others
