@@ -149,8 +149,11 @@ class ShapeAppearance(nn.Module):
             check_shape("observed", observed, tuple(z.shape))
             errors = (z - self(alpha, theta, phi).to(z)).square().masked_fill(~observed, 0.0).sum(dim=(1, 2))
             return torch.where(observed.any(dim=(1, 2)), errors, torch.nan)
-        if self.method == "IV":
-            return (z - self(alpha, theta, phi).to(z)).square().sum(dim=(1, 2))
+        if self.method == "IV":  # the templates themselves; NaN for a non-finite query, as forward gives
+            alpha, theta, phi, vehicle, view = self.snap(alpha, theta, phi)
+            y = self.templates[vehicle, view].view_as(z).to(z)
+            finite = alpha.isfinite() & theta.isfinite() & phi.isfinite()
+            return (z - y).square().sum(dim=(1, 2)).masked_fill(~finite, torch.nan)
         c = self.coords(*self.snap(alpha, theta, phi)[:3])  # (N, r)
         flat = z.flatten(1).to(c)  # (N, L²); reshape(N, -1) is ambiguous for N = 0
         return flat.square().sum(1) - 2 * ((flat @ self.basis) * c).sum(1) + ((c @ self.gram) * c).sum(1)
@@ -161,7 +164,7 @@ class ShapeAppearance(nn.Module):
         alpha, theta, phi, vehicle, view = self.snap(*self._queries(alpha, theta, phi))
         if self.method == "IV":
             finite = alpha.isfinite() & theta.isfinite() & phi.isfinite()
-            y = self.templates[vehicle, view].masked_fill(~finite[:, None], torch.nan)  # (N, L²)
+            y = self.templates[vehicle, view].masked_fill_(~finite[:, None], torch.nan)  # (N, L²), a fresh gather
         else:
             y = self.coords(alpha, theta, phi) @ self.basis.T  # (N, L²)
         return y.view(-1, self.size, self.size)
