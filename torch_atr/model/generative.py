@@ -256,7 +256,8 @@ class GenerativeShapeModel(nn.Module):
         return y.view(-1, self.template.size_px, self.template.size_px)
 
     def classify(self, alpha: torch.Tensor) -> torch.Tensor:
-        """Class index whose identity arc holds alpha: (N,). Returns (N,) int64."""
+        """Class index whose identity arc holds alpha: (N,), taken in the model's dtype (a float64 α
+        within rounding of an arc's start may fall on either side). Returns (N,) int64."""
         return self.identity.classify(*self._queries(alpha=alpha))
 
     def nearest_vehicles(self, alpha: torch.Tensor, k: int = 2) -> torch.Tensor:

@@ -303,10 +303,10 @@ class IdentityManifold(nn.Module):
         consecutive vehicles of one class merge. Returns (class, start, end) with start in
         [0, 2π) and start < end <= start + 2π: the arc holds α with (α − start) mod 2π < end − start.
         """
-        order = self.order.tolist()
+        order = self.order.tolist()  # a list each, one copy from the device apiece (classify runs every frame)
         sites = self.alphas[self.order].tolist() + [TWO_PI]  # along the path, closed
         upper = [(sites[j] + sites[j + 1]) / 2 for j in range(len(order))]  # vehicle order[j] owns up to here
-        labels = [int(self.labels[v]) for v in order]
+        labels = self.labels[self.order].tolist()
         changes = [j for j in range(len(order)) if labels[j] != labels[j - 1]]
         if not changes:
             start = upper[-1] - TWO_PI
