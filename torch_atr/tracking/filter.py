@@ -623,7 +623,7 @@ class Tracker:
         largest window (``side`` pixels) are clipped, so only that margin around the blob is
         transformed."""
         template = self.model.template
-        distance, origin = frame_distance(mask, min(template.tau_px * side / template.size_px, max(mask.shape)))
+        distance, origin = frame_distance(mask, template.tau_px * side / template.size_px)  # capped at the image
         return FrameDistance(distance.to(self.device), origin, cut_edges(mask))
 
     def _predict(self, dt: float) -> torch.Tensor:

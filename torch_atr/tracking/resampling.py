@@ -82,7 +82,7 @@ def residual_resample(weights: torch.Tensor, generator: torch.Generator | None =
         return deterministic
     residual = (scaled - copies).clamp_min(0)  # sums to rest
     u, _ = torch.rand(rest, generator=generator, dtype=weights.dtype, device=weights.device).sort()
-    drawn = _inverse_cdf(residual / residual.sum(), u)
+    drawn = _inverse_cdf(residual, u)  # which divides by their total
     return torch.cat([deterministic, drawn]).sort().values
 
 
