@@ -15,14 +15,13 @@ import torch
 from torch import nn
 
 from torch_atr._checks import as_float_tensor, check_shape
-from torch_atr.validate import InputError, image_size, integer, real, rotation, vector
+from torch_atr.validate import MAX_IMAGE_SIDE, InputError, image_size, integer, real, rotation, vector
 
 # Sensor frame (y up) <-> OpenCV camera frame (y down).
 _FLIP_Y = np.diag([1.0, -1.0, 1.0])
 
 # Bounds on a camera's numbers, generous around any real camera, so that an absurd value (a typed
 # 1e300) fails where the camera is made, naming it, not as inf or NaN in a later projection.
-MAX_SIDE_PX = 65535  # width, height: JPEG's limit, above any sensor (the largest are ~20000 px a side)
 FOCAL_RANGE_PX = (1e-3, 1e8)  # fx, fy: 1e8 px is a 100 m lens at 1 µm pixels; 1e-3 px a field of view over 179.7°
 MAX_PRINCIPAL_PX = 1e8  # |cx|, |cy|: a principal point far outside any image, as a crop window shifts it
 MAX_DISTORTION = 1e6  # |k1|, |k2|, |p1|, |p2|, |k3|: real lenses fit with terms of order 1, wide ones up to ~100s
@@ -58,7 +57,8 @@ class Camera(nn.Module):
     Args:
         fx, fy: focal lengths in pixels, in [1e-3, 1e8] (``FOCAL_RANGE_PX``).
         cx, cy: principal point in pixels, each in [-1e8, 1e8] (``MAX_PRINCIPAL_PX``).
-        width, height: image size in pixels, whole numbers in [1, 65535] (``MAX_SIDE_PX``).
+        width, height: image size in pixels, whole numbers in [1, 16384] (``validate.MAX_IMAGE_SIDE``: frames'
+            limit too).
         dist: (5,) OpenCV distortion (k1, k2, p1, p2, k3), each in [-1e6, 1e6] (``MAX_DISTORTION``);
             zeros if None.
         R: (3, 3) rotation world -> sensor; identity if None (world = sensor frame).
@@ -83,8 +83,8 @@ class Camera(nn.Module):
                                  f"{MAX_PRINCIPAL_PX:g}] px; got {name}={value!r}")
         width, height = _number("width", width), _number("height", height)
         for name, value in (("width", width), ("height", height)):
-            if not (1 <= value <= MAX_SIDE_PX and value.is_integer()):
-                raise ValueError(f"Expected a whole image size of 1 to {MAX_SIDE_PX} px a side; got {name}={value!r}")
+            if not (1 <= value <= MAX_IMAGE_SIDE and value.is_integer()):
+                raise ValueError(f"Expected a whole image size of 1 to {MAX_IMAGE_SIDE} px a side; got {name}={value!r}")
         self.width, self.height = int(width), int(height)
         K = torch.tensor([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]], dtype=dtype)
         dist = torch.zeros(5, dtype=dtype) if dist is None else torch.as_tensor(dist, dtype=dtype).flatten()
