@@ -49,7 +49,8 @@ def test_show_shortens_long_values():
     assert show("ab") == "'ab'"
     assert show("x" * 238) == repr("x" * 238)  # 240 characters with its quotes: whole
     assert show("x" * 10_000) == "'" + "x" * 39 + "… (10002 characters)"
-    assert show(10 ** 5000) == "an integer of 5001 digits or so"  # repr refuses over 4300 digits
+    assert show(10 ** 5000) == "an integer of about 5001 digits"  # repr refuses over 4300 digits
+    assert show(-(10 ** 4500)) == "an integer of about 4501 digits"
 
 
 def test_image_size_bounds():

@@ -57,7 +57,9 @@ def show(value: Any) -> str:
     try:
         text = repr(value)
     except ValueError:
-        return f"an integer of {len(format(value, 'x')) * math.log10(16):.0f} digits or so"
+        if not isinstance(value, int):
+            raise
+        return f"an integer of about {int(abs(value).bit_length() * math.log10(2)) + 1} digits"
     return cut(text)
 
 
