@@ -231,7 +231,7 @@ def check_templates(vehicles: Sequence, masks: torch.Tensor, cfg: TemplateConfig
 def trained_catalog(extra) -> str:
     """The catalog a checkpoint's model was trained on, from the checkpoint's ``extra``
     (:func:`~torch_atr.model.generative.load_checkpoint`): "train" (the shipped split) or the
-    folder ``train.py catalog=PATH`` recorded; "train" when the checkpoint does not say."""
+    folder (or manifest) ``train.py catalog=PATH`` recorded; "train" when the checkpoint does not say."""
     config = extra.get("config") if isinstance(extra, dict) else None
     catalog = config.get("catalog") if isinstance(config, dict) else None
     return catalog if isinstance(catalog, str) else "train"
@@ -240,7 +240,7 @@ def trained_catalog(extra) -> str:
 def training_templates(model, catalog: str = "train") -> torch.Tensor:
     """The training templates of a model re-rendered from its catalog (Method IV of the tracker).
 
-    Renders the model's vehicles (by name, from ``catalog``: "train" or a catalog folder; see
+    Renders the model's vehicles (by name, from ``catalog``: "train", a catalog folder or its manifest; see
     :func:`trained_catalog`) at its RBF centres (the training views of every model ``train.py``
     fits) with its template geometry. Returns (K, V, S, S) float32 signed distances in [−1, 1].
     Raises ValueError naming the vehicles the catalog lacks; warns of vehicles whose templates

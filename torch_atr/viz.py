@@ -316,7 +316,7 @@ def alpha_figure(rows: list[dict], model, title: str):
 
 def error_figure(rows: list[dict], title: str):
     """Horizontal, range and aspect errors over time (Fig. 6.8), with their means. Returns a Figure
-    (None when the rows carry no truth)."""
+    (None when no row has both an estimate and its truth)."""
     from torch_atr.evaluation import wrapped_abs
     from torch_atr.tracking.filter import column
 
@@ -405,7 +405,7 @@ def frame_strip_figure(snapshots: list[dict], rows: list[dict], title: str, crop
 
 
 def track_figures(result, model, title: str) -> dict:
-    """The figures of a tracking run: ``alpha_over_time``, ``errors_over_time`` (with truth only),
+    """The figures of a tracking run: ``alpha_over_time``, ``errors_over_time`` (truth and an estimate),
     ``view_trajectory`` and ``frames``. Returns name -> Figure."""
     figures = {"alpha_over_time": alpha_figure(result.rows, model, title),
                "errors_over_time": error_figure(result.rows, title),
@@ -422,7 +422,8 @@ _TENSORBOARD_ESTIMATES = {"x": "x_m", "y": "y_m", "z": "z_m", "heading": "headin
 def log_track_tensorboard(folder: str | Path, result, figures: dict) -> None:
     """Per-frame scalars, each tag with its unit (the estimate's position, heading, speed, α and
     view; ESS, overlap, lost; the class posterior ``recognition/p_<class>`` and, where the true
-    class is one of the model's (those metrics.json's recognition counts), ``recognition/correct``;
+    class is one of the model's and the row has an estimate, ``recognition/correct`` (metrics.json's
+    recognition also counts a frame without an estimate, as wrong);
     the errors where the truth is known) and the figures, to TensorBoard event files in ``folder``."""
     from torch.utils.tensorboard import SummaryWriter
 

@@ -511,7 +511,7 @@ def _check_tree(path: Path, joints: list[ET.Element]) -> None:
             link = parent[link][1]
         if link in trail:
             cycle = list(trail)[list(trail).index(link):]
-            raise ValueError(f"{path}: joints {[parent[l][0] for l in cycle]} form a cycle through links {cycle}; "
+            raise ValueError(f"{path}: joints {[parent[link][0] for link in cycle]} form a cycle through links {cycle}; "
                              f"a URDF's joints form a tree")
         done.update(trail)
 
