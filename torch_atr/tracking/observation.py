@@ -19,9 +19,9 @@ target is one connected blob, so beyond that edge lies background, whose distanc
 edge's. Nearer the edge it falls short: beyond the edge the distance keeps the edge pixel's value
 (a blob 2 px from the edge reads its 3 px at cells 5 and 9 px from the blob), so such a frame's
 windows take the background beyond that edge for nearer the vehicle than it is (τ is about 11 image
-px at 1000 m, more nearer). Extending the distance past the image would mend it; for the blind
-start's and the blob tracker's whole-frame distances that costs several frames' worth of distance
-transform, and it is not done. Beyond an edge that cuts the
+px at 1000 m, more nearer). Extending the per-frame distance past such an edge by its margin
+mends it, and was measured and not kept (docs/tracking.md, "Edges"): on a T-72 leaving the image
+it changed nothing beyond the runs' spread. Beyond an edge that cuts the
 blob (:func:`cut_edges`) nothing is known, and the padding would carry the blob's edge pixels on
 as if the vehicle went on; there the tracker compares only the cells it observes
 (:func:`observed_cells`): eq. 5.2's sum runs over them, with its divisor L² kept, so the others
