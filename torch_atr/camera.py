@@ -84,7 +84,8 @@ class Camera(nn.Module):
         width, height = _number("width", width), _number("height", height)
         for name, value in (("width", width), ("height", height)):
             if not (1 <= value <= MAX_IMAGE_SIDE and value.is_integer()):
-                raise ValueError(f"Expected a whole image size of 1 to {MAX_IMAGE_SIDE} px a side; got {name}={value!r}")
+                raise ValueError(f"Expected a whole image size of 1 to {MAX_IMAGE_SIDE} px a side; "
+                                 f"got {name}={value!r}")
         self.width, self.height = int(width), int(height)
         K = torch.tensor([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]], dtype=dtype)
         dist = torch.zeros(5, dtype=dtype) if dist is None else torch.as_tensor(dist, dtype=dtype).flatten()

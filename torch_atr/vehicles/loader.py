@@ -511,8 +511,8 @@ def _check_tree(path: Path, joints: list[ET.Element]) -> None:
             link = parent[link][1]
         if link in trail:
             cycle = list(trail)[list(trail).index(link):]
-            raise ValueError(f"{path}: joints {[parent[link][0] for link in cycle]} form a cycle through links {cycle}; "
-                             f"a URDF's joints form a tree")
+            joints = [parent[link][0] for link in cycle]
+            raise ValueError(f"{path}: joints {joints} form a cycle through links {cycle}; a URDF's joints form a tree")
         done.update(trail)
 
 
