@@ -333,7 +333,7 @@ def error_figure(rows: list[dict], title: str):
     for ax, (name, unit, e) in zip(axes, errors):
         ax.plot(t, e, ".-", lw=1.0, ms=2.5, label=f"{name}: mean {np.nanmean(e):.2f} {unit}")  # a lone frame too
         ax.set(ylabel=f"error ({unit})")
-        ax.legend(loc="upper right", fontsize=8)
+        ax.legend(loc="best", fontsize=8)  # errors often grow late: upper right hid their end
         ax.grid(alpha=0.3)
     axes[-1].set(xlabel="time (s)")
     _span_run(axes[-1], t)
