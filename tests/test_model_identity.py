@@ -212,7 +212,15 @@ def test_classify_at_an_arc_start_is_that_arcs_class(seed):
     α just before it to the arc before."""
     m, _, labels, _ = _manifold(K=8, seed=6 + seed)
     arcs = m.class_arcs()
+    alphas = m.alphas.tolist()
+
+    def nearest_class(a: float) -> int:  # brute force, away from the tie
+        return labels[min(range(8), key=lambda k: _circular(a, alphas[k]))].item()
+
     for (c, start, _), (c_before, _, _) in zip(arcs, arcs[-1:] + arcs[:-1]):
+        assert (nearest_class(start + 1e-6), nearest_class(start - 1e-6)) == (c, c_before)
+        ties = sorted(_circular(start, a) for a in alphas)[:2]
+        assert ties[0] == pytest.approx(ties[1], abs=1e-12)  # a start is midway between two vehicles
         assert m.classify(torch.tensor([start, start - 1e-12], dtype=torch.float64)).tolist() == [c, c_before]
         for turns in (1, -2):  # α is wrapped mod 2π (which rounds the start itself)
             at = torch.tensor([start + 1e-9, start - 1e-9], dtype=torch.float64) + turns * TWO_PI
