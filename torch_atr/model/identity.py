@@ -287,33 +287,41 @@ class IdentityManifold(nn.Module):
     def classify(self, alpha: torch.Tensor) -> torch.Tensor:
         """Class index of the arc of :meth:`class_arcs` that holds alpha: (N,) radians (wrapped mod 2π),
         i.e. of the nearest αₖ. An α midway between two classes' vehicles, an arc's start, is the
-        arc's class, as :meth:`class_arcs` has it (the nearest αₖ is a tie there). Returns (N,) int64."""
+        arc's class, as :meth:`class_arcs` has it (the nearest αₖ is a tie there). Returns (N,) int64.
+        Tensor work only, on the model's device: it runs every frame."""
         check_shape("alpha", alpha, ("N",))
-        arcs = self.class_arcs()  # contiguous, sorted by start: each ends where the next starts
-        device = self.labels.device
-        starts = torch.tensor([start for _, start, _ in arcs], dtype=torch.float64, device=device)
-        labels = torch.tensor([label for label, _, _ in arcs], device=device)
-        at = torch.remainder(alpha.to(device, torch.float64), TWO_PI)
-        return labels[torch.searchsorted(starts, at, right=True) - 1]  # before the first start: the last arc's
+        starts, labels, count = self._arc_starts()
+        at = torch.remainder(alpha.to(starts.device, torch.float64), TWO_PI)
+        index = torch.searchsorted(starts, at, right=True) - 1  # −1 before the first start: the last arc's
+        return labels[torch.remainder(index, count.clamp_min(1))]  # one class: no start, every α its own
+
+    def _arc_starts(self) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """The classes' arcs as tensors: starts (K,) float64 in [0, 2π), sorted, +inf after the last
+        real one; labels (K,), the class of the arc from each start; count (), the real starts.
+
+        Vehicle order[j] owns the arc up to the midpoint to the next vehicle along the path; an arc
+        starts where the class changes along the path."""
+        sites = self.alphas[self.order].double()  # along the path
+        upper = (sites + torch.cat([sites[1:], sites.new_tensor([TWO_PI])])) / 2  # order[j] owns up to here
+        labels = self.labels[self.order]
+        change = labels != labels.roll(1)  # order[j] starts an arc at upper[j - 1]
+        starts = torch.where(change, torch.remainder(upper.roll(1), TWO_PI), torch.inf)
+        starts, by_start = starts.sort()
+        return starts, labels[by_start], change.sum()
 
     def class_arcs(self) -> list[tuple[int, float, float]]:
-        """The arcs owned by each class, sorted by start.
+        """The arcs owned by each class, sorted by start (:meth:`_arc_starts`).
 
         Each vehicle owns the arc between the midpoints to its two neighbours along the path;
         consecutive vehicles of one class merge. Returns (class, start, end) with start in
         [0, 2π) and start < end <= start + 2π: the arc holds α with (α − start) mod 2π < end − start.
         """
-        order = self.order.tolist()  # a list each, one copy from the device apiece (classify runs every frame)
-        sites = self.alphas[self.order].tolist() + [TWO_PI]  # along the path, closed
-        upper = [(sites[j] + sites[j + 1]) / 2 for j in range(len(order))]  # vehicle order[j] owns up to here
-        labels = self.labels[self.order].tolist()
-        changes = [j for j in range(len(order)) if labels[j] != labels[j - 1]]
-        if not changes:
-            start = upper[-1] - TWO_PI
-            return [(labels[0], start % TWO_PI, start % TWO_PI + TWO_PI)]
-        arcs = []
-        for first, nxt in zip(changes, changes[1:] + [changes[0] + len(order)]):
-            start = upper[first - 1] - (TWO_PI if first == 0 else 0.0)
-            end = upper[(nxt - 1) % len(order)] + (TWO_PI if nxt - 1 >= len(order) else 0.0)
-            arcs.append((labels[first], start % TWO_PI, start % TWO_PI + (end - start)))
-        return sorted(arcs, key=lambda arc: arc[1])
+        starts, labels, count = self._arc_starts()
+        count = int(count)
+        if count == 0:  # one class: the whole circle, from the midpoint past the last vehicle
+            sites = self.alphas[self.order].double()
+            start = float(torch.remainder((sites[-1] + TWO_PI) / 2, TWO_PI))
+            return [(int(labels[0]), start, start + TWO_PI)]
+        starts, labels = starts[:count].tolist(), labels[:count].tolist()
+        ends = starts[1:] + [starts[0] + TWO_PI]
+        return list(zip(labels, starts, ends))
