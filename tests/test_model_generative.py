@@ -1,5 +1,6 @@
 """The generative model (eq. 4.18) on synthetic signed-distance templates, and its checkpoints."""
 
+import collections
 import copy
 import math
 
@@ -232,6 +233,9 @@ def test_state_dict_metadata_is_not_trusted(model, tmp_path):
 def test_save_rejects_non_plain_extra(model, tmp_path):
     with pytest.raises(ValueError, match=r"extra\['obj'\] holds a object"):
         model.save(tmp_path / "x.pt", extra={"obj": object()})
+    pair = collections.namedtuple("pair", "a b")  # passed as a tuple, then crashed rebuilding it
+    with pytest.raises(ValueError, match=r"extra\['p'\] holds a pair; checkpoints store only tensors and plain data"):
+        model.save(tmp_path / "x.pt", extra={"p": pair(1, 2)})
     assert not (tmp_path / "x.pt").exists()
 
 

@@ -295,7 +295,7 @@ def _check_plain(name: str, value) -> None:
     """Raise ValueError unless ``value`` holds only tensors and plain Python data."""
     if value is None or isinstance(value, (bool, int, float, str, torch.Tensor)):
         return
-    if isinstance(value, (list, tuple)):
+    if type(value) in (list, tuple):  # a namedtuple is not plain: torch.load(weights_only) refuses it
         for i, item in enumerate(value):
             _check_plain(f"{name}[{i}]", item)
         return
