@@ -272,24 +272,29 @@ def _write(result: dict, path: Path) -> None:
     atomic_write_text(json.dumps(result) + "\n", path)
 
 
-def result_files(folder: Path) -> list[Path]:
-    """The result files in ``folder``, sorted: every ``*.json`` but hidden ones (macOS's ``._NAME.json``
-    beside each file copied to a FAT or exFAT drive is not a result)."""
-    return sorted(path for path in folder.glob("*.json") if not path.name.startswith("."))
-
-
-def read_result(path: Path) -> dict:
-    """The JSON object of a sequence's result file (NaN allowed, as ``json.dumps`` writes it); a file
-    that is not one (damaged, or put there by hand) raises ConfigError naming it."""
-    try:
-        result = json.loads(path.read_text(encoding="utf-8"))
-    except (ValueError, RecursionError) as exc:  # UnicodeDecodeError, JSONDecodeError, a 5000-digit integer
-        raise ConfigError(f"{path} is not a result file ({type(exc).__name__}: {exc}); remove it or use another "
-                          "--out") from None
-    if not isinstance(result, dict):
-        raise ConfigError(f"{path} is not a result file (a JSON {type(result).__name__}); remove it or use "
-                          "another --out")
-    return result
+def kept_results(folder: Path, fmt: str, cfg) -> dict[str, dict]:
+    """The results an earlier run of ``cfg`` left in ``folder``, by file stem: every ``*.json`` but
+    hidden ones (macOS's ``._NAME.json`` beside each file copied to a FAT or exFAT drive is not a
+    result), each a JSON object (NaN allowed, as ``json.dumps`` writes it) of format ``fmt`` and of
+    ``cfg``'s configuration. Another file there (damaged, put there by hand, of another seed, start
+    or experiment) raises ConfigError naming it: use another ``--out``."""
+    config = json.loads(json.dumps(dataclasses.asdict(cfg)))
+    kept = {}
+    for path in sorted(folder.glob("*.json")):
+        if path.name.startswith("."):
+            continue
+        try:
+            result = json.loads(path.read_text(encoding="utf-8"))
+        except (ValueError, RecursionError) as exc:  # UnicodeDecodeError, JSONDecodeError, a 5000-digit integer
+            raise ConfigError(f"{path} is not a result file ({type(exc).__name__}: {exc}); remove it or use another "
+                              "--out") from None
+        if not isinstance(result, dict):
+            raise ConfigError(f"{path} is not a result file (a JSON {type(result).__name__}); remove it or use "
+                              "another --out")
+        if result.get("format") != fmt or result.get("config") != config:
+            raise ConfigError(f"{path} holds a result of another configuration; use another --out")
+        kept[path.stem] = result
+    return kept
 
 
 def run_all(cfg: SensiacLikeConfig, out: Path, workers: int = 0, progress: bool = True,
@@ -306,18 +311,8 @@ def run_all(cfg: SensiacLikeConfig, out: Path, workers: int = 0, progress: bool 
     folder = out / "sequences"
     folder.mkdir(parents=True, exist_ok=True)
     wanted = [(v, r) for v in cfg.vehicles for r in cfg.ranges_m]
-    config = json.loads(json.dumps(dataclasses.asdict(cfg)))
-    kept = {}
-    for path in result_files(folder):  # every one, not only the grid's: another seed's has another name
-        result = read_result(path)
-        if result.get("format") != RESULT_FORMAT or result.get("config") != config:
-            raise ConfigError(f"{path} holds a result of another configuration; use another --out")
-        kept[path.name] = result
-    done: dict[tuple[str, float], dict] = {}
-    for vehicle, range_m in wanted:
-        name = f"{job_name(vehicle, range_m, cfg)}.json"
-        if name in kept:
-            done[(vehicle, range_m)] = kept[name]
+    kept = kept_results(folder, RESULT_FORMAT, cfg)  # every file, not only the grid's: another seed's has another name
+    done = {job: kept[job_name(*job, cfg)] for job in wanted if job_name(*job, cfg) in kept}
     todo = [job for job in wanted if job not in done]
     log.info("%d sequences: %d done before, %d to run", len(wanted), len(done), len(todo))
     runs = _on_ray(todo, cfg, ray_address) if ray_address else in_processes(todo, cfg, workers or os.cpu_count() or 1)

@@ -48,7 +48,7 @@ import numpy as np
 import torch_atr
 from torch_atr.config import ConfigError, load_config
 from torch_atr.experiments.sensiac_like import (HELDOUT_PREFIX, FrameCache, check_vehicle, in_processes, json_number,
-                                                read_result, resolve_checkpoint, result_files, worker_model,
+                                                kept_results, resolve_checkpoint, worker_model,
                                                 worker_templates)
 from torch_atr.io import atomic_write_text
 from torch_atr.tracking import METHODS, TrackerConfig
@@ -252,13 +252,7 @@ def run_visible(cfg: VisibleConfig, out: Path, workers: int = 0) -> tuple[dict, 
 
     folder = out / "sequences"
     folder.mkdir(parents=True, exist_ok=True)
-    config = json.loads(json.dumps(dataclasses.asdict(cfg)))
-    done: dict[str, dict] = {}
-    for path in result_files(folder):  # every one: another experiment's too
-        result = read_result(path)
-        if result.get("format") != SEQUENCE_FORMAT or result.get("config") != config:
-            raise ConfigError(f"{path} holds a result of another configuration; use another --out")
-        done[path.stem] = result
+    done = kept_results(folder, SEQUENCE_FORMAT, cfg)  # every file: another experiment's too
     calibration, drawn = calibrate(cfg)
     camera = {"camera": calibration["calibrated"], "height_m": calibration["height_m"]}
     todo = [(role, getattr(cfg, role), camera if role in CALIBRATED else None) for role in ROLES if role not in done]
