@@ -153,7 +153,7 @@ def load_catalog_folder(folder: str | Path) -> list[Vehicle]:
     """
     manifest = _manifest(folder)
     vehicles = []
-    for i, entry in enumerate(read_catalog_manifest(manifest)):
+    for i, entry in enumerate(read_catalog_manifest(folder)):
         try:
             vehicles.append(_load_entry(manifest.parent, entry))
         except (FileNotFoundError, ValueError) as exc:  # as the base type: a subclass may not take one message
