@@ -394,6 +394,23 @@ def test_package_uri_beside_the_urdf_then_one_folder_up(tmp_path):
     np.testing.assert_allclose(load_vehicle(urdf).mesh.extents, [5, 2, 1], atol=1e-6)
 
 
+@pytest.mark.parametrize("uri", ["package://pkg/my%20parts/cube%231.stl", "file://{folder}/my%20parts/cube%231.stl"])
+def test_uri_mesh_names_are_percent_decoded(tmp_path, uri):
+    """A URI's ``%20`` is a space and ``%23`` a '#' (RFC 3986, as ROS's resource retriever reads them); a plain
+    path with a literal '%' is read as written."""
+    (tmp_path / "my parts").mkdir()
+    trimesh.creation.box(extents=(3, 2, 1)).export(tmp_path / "my parts" / "cube#1.stl")
+    mesh = f'<mesh filename="{uri.format(folder=tmp_path)}"/>'
+    (tmp_path / "v.urdf").write_text(f'<robot name="v"><link name="l"><visual><geometry>{mesh}</geometry></visual>'
+                                     '</link></robot>')
+    np.testing.assert_allclose(load_vehicle(tmp_path / "v.urdf").mesh.extents, [3, 2, 1], atol=1e-6)
+    (tmp_path / "a%20b").mkdir()
+    trimesh.creation.box(extents=(4, 2, 1)).export(tmp_path / "a%20b" / "cube.stl")
+    (tmp_path / "w.urdf").write_text('<robot name="w"><link name="l"><visual><geometry>'
+                                     '<mesh filename="a%20b/cube.stl"/></geometry></visual></link></robot>')
+    np.testing.assert_allclose(load_vehicle(tmp_path / "w.urdf").mesh.extents, [4, 2, 1], atol=1e-6)
+
+
 # ------------------------------------------------------------------------------------------
 # Mesh files: axes and scale
 # ------------------------------------------------------------------------------------------

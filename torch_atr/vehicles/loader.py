@@ -34,6 +34,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from types import MappingProxyType
 from typing import Mapping
+from urllib.parse import unquote
 
 import numpy as np
 import pytorch_kinematics as pk
@@ -182,7 +183,9 @@ def load_vehicle(
             metres (module docstring); 0 keeps every part. Ignored for a URDF.
 
     A URDF ``<mesh filename>`` is read as a path relative to the URDF's folder (or absolute,
-    with or without ``file://``). ``package://pkg/rest`` has no ROS package index to consult:
+    with or without ``file://``); a ``file://`` or ``package://`` URI is percent-decoded
+    (``%20`` is a space), a plain path is taken as written. ``package://pkg/rest`` has no ROS
+    package index to consult:
     ``rest`` is looked up beside the URDF first, then one folder up (the ROS layout
     ``pkg/urdf/x.urdf`` with meshes under ``pkg/meshes/``).
 
@@ -457,10 +460,10 @@ def _positive(g: ET.Element, attr: str, n: int, where: str, default: tuple[float
 def _mesh_path(urdf: Path, filename: str, where: str) -> Path:
     """The mesh file a URDF ``filename`` names (resolution rule: :func:`load_vehicle`)."""
     if filename.startswith("package://"):
-        rest = filename[len("package://"):].partition("/")[2]
+        rest = unquote(filename[len("package://"):].partition("/")[2])
         candidates = [urdf.parent / rest, urdf.parent.parent / rest]
     else:
-        p = Path(filename.removeprefix("file://"))
+        p = Path(unquote(filename[len("file://"):]) if filename.startswith("file://") else filename)
         candidates = [p if p.is_absolute() else urdf.parent / p]
     for p in candidates:
         if p.is_file():
