@@ -27,6 +27,26 @@ def test_atomic_write_replaces_whole_file_and_leaves_no_temp(tmp_path):
     assert target.stat().st_mode & 0o777 == 0o666 & ~umask
 
 
+def test_a_symbolic_link_is_written_through(tmp_path):
+    """As a shell's ``>``: the link's target (relative, in another folder, or not yet there) gets the content,
+    and the link stays a link; the temporary file lives beside the target, not the link."""
+    (tmp_path / "store").mkdir()
+    (tmp_path / "store" / "v3.pt").write_text("old")
+    link = tmp_path / "runs" / "default.pt"
+    link.parent.mkdir()
+    link.symlink_to(Path("..") / "store" / "v3.pt")
+    dangling = tmp_path / "runs" / "next.pt"
+    dangling.symlink_to(tmp_path / "store" / "v4.pt")
+    with atomic_path(link) as tmp:
+        assert tmp.parent == tmp_path / "store"
+        tmp.write_text("new")
+    atomic_write_text("fresh", dangling)
+    assert link.is_symlink() and dangling.is_symlink()
+    assert (tmp_path / "store" / "v3.pt").read_text() == "new"
+    assert (tmp_path / "store" / "v4.pt").read_text() == "fresh"
+    assert sorted(p.name for p in (tmp_path / "store").iterdir()) == ["v3.pt", "v4.pt"]
+
+
 def test_failed_write_keeps_the_old_content(tmp_path):
     target = tmp_path / "model.pt"
     atomic_write_text("good", target)

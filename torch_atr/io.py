@@ -100,26 +100,28 @@ def atomic_path(path: str | os.PathLike, suffix: str = "") -> Iterator[Path]:
     writer that picks its format by the extension); on success rename it over ``path``.
 
     The temporary file is removed if the block raises, so nothing half written is left; one left
-    by a killed write of the same target is removed when this write starts.
+    by a killed write of the same target is removed when this write starts. A symbolic link is
+    written through: its target gets the new content and the link stays (as ``>`` in a shell).
     """
     path = Path(path)
     if not re.fullmatch(_TEMP_SUFFIX, suffix):
         raise ValueError(f"suffix must be empty or a short extension like '.mp4'; got {suffix!r}")
+    target = Path(os.path.realpath(path)) if path.is_symlink() else path
     try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(prefix=f".{hidden_stem(path.name)}.", suffix=".tmp" + suffix, dir=path.parent)
+        target.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(prefix=f".{hidden_stem(target.name)}.", suffix=".tmp" + suffix, dir=target.parent)
     except OSError as exc:  # name the file the user asked for, not our temporary one
         raise OSError(exc.errno, f"cannot write {path}: {exc.strerror}") from None
     tmp_path = Path(tmp)
     try:
         fcntl.flock(fd, fcntl.LOCK_EX)  # held until this write ends (or its process dies)
-        _remove_stale_temps(path)
+        _remove_stale_temps(target)
         umask = os.umask(0)
         os.umask(umask)
         os.chmod(tmp, 0o666 & ~umask)  # mkstemp makes 0600; give the file a plain file's mode
         yield tmp_path
         try:
-            os.replace(tmp_path, path)
+            os.replace(tmp_path, target)
         except OSError as exc:  # a full disk, a folder in the way: named as above
             raise OSError(exc.errno, f"cannot write {path}: {exc.strerror}") from None
     finally:
