@@ -162,3 +162,14 @@ def test_error_figure_spans_the_run_as_the_alpha_figure_does():
     for ax in viz.error_figure(rows, "late").axes:
         assert ax.get_xlim() == pytest.approx((0.0, 2.0))
     assert viz.alpha_figure(rows, model, "late").axes[0].get_xlim() == pytest.approx((0.0, 2.0))
+
+
+def test_a_one_frame_run_has_no_negative_time():
+    """One frame at 0 s: the time axes ran from −0.05 s (matplotlib's margin around one point)."""
+    model = GenerativeShapeModel.from_checkpoint(CKPT)
+    rows = [{"frame": 0, "time_s": 0.0, "lost": 0, "true_x": 0.5, "true_z": 900.0, "true_theta": 1.0,
+             "x": 0.8, "z": 905.0, "theta": 1.2, "alpha": 0.3}]
+    for ax in [*viz.error_figure(rows, "one").axes, *viz.alpha_figure(rows, model, "one").axes]:
+        assert ax.get_xlim() == pytest.approx((0.0, 0.5))
+    later = [{**rows[0], "time_s": 3.0}]
+    assert viz.error_figure(later, "one").axes[0].get_xlim() == pytest.approx((2.5, 3.5))

@@ -277,10 +277,15 @@ def _note_no_estimate(ax) -> None:
 
 
 def _span_run(ax, t: np.ndarray) -> None:
-    """Set the time axis of ``ax`` to the whole run, frames with an estimate or not; t: (T,) seconds."""
+    """Set the time axis of ``ax`` to the whole run, frames with an estimate or not; t: (T,) seconds.
+    A one-frame run gets half a second either side, cut at 0 s (matplotlib's ±0.05 s ran through
+    negative time)."""
     times = t[np.isfinite(t)]
-    if times.size and times.max() > times.min():
-        ax.set_xlim(times.min(), times.max())
+    if times.size:
+        lo, hi = times.min(), times.max()
+        if hi == lo:
+            lo, hi = max(lo - 0.5, min(lo, 0.0)), hi + 0.5
+        ax.set_xlim(lo, hi)
 
 
 def alpha_figure(rows: list[dict], model, title: str):
