@@ -256,6 +256,27 @@ def test_a_video_cut_short_gives_the_frames_it_holds(avi, tmp_path, caplog):
         np.testing.assert_array_equal(seq.frame(i), whole.frame(i))
 
 
+def test_a_video_holding_more_frames_than_it_claims_is_refused_not_cut(tmp_path):
+    """An MPEG-1 program stream's count is an estimate from its duration, short of its frames:
+    the sequence was as long as the claim, and the frames after it were lost without a word."""
+    path = tmp_path / "clip.mpg"
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"PIM1"), 25.0, (W, H), True)
+    assert writer.isOpened()
+    for i in range(40):
+        writer.write(np.full((H, W, 3), 6 * i, np.uint8))
+    writer.release()
+    cap = cv2.VideoCapture(str(path))
+    claim = int(cap.get(cv2.CAP_PROP_FRAME_COUNT))
+    held = 0
+    while cap.grab():  # the reference: read from the start until a frame fails
+        held += 1
+    cap.release()
+    assert held == 40 and 0 < claim < held
+    want = f"{path}: the video claims {claim} frames but holds more (frame {claim} reads too)"
+    with pytest.raises(InputError, match=re.escape(want)):
+        open_sequence(f"video:{path}")
+
+
 def test_a_video_refused_after_opening_releases_its_capture(avi, monkeypatch):
     """Every refusal once the capture is open (no frames, a bad size, no readable frame) releases it."""
     from torch_atr.data import video as video_module

@@ -173,12 +173,18 @@ def _readable_frames(cap: cv2.VideoCapture, count: int, path: Path) -> int:
     """The frames of an opened video that can be read: ``count``, the header's claim, when its last
     frame reads; else the frames before the first that does not (found by bisection, log₂ count
     seeks), with a warning: a truncated file (a copy cut short, a recording stopped hard) claims
-    frames it no longer holds. The capture's position is left anywhere."""
+    frames it no longer holds. A video with a frame after the claimed last is refused: its count is
+    an estimate (an MPEG program stream's, from its duration), and seeks by frame number in such a
+    file land on other frames. The capture's position is left anywhere."""
     def reads(i: int) -> bool:
         cap.set(cv2.CAP_PROP_POS_FRAMES, i)
         return cap.grab()
 
     if reads(count - 1):
+        if cap.grab():
+            raise InputError(f"{path}: the video claims {count} frames but holds more (frame {count} reads too): "
+                             f"its frame count is an estimate, and OpenCV cannot find its frames by number; "
+                             f"convert it to a video with an index (ffmpeg -i IN -c:v ffv1 OUT.mkv) or to images")
         return count
     if not reads(0):
         raise InputError(f"{path}: cannot read its first frame (the video claims {count})")
