@@ -2,7 +2,12 @@
 
 import json
 import math
+import os
 import re
+import shutil
+import subprocess
+import sys
+from pathlib import Path
 
 import cv2
 import numpy as np
@@ -275,6 +280,23 @@ def test_a_video_holding_more_frames_than_it_claims_is_refused_not_cut(tmp_path)
     want = f"{path}: the video claims {claim} frames but holds more (frame {claim} reads too)"
     with pytest.raises(InputError, match=re.escape(want)):
         open_sequence(f"video:{path}")
+
+
+def test_a_video_path_that_is_not_utf8_is_refused_not_a_crash(avi, tmp_path):
+    """A name of Latin-1 bytes (an old archive's) reaches OpenCV with surrogates: cv2.VideoCapture
+    crashed the process (SIGSEGV), so the call runs in a child process."""
+    try:
+        path = os.fsdecode(os.path.join(os.fsencode(tmp_path), b"cl\xe9.avi"))
+        shutil.copyfile(avi, path)
+    except OSError:
+        pytest.skip("this file system refuses names that are not UTF-8")
+    code = ("import sys\nfrom torch_atr.data import VideoSequence\ntry:\n    VideoSequence(sys.argv[1])\n"
+            "except ValueError as exc:\n    print(exc)\n")
+    child = subprocess.run([sys.executable, "-c", code, path], capture_output=True, text=True,
+                           cwd=Path(__file__).resolve().parents[1])
+    assert child.returncode == 0, child.stderr
+    assert child.stdout == f"{path!r}: the path is not UTF-8 text, and OpenCV's video reader crashes the process " \
+                           f"(a segmentation fault) on such a path; rename the file\n"
 
 
 def test_a_video_refused_after_opening_releases_its_capture(avi, monkeypatch):
