@@ -349,6 +349,36 @@ def test_save_rejects_mixed_frames(tmp_path):
     assert list(tmp_path.iterdir()) == []
 
 
+_SAVE_TO_A_LATIN1_NAME = """
+import os, sys
+import numpy as np
+from torch_atr.data import ArraySequence, save_sequence
+frames = np.arange(2 * 3 * 4 * 3, dtype=np.uint8).reshape(2, 3, 4, 3)
+save_sequence(ArraySequence(frames), os.fsdecode(sys.argv[1].encode() + b"/cl\\xe9"), progress=False)
+"""
+
+
+def test_a_save_to_a_folder_named_in_bytes_that_are_not_utf8_writes_its_frames(tmp_path):
+    """cv2.imwrite crashed the process (SIGSEGV) on such a path, so the save runs in a child
+    process; its PNGs are read back byte-wise, with OpenCV's decoder alone."""
+    import cv2
+
+    target = os.path.join(os.fsencode(tmp_path), b"cl\xe9")
+    try:
+        os.mkdir(target)
+        os.rmdir(target)
+    except OSError:
+        pytest.skip("this file system refuses names that are not UTF-8")
+    repo = Path(__file__).resolve().parents[1]
+    child = subprocess.run([sys.executable, "-c", _SAVE_TO_A_LATIN1_NAME, str(tmp_path)], cwd=repo,
+                           env={**os.environ, "PYTHONPATH": str(repo)}, capture_output=True, text=True)
+    assert child.returncode == 0, child.stderr
+    frames = np.arange(2 * 3 * 4 * 3, dtype=np.uint8).reshape(2, 3, 4, 3)
+    for i in range(2):
+        png = np.fromfile(os.path.join(target, b"frames", b"%06d.png" % i), np.uint8)
+        np.testing.assert_array_equal(cv2.imdecode(png, cv2.IMREAD_UNCHANGED)[..., ::-1], frames[i])
+
+
 @pytest.fixture
 def saved(tmp_path):
     seq = ListSequence([np.full((3, 4), i, np.uint8) for i in range(4)], _truths(4)[:4])

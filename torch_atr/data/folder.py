@@ -293,8 +293,10 @@ def save_sequence(seq: Sequence, folder: str | os.PathLike, progress: bool = Tru
             _check_frame(seq.name, i, img, like=first)
             first = img if first is None else first
             out = tmp / "frames" / _frame_filename(i)
-            if not cv2.imwrite(str(out), cv2.cvtColor(img, cv2.COLOR_RGB2BGR) if img.ndim == 3 else img):
-                raise OSError(f"cv2.imwrite could not write {out}")
+            ok, png = cv2.imencode(".png", cv2.cvtColor(img, cv2.COLOR_RGB2BGR) if img.ndim == 3 else img)
+            if not ok:
+                raise OSError(f"cv2.imencode could not encode {seq.name}'s frame {i} as PNG")
+            png.tofile(out)  # not cv2.imwrite, which crashes the process on a path that is not UTF-8
             truths.append(_savable_truth(seq.name, i, seq.truth(i)))
         if any(t is not None for t in truths):
             _write_truth_csv(tmp / "truth.csv", truths)
