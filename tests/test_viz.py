@@ -78,10 +78,10 @@ def test_view_figure_shows_what_truth_there_is_and_keeps_it_in_view():
     """A truth without elevation is drawn as azimuth ticks, named so (it was a 'truth' key with
     nothing drawn); a truth elevation above the estimate's stays inside the axes."""
     legend = [t.get_text() for t in viz.view_figure(_sensiac_like_rows(), "sensiac").axes[0].get_legend().get_texts()]
-    assert legend == ["true azimuth (elevation unknown)", "estimate"]
+    assert legend == ["estimate", "true azimuth (elevation unknown)"]
     rows = [{**row, "true_phi": math.radians(65.0)} for row in _sensiac_like_rows()]
     fig = viz.view_figure(rows, "high")
-    assert [t.get_text() for t in fig.axes[0].get_legend().get_texts()] == ["truth", "estimate"]
+    assert [t.get_text() for t in fig.axes[0].get_legend().get_texts()] == ["estimate", "truth"]
     assert fig.axes[0].get_ylim()[1] > 65.0
 
 

@@ -348,33 +348,40 @@ def error_figure(rows: list[dict], title: str):
 
 
 def view_figure(rows: list[dict], title: str):
-    """The view Θ = (θ, φ) over the run on the view manifold (Fig. 6.15): azimuth against
-    elevation, in degrees, coloured by time, with the truth where known. Returns a Figure."""
+    """The view Θ = (θ, φ) over the run: above, on the view manifold (Fig. 6.15), azimuth against
+    elevation in degrees, coloured by time; below, the azimuth against time, where a grazing
+    camera's views (φ near 0) are told apart. The truth where known, drawn over the estimate.
+    Returns a Figure."""
     from torch_atr.tracking.filter import column
 
     plt = pyplot()
-    fig, ax = plt.subplots(figsize=(8, 4.5))
+    fig, (ax, ax_time) = plt.subplots(2, 1, figsize=(8, 7), height_ratios=[3, 2], layout="constrained")
     t = column(rows, "time_s")
     true_theta, true_phi = np.degrees(column(rows, "true_theta")) % 360, np.degrees(column(rows, "true_phi"))
+    phi = np.degrees(column(rows, "phi"))
+    theta = np.degrees(column(rows, "theta")) % 360
+    est = np.isfinite(theta) & np.isfinite(phi)  # a frame without an estimate is a transparent point (and the legend's)
+    sc = ax.scatter(theta[est], phi[est], c=t[est], s=10, cmap="viridis", label="estimate")
+    ax_time.scatter(t[est], theta[est], c=t[est], s=10, cmap="viridis", label="estimate")
     if np.isfinite(true_phi).any():
-        ax.plot(true_theta, true_phi, ".", ms=3, color="crimson", label="truth")
+        ax.plot(true_theta, true_phi, ".", ms=2, color="crimson", label="truth")
     elif np.isfinite(true_theta).any():  # an aspect without an elevation (SENSIAC's truth): ticks along the bottom
         ax.plot(true_theta, np.full(true_theta.shape, 0.02), "|", ms=8, color="crimson",
                 transform=ax.get_xaxis_transform(), label="true azimuth (elevation unknown)")
-    phi = np.degrees(column(rows, "phi"))
-    theta = column(rows, "theta")
-    est = np.isfinite(theta) & np.isfinite(phi)  # a frame without an estimate is a transparent point (and the legend's)
-    sc = ax.scatter(np.degrees(theta[est]) % 360, phi[est], c=t[est], s=8, cmap="viridis", label="estimate")
+    if np.isfinite(true_theta).any():
+        ax_time.plot(t, true_theta, ".", ms=2, color="crimson", label="truth")
     if not est.any():
         _note_no_estimate(ax)
     shown = np.concatenate([phi[np.isfinite(phi)], true_phi[np.isfinite(true_phi)], [-5.0, 50.0]])  # training: 0°-40°
     ax.set(xlim=(0, 360), xticks=range(0, 361, 45), ylim=(shown.min() - 1, shown.max() + 1),
            xlabel="azimuth θ from the vehicle's front (degrees)", ylabel="elevation φ (degrees)",
            title=f"{title}: the view over the run")
-    ax.grid(alpha=0.3)
-    fig.colorbar(sc, ax=ax, label="time (s)")
-    ax.legend(loc="upper right", fontsize=8)
-    fig.tight_layout()
+    ax_time.set(ylim=(0, 360), yticks=range(0, 361, 90), xlabel="time (s)", ylabel="azimuth θ (degrees)")
+    _span_run(ax_time, t)
+    for a in (ax, ax_time):
+        a.grid(alpha=0.3)
+        a.legend(loc="upper right", fontsize=8)
+    fig.colorbar(sc, ax=[ax, ax_time], label="time (s)")
     return fig
 
 
