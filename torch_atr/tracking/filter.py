@@ -162,7 +162,7 @@ class AdaptConfig:
     """Online kernel-width adaptation (the design card's "fine-tune kernel widths by gradient
     descent on reconstruction loss"): every ``every`` frames, ``steps`` Adam steps at ``lr`` on
     log(width) reduce the squared error between the predicted shape at the estimate and the
-    observation there. 0 turns it off (the default: measured, it did not help; README)."""
+    observation there. 0 turns it off (the default: measured, it did not help; docs/tracking.md)."""
 
     every: int = 0
     steps: int = 3
@@ -207,7 +207,7 @@ class RedetectConfig:
     1.57 -> 1.15 rad). Over the 8 test vehicles' laps at 1000 and 2000 m (seed 0) they changed 5
     of 16 and the means little: recognition 78.5 -> 78.0 % (the 2S3 at 2000 m 100 -> 82 %, the
     T-72 there 0 -> 10 %), aspect 1.18 -> 1.10 rad, horizontal 0.73 -> 0.70 m (2026-11-27;
-    README, "Defaults").
+    docs/tracking.md, "The defaults as they stand, measured").
 
     View searches (``view_every`` > 0, off by default) come every ``view_every`` frames after any
     start, all through the run (a frame of the full search above has no view search). They score
@@ -220,7 +220,8 @@ class RedetectConfig:
     scene seeds) they fired in 8 of 32 and lowered Method I's aspect error in all 8 (the 2S3 at
     1000 m 1.87 -> 0.41 rad), mean 1.19 -> 1.04 rad; the 300-frame bars' runs never fired; behind
     a berm one sequence in 16 lost recognition at the new view; over the full 1000-frame run
-    Method I's aspect fell 1.17 -> 1.09 rad and its recognition 76.1 -> 74.6 % (2026-11-27; README).
+    Method I's aspect fell 1.17 -> 1.09 rad and its recognition 76.1 -> 74.6 % (2026-11-27;
+    docs/experiments.md, "With view searches").
     What they cannot mend is θ against π − θ: at a grazing view the two silhouettes are the same.
 
     Restarts (``restart`` > 0) mend a track that no longer sees its blob at all, which no search
@@ -267,7 +268,7 @@ class RedetectConfig:
 def tracker_segmentation() -> SegmentationConfig:
     """The segmentation the tracker defaults to: the frozen thesis model plus feedback (the
     background keeps learning away from the predicted target every 5th frame, gain compensated),
-    and thin parts found at MOG2 threshold 9 (a far tank's gun; README, "Experiments")."""
+    and thin parts found at MOG2 threshold 9 (a far tank's gun; docs/experiments.md, "Where we are behind")."""
     return SegmentationConfig(learning_rate=0.01, learning_interval=5, compensate_gain=True, thin_threshold=9.0)
 
 
@@ -886,8 +887,8 @@ class Tracker:
 
         The background is learned from the sequence's target-free ``warmup_frames`` where it has
         them (the simulator), else from frames spread evenly over the frames tracked, with what
-        moves taken out (``segmentation.static_background_frames``; README, "The background of
-        your own sequences").
+        moves taken out (``segmentation.static_background_frames``; docs/sequences.md, "The
+        background of your own sequences").
 
         Args:
             sequence: an opened sequence with a camera (``data.open_sequence``).
