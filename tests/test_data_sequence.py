@@ -422,6 +422,14 @@ def test_csv_blank_lines_at_the_end_are_ignored_elsewhere_named(saved):
         FolderSequence(saved)
 
 
+def test_csv_with_a_blank_first_line_is_named_not_read_as_a_header_of_no_columns(saved):
+    """The blank line was the header: every row then had "expected 0 columns; got 18"."""
+    path = saved / "truth.csv"
+    path.write_text("\n" + path.read_text())
+    with pytest.raises(ValueError, match=re.escape(f"{path}: line 1 is blank; expected a header row of FrameTruth")):
+        FolderSequence(saved)
+
+
 def test_a_shape_given_as_width_height_is_blamed_on_meta_json(tmp_path):
     """meta.json's [W, H] against 4 x 3 frames and a 4 x 3 camera: the mistake is meta.json's."""
     folder = save_sequence(ListSequence([np.zeros((3, 4), np.uint8)] * 2, camera=_camera(4, 3)), tmp_path / "s",

@@ -204,8 +204,9 @@ def _read_truth_csv(path: Path, n: int) -> list[FrameTruth | None]:
     reader = csv.reader(io.StringIO(read_text(path), newline=""))
     try:
         header = next(reader, None)
-        if header is None:
-            raise InputError(f"{path}: empty file; expected a header row of FrameTruth fields")
+        if not header:  # a blank first line read as a header of no columns: every row then had too many
+            raise InputError(f"{path}: {'empty file' if header is None else 'line 1 is blank'}; expected a header row "
+                             f"of FrameTruth fields")
         unknown = [c for c in header if c not in TRUTH_FIELDS]
         if unknown:
             raise InputError(f"{path}, line 1: unknown column(s) {', '.join(map(show, unknown[:5]))}; "
