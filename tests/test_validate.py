@@ -1,8 +1,13 @@
 """The validation layer: each helper against hand-written good and bad values."""
 
 import math
+import os
 import re
+import subprocess
+import sys
+from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
@@ -82,6 +87,41 @@ def test_read_image_gives_the_pixels_as_stored_and_names_a_bad_file(tmp_path):
     (tmp_path / "cut.png").write_bytes(whole[:len(whole) // 2])  # the header intact, the pixels cut short
     with pytest.raises(InputError, match=f"^{re.escape(str(tmp_path / 'cut.png'))}: cannot be"):
         read_image(tmp_path / "cut.png")
+
+
+def test_a_jpeg_cut_short_is_refused_and_one_with_a_trailer_is_read(tmp_path):
+    """OpenCV decoded a JPEG cut short with its missing rows grey (libjpeg's "Premature end of JPEG
+    file" went to stderr only); bytes after the end marker (a camera's trailer) are not a cut."""
+    rng = np.random.default_rng(1)
+    img = cv2.GaussianBlur(rng.integers(0, 256, (96, 128), dtype=np.uint8), (5, 5), 0)
+    Image.fromarray(img).save(tmp_path / "whole.jpg", quality=90, progressive=False)
+    Image.fromarray(img).save(tmp_path / "steps.jpg", quality=90, progressive=True)
+    for name in ("whole.jpg", "steps.jpg"):
+        whole = (tmp_path / name).read_bytes()
+        reference = np.asarray(Image.open(tmp_path / name))  # independent: Pillow's decoder
+        assert np.abs(read_image(tmp_path / name).astype(int) - reference).max() <= 2
+        (tmp_path / f"trailer_{name}").write_bytes(whole + b"\x00" * 16 + b"maker notes")
+        assert np.array_equal(read_image(tmp_path / f"trailer_{name}"), read_image(tmp_path / name))
+        (tmp_path / f"cut_{name}").write_bytes(whole[:len(whole) * 2 // 3])
+        with pytest.raises(InputError, match=f"^{re.escape(str(tmp_path / f'cut_{name}'))}: the JPEG ends inside"):
+            read_image(tmp_path / f"cut_{name}")
+
+
+def test_read_image_takes_a_path_that_is_not_utf8(tmp_path):
+    """A Latin-1 name reaches OpenCV with surrogates: cv2.imread crashed the process (SIGSEGV), so the
+    read runs in a child process; its pixels are Pillow's."""
+    rgb = np.random.default_rng(2).integers(0, 256, (4, 6, 3), dtype=np.uint8)
+    try:
+        path = os.fsdecode(os.path.join(os.fsencode(tmp_path), b"cl\xe9.png"))
+        Image.fromarray(rgb).save(path)
+    except (OSError, UnicodeEncodeError):
+        pytest.skip("this file system refuses names that are not UTF-8")
+    code = ("import os, sys\nfrom torch_atr.validate import read_image\n"
+            "sys.stdout.write(read_image(os.fsdecode(bytes.fromhex(sys.argv[1]))).tobytes().hex())\n")
+    child = subprocess.run([sys.executable, "-c", code, os.fsencode(path).hex()], capture_output=True, text=True,
+                           cwd=Path(__file__).resolve().parents[1])
+    assert child.returncode == 0, child.stderr
+    assert bytes.fromhex(child.stdout) == rgb[..., ::-1].tobytes()  # OpenCV's BGR order
 
 
 def test_rotation_accepts_rotations_and_reflections_of_them():

@@ -146,13 +146,21 @@ def read_image(path: str | os.PathLike, expect_size: tuple[int, int] | None = No
     """An image file's pixels as stored (OpenCV's ``IMREAD_UNCHANGED``: (H, W) grey or (H, W, C)
     BGR, 8 or 16 bits), its header checked by :func:`image_file_size` before decoding, and against
     ``expect_size`` (width, height) if given (``expected_by`` names what expects it); InputError
-    naming the file for one that is too large, of another size or cannot be decoded."""
+    naming the file for one that is too large, of another size or cannot be decoded, and for a JPEG
+    cut short (OpenCV fills its missing rows with grey, saying so only on stderr).
+
+    The bytes are read by Python and decoded from memory: ``cv2.imread`` crashes the process on a
+    path that is not UTF-8 text (a Latin-1 name from an old archive)."""
     width, height = image_file_size(path)
     if expect_size is not None and (width, height) != tuple(expect_size):
         raise InputError(f"{path}: image is {width} x {height} px; {expected_by} says {expect_size[0]} x "
                          f"{expect_size[1]}")
+    data = Path(path).read_bytes()
+    if data[:2] == b"\xff\xd8" and data.rfind(b"\xff\xd9") < data.rfind(b"\xff\xda"):
+        raise InputError(f"{path}: the JPEG ends inside its image data (no end marker after its last scan): "
+                         "a file cut short")
     try:
-        img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+        img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
     except cv2.error as exc:
         raise InputError(f"{path}: cannot be decoded ({' '.join(str(exc).split())})") from None
     if img is None:
