@@ -174,6 +174,10 @@ def test_find_checkerboard_in_an_image_too_small_for_the_detector_finds_none(sha
     assert find_checkerboard(np.zeros((15, 2000), np.uint8), (3, 3)) is None  # the smallest side it runs on
     with pytest.raises(ValueError, match=r"at least 3 x 3 inner corners \(the fewest OpenCV finds\); got \(2, 5\)"):
         find_checkerboard(np.zeros((H, W), np.uint8), (2, 5))
+    for fraction in [(9.5, 6), (9, 6.0001), ("9", 6)]:  # (9.5, 6) was taken for (9, 6)
+        with pytest.raises(ValueError, match=r"^Expected pattern to be \(columns, rows\) of inner corners, two int"):
+            find_checkerboard(np.zeros((H, W), np.uint8), fraction)
+    assert find_checkerboard(np.zeros((H, W), np.uint8), (np.int64(9), 6.0)) is None  # whole numbers of any type
 
 
 @pytest.mark.parametrize("order", ["same", "half turn", "rows reversed", "columns reversed"])

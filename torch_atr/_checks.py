@@ -112,8 +112,11 @@ def check_pattern(pattern) -> tuple[int, int]:
     ``cv2.findChessboardCorners`` takes: fewer is a cv2.error). ValueError naming the value."""
     try:
         cols, rows = (int(p) for p in pattern)
+        if [cols, rows] != list(pattern):  # 9.5 is not 9 corners
+            raise ValueError
     except (TypeError, ValueError) as exc:
-        raise ValueError(f"Expected pattern to be (columns, rows) of inner corners; got {pattern!r}") from exc
+        raise ValueError(f"Expected pattern to be (columns, rows) of inner corners, two integers; got {pattern!r}"
+                         ) from exc
     if cols < 3 or rows < 3:
         raise ValueError(f"Expected pattern to have at least 3 x 3 inner corners (the fewest OpenCV finds); "
                          f"got {pattern!r}")
