@@ -2,6 +2,7 @@
 
 import collections
 import copy
+import enum
 import math
 
 import numpy as np
@@ -236,6 +237,11 @@ def test_save_rejects_non_plain_extra(model, tmp_path):
     pair = collections.namedtuple("pair", "a b")  # passed as a tuple, then crashed rebuilding it
     with pytest.raises(ValueError, match=r"extra\['p'\] holds a pair; checkpoints store only tensors and plain data"):
         model.save(tmp_path / "x.pt", extra={"p": pair(1, 2)})
+    # Subclasses of float and int passed as plain and were written, and then load_checkpoint refused the file.
+    with pytest.raises(ValueError, match=r"extra\['iou'\] holds a float64; checkpoints store only tensors and plain"):
+        model.save(tmp_path / "x.pt", extra={"iou": np.float64(0.9)})
+    with pytest.raises(ValueError, match=r"extra\[.mode.\]\[0\] holds a Mode; checkpoints store only"):
+        model.save(tmp_path / "x.pt", extra={"mode": [enum.IntEnum("Mode", "A B").B]})
     assert not (tmp_path / "x.pt").exists()
 
 

@@ -293,7 +293,8 @@ class GenerativeShapeModel(nn.Module):
 
 def _check_plain(name: str, value) -> None:
     """Raise ValueError unless ``value`` holds only tensors and plain Python data."""
-    if value is None or isinstance(value, (bool, int, float, str, torch.Tensor)):
+    # type(), not isinstance: np.float64 is a float and an IntEnum member an int, which torch.load(weights_only) refuses
+    if value is None or type(value) in (bool, int, float, str) or isinstance(value, torch.Tensor):
         return
     if type(value) in (list, tuple):  # a namedtuple is not plain: torch.load(weights_only) refuses it
         for i, item in enumerate(value):
