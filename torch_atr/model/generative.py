@@ -302,7 +302,7 @@ def _check_plain(name: str, value) -> None:
         return
     if isinstance(value, dict):
         for key, item in value.items():
-            if not isinstance(key, str):
+            if type(key) is not str:  # np.str_ keys (from an array of names) are refused by torch.load(weights_only)
                 raise ValueError(f"{name} has a non-string key {key!r}")
             _check_plain(f"{name}[{key!r}]", item)
         return
