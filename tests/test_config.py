@@ -77,6 +77,10 @@ def test_a_section_keeps_its_own_defaults_for_the_keys_not_given(tmp_path):
     ("views:\n  azimuth_step_deg: 1e-9\n", "give 360000000000 x 5 = 1800000000000 views; expected at most 10000"),
     ("views:\n  azimuth_step_deg: 2.2250738585e-313\n", "give more views than a float counts; expected at most 10000"),
     ("views:\n  elevation_step_deg: 2.2250738585e-313\n", "give more views than a float counts"),  # were OverflowError
+    # Held-out views half a step above the top elevation, at 105°: train.py stopped after rendering, naming no key.
+    ("views:\n  elevation_step_deg: 70\n  elevation_max_deg: 70\n", r"views: elevation_step_deg=70 and "
+     r"elevation_max_deg=70 put the held-out views half a step above the top elevation 70°, at 105°, beyond "
+     r"the zenith"),
     ("views:\n  azimuth_step_deg: 7\n", r"views.azimuth_step_deg=7 must divide 360 \(e.g. 6 or 8\): 360/7 = 51.43 "
                                           r"azimuths would leave a step of 10° where they wrap"),
     ("seed: 1\nname: a\nseed: 2\n", r"key 'seed' repeated \(first on line 1\).*line 3"),

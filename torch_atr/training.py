@@ -69,6 +69,12 @@ class ViewGridConfig:
             raise ConfigError(f"views: azimuth_step_deg={self.azimuth_step_deg:g} and elevation_step_deg="
                               f"{self.elevation_step_deg:g} give {n_theta} x {n_phi} = {n_theta * n_phi} views; "
                               f"expected at most {MAX_VIEWS}")
+        top = (n_phi - 1) * self.elevation_step_deg  # the grid's highest elevation
+        if top + self.elevation_step_deg / 2 > 90:  # the held-out and validation views lie half a step above it
+            raise ConfigError(f"views: elevation_step_deg={self.elevation_step_deg:g} and elevation_max_deg="
+                              f"{self.elevation_max_deg:g} put the held-out views half a step above the top elevation "
+                              f"{top:g}°, at {top + self.elevation_step_deg / 2:g}°, beyond the zenith; expected at "
+                              f"most 90°: lower either")
         per_turn = 360.0 / self.azimuth_step_deg  # azimuths in 360°
         if abs(per_turn - n_theta) > 1e-9 * per_turn:
             below, above = _dividing_steps(self.azimuth_step_deg)
