@@ -316,6 +316,8 @@ def test_fit_tunes_widths_when_asked(data):
     cfg = ModelConfig(pixel_rank=None, ridge=1e-4, width_steps=5, width_lr=0.05)
     with pytest.raises(ValueError, match="needs val_templates"):
         _fit(data, cfg)
+    with pytest.raises(ValueError, match=r"Expected signed-distance val_templates \(floating\); got dtype torch.bool"):
+        _fit(data, cfg, val_templates=data["val"] > 0, val_theta=data["val_theta"], val_phi=data["val_phi"])
     tuned = _fit(data, cfg, val_templates=data["val"], val_theta=data["val_theta"], val_phi=data["val_phi"])
     untuned = _fit(data, ModelConfig(pixel_rank=None, ridge=1e-4))
     assert tuned.rbf.widths.std() > 0  # one width per centre, tuned apart from the shared initial value

@@ -178,6 +178,8 @@ class GenerativeShapeModel(nn.Module):
             if val_templates is None or val_theta is None or val_phi is None:
                 raise ValueError("cfg.width_steps > 0 needs val_templates, val_theta and val_phi")
             check_shape("val_templates", val_templates, (K, None, template_cfg.size_px, template_cfg.size_px))
+            if not val_templates.is_floating_point():  # masks tuned the widths to 0/1 targets without a word
+                raise ValueError(f"Expected signed-distance val_templates (floating); got dtype {val_templates.dtype}")
             val = val_templates.reshape(K, val_templates.shape[1], -1)  # (K, Vv, d), widened per vehicle later
             width_history = fine_tune_widths(rbf, Y, theta, phi, val, as_wide("val_theta", val_theta),
                                              as_wide("val_phi", val_phi), cfg.width_steps, cfg.width_lr,
