@@ -227,7 +227,7 @@ def test_text_and_folders_are_not_checkpoints(tmp_path):
 
 def test_a_device_this_machine_lacks_is_named_not_blamed_on_the_file(saved):
     """map_location naming a missing device: a ValueError about the device, not "corrupt"."""
-    missing = ["tpu", "cuda:x", "meta"] + ([] if torch.cuda.is_available() else ["cuda"])
+    missing = ["tpu", "cuda:x", "meta"] + ([] if torch.cuda.is_available() else ["cuda", 0])  # 0: was 'corrupt'
     for device in missing:
         with pytest.raises(ValueError, match=rf"^device '{device}' is not available here") as info:
             load_checkpoint(saved, map_location=device)

@@ -543,7 +543,7 @@ def load_checkpoint(path: str | os.PathLike, map_location=None) -> tuple[Generat
     if not path.is_file():
         raise InputError(f"{path}: expected a checkpoint file; it is a folder or a device")
     _check_archive(path)
-    if isinstance(map_location, (str, torch.device)):  # a missing device is not a corrupt file
+    if isinstance(map_location, (str, int, torch.device)):  # a missing device is not a corrupt file; 0 is cuda:0
         map_location = check_device(map_location)
     try:
         with warnings.catch_warnings():  # a corrupt pickle header's protocol warning: our checks decide
