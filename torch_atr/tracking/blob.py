@@ -29,7 +29,7 @@ from torch_atr.data.sequence import FrameTruth
 from torch_atr.pose import wrap_angle
 from torch_atr.tracking.estimates import circular_mean, class_posterior
 from torch_atr.tracking.filter import FrameDistance, Tracker, TrackerConfig
-from torch_atr.tracking.initialise import best_hypotheses
+from torch_atr.tracking.initialise import best_hypotheses, hypothesis_shares
 from torch_atr.tracking.motion import MotionConfig
 from torch_atr.tracking.observation import (blob_windows, cell_offsets, log_likelihood, mask_box, observe_windows,
                                             silhouette_boxes)
@@ -182,9 +182,9 @@ class BlobTracker(Tracker):
         grid = torch.cartesian_prod(theta, phi, alpha)  # (M, 3) [θ, φ, α]
         self._set_blob(distance)
         log_lik = self._log_likelihood(distance, grid)
-        best = best_hypotheses(log_lik, cfg.hypotheses, self.model.classify(grid[:, ALPHA]))
+        classes = self.model.classify(grid[:, ALPHA])
         n = self.cfg.filter.particles
-        pick = best[torch.arange(n, device=self.device) % best.shape[0]]
+        pick = hypothesis_shares(best_hypotheses(log_lik, cfg.hypotheses, classes), log_lik, n, classes)
         noise = torch.randn(n, 3, generator=self.generator, dtype=self.dtype, device=self.device)
         half_steps = torch.tensor([math.pi / cfg.azimuth_steps, math.radians(5.0), math.pi / cfg.alpha_steps],
                                   dtype=self.dtype, device=self.device)

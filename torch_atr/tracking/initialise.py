@@ -292,7 +292,7 @@ def blind_hypotheses(blob: torch.Tensor, distance: torch.Tensor, camera: Camera,
 
 
 def best_hypotheses(log_lik: torch.Tensor, count: int, classes: torch.Tensor | None = None) -> torch.Tensor:
-    """Indices of the best hypotheses, best first within each class.
+    """Indices of the best hypotheses, grouped by class (ascending), best first within each class.
 
     With classes, each class keeps its best ``count // C`` hypotheses (at least one; C the
     classes with a finite hypothesis), so one frame's blob does not decide the class alone
@@ -317,6 +317,27 @@ def best_hypotheses(log_lik: torch.Tensor, count: int, classes: torch.Tensor | N
     return torch.cat([order[classes[order] == c][:per_class] for c in present])
 
 
+def hypothesis_shares(best: torch.Tensor, log_lik: torch.Tensor, n: int, classes: torch.Tensor | None = None
+                      ) -> torch.Tensor:
+    """The hypothesis each of ``n`` particles is drawn around: the ``best`` in equal shares, in
+    their order (the first take one more where K does not divide n). With fewer particles than
+    hypotheses, each class's best comes first, the best class first, then each class's second
+    best, ...: one particle goes to the best of all (it went to the first class's best, whatever
+    it scored: a single particle started a tank on an SUV's blob).
+
+    best: (K,) from :func:`best_hypotheses` with the same ``log_lik`` (M,) and ``classes`` (M,)
+    (or None). Returns (n,) int64 indices into log_lik.
+    """
+    if n < best.shape[0]:
+        order = log_lik[best].argsort(descending=True, stable=True)
+        if classes is not None:  # each hypothesis's rank within its class (best_hypotheses groups them)
+            grouped = classes[best]
+            rank = torch.arange(best.shape[0], device=best.device) - torch.searchsorted(grouped, grouped)
+            order = order[rank[order].argsort(stable=True)]
+        best = best[order[:n]]
+    return best[torch.arange(n, device=best.device) % best.shape[0]]
+
+
 def blind_particles(states: torch.Tensor, log_lik: torch.Tensor, n: int, cfg: InitConfig, camera: Camera,
                     generator: torch.Generator | None = None, classes: torch.Tensor | None = None) -> torch.Tensor:
     """N particles around the best hypotheses (:func:`best_hypotheses`), in equal shares.
@@ -326,8 +347,7 @@ def blind_particles(states: torch.Tensor, log_lik: torch.Tensor, n: int, cfg: In
     step, the range by ``range_std`` (relative, along the line of sight from the camera centre),
     the signed speed by ``speed_std_mps``. Returns (N, 6) on ``states``' device and dtype.
     """
-    best = best_hypotheses(log_lik, cfg.hypotheses, classes)
-    pick = best[torch.arange(n, device=states.device) % best.shape[0]]
+    pick = hypothesis_shares(best_hypotheses(log_lik, cfg.hypotheses, classes), log_lik, n, classes)
     out = states[pick].clone()
     noise = torch.randn(n, 4, generator=generator, dtype=states.dtype, device=states.device)
     origin = camera_centre(camera).to(states)

@@ -1,0 +1,39 @@
+"""Tracking as a user runs it: few particles at a blind start, the overlay of an uncalibrated run."""
+
+import math
+
+import torch
+
+from torch_atr.config import load_config
+from torch_atr.data.synthetic import SceneConfig, SyntheticSequence
+from torch_atr.tracking import Tracker, TrackerConfig
+from torch_atr.tracking.initialise import best_hypotheses, hypothesis_shares
+
+
+def test_fewer_particles_than_hypotheses_go_to_each_class_best_first_against_brute_force():
+    """n particles over the K best hypotheses: equal shares in best_hypotheses' order when n >= K;
+    fewer than K go to the classes' best hypotheses (best first), then their second best, ... The
+    reference sorts by (rank within the class, score), one hypothesis at a time."""
+    g = torch.Generator().manual_seed(0)
+    log_lik = torch.randn(300, generator=g, dtype=torch.float64)
+    log_lik[:40] = -math.inf
+    classes = torch.randint(0, 6, (300,), generator=g)
+    best = best_hypotheses(log_lik, 16, classes)
+    K = best.shape[0]
+    rank = {i: sum(classes[j] == classes[i] for j in best.tolist()[:p]) for p, i in enumerate(best.tolist())}
+    ordered = sorted(best.tolist(), key=lambda i: (rank[i], -float(log_lik[i])))
+    for n in range(1, 2 * K + 3):
+        got = hypothesis_shares(best, log_lik, n, classes).tolist()
+        assert got == (ordered[:n] if n < K else [best.tolist()[j % K] for j in range(n)]), n
+    assert hypothesis_shares(best, log_lik, 1, classes).tolist() == [int(log_lik.argmax())]
+    plain = best_hypotheses(log_lik, 16)  # without classes: the best first already
+    assert hypothesis_shares(plain, log_lik, 3).tolist() == plain[:3].tolist()
+
+
+def test_a_single_particle_starts_blind_on_the_best_hypothesis(model):
+    """One particle used to start on the first class's best hypothesis (a tank's), whatever the blob:
+    the SUV's first frame was a pickup. It starts on the best of all, an SUV."""
+    seq = SyntheticSequence("isuzu_rodeo", SceneConfig(frames=1))
+    tracker = Tracker(model, seq.camera, load_config(TrackerConfig, None, ["filter.particles=1"]), seed=0)
+    row = tracker.run(seq, progress=False).rows[0]
+    assert row["lost"] == 0 and row["class"] == "suv"
