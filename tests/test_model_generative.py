@@ -359,7 +359,7 @@ def test_fit_rejects_bad_inputs(data):
                                      TEMPLATE)
     bad = data["templates"].clone()
     bad[1, 2, 3, 4] = math.nan
-    with pytest.raises(ValueError, match=r"Expected finite templates; 1 value\(s\) are NaN or infinite"):
+    with pytest.raises(ValueError, match=r"Expected templates to be finite; 1 value\(s\) are NaN or infinite"):
         GenerativeShapeModel.fit(bad, data["theta"], data["phi"], NAMES, CLASSES, ["car", "tank"], TEMPLATE)
 
 

@@ -297,7 +297,8 @@ def test_bad_inputs_raise():
         render_templates(_toy_car(), [0.0, 1.0, 2.0], [0.0, 0.1])
     with pytest.raises(ValueError, match=r"theta to have shape \(V\); got \(2, 2\)"):
         view_directions(torch.zeros(2, 2), torch.zeros(2, 2))
-    with pytest.raises(ValueError, match="theta and phi to be finite radians"):  # NaN rendered an empty template
+    # a NaN rendered an empty template
+    with pytest.raises(ValueError, match=r"theta to be finite radians; 1 value\(s\) are NaN or infinite"):
         render_templates(_toy_car(), [0.0, math.nan], [0.0, 0.1])
     # Beyond π/2 the same view was drawn upside down: θ = 0.7, φ = π − 0.3 is θ + π, φ = 0.3 turned over.
     with pytest.raises(ValueError, match=r"elevations phi in \[-π/2, π/2\] radians; got 2\.842"):

@@ -43,6 +43,16 @@ def check_shape(name: str, x: torch.Tensor, shape: Sequence[int | str | None]) -
         raise ValueError(f"Expected {name} to have shape {expected}; got {tuple(x.shape)}")
 
 
+def check_finite(name: str, x: torch.Tensor, unit: str = "") -> torch.Tensor:
+    """``x`` itself, or ``ValueError`` naming it and counting its NaN and infinite values; ``unit``
+    (e.g. "radians") completes "Expected theta to be finite radians"."""
+    finite = x.isfinite()
+    if not bool(finite.all()):
+        raise ValueError(f"Expected {name} to be finite{' ' + unit if unit else ''}; {int((~finite).sum())} value(s) "
+                         f"are NaN or infinite")
+    return x
+
+
 def as_float_tensor(name: str, x, like: torch.Tensor | None = None) -> torch.Tensor:
     """Convert a tensor, array, list or scalar of numbers to a floating tensor.
 

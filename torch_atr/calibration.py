@@ -32,7 +32,7 @@ import cv2
 import numpy as np
 import torch
 
-from torch_atr._checks import as_float_tensor, check_pattern, check_shape, to_grey
+from torch_atr._checks import as_float_tensor, check_finite, check_pattern, check_shape, to_grey
 from torch_atr.camera import Camera
 
 logger = logging.getLogger(__name__)
@@ -68,9 +68,7 @@ def _per_frame(name: str, x, n: int | None = None, cols: int | None = None) -> t
         raise ValueError(f"Expected {name} to hold at least one frame; got shape {tuple(t.shape)}")
     if n is not None and t.shape[0] != n:
         raise ValueError(f"Expected {name} to have {n} rows like pixel_uv; got shape {tuple(t.shape)}")
-    if not torch.isfinite(t).all():
-        raise ValueError(f"Expected {name} to be finite; got non-finite values")
-    return t
+    return check_finite(name, t)
 
 
 def _first_bad(name: str, values: torch.Tensor, bad: torch.Tensor, what: str) -> None:

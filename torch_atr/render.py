@@ -54,7 +54,7 @@ import math
 import torch
 import trimesh
 
-from torch_atr._checks import as_float_tensor, check_shape
+from torch_atr._checks import as_float_tensor, check_finite, check_shape
 from torch_atr.camera import Camera
 from torch_atr.config import TemplateConfig
 from torch_atr.pose import VehiclePose, body_to_world, check_sensor_like, view_vectors
@@ -216,8 +216,8 @@ def render_templates(vehicle, theta, phi, cfg: TemplateConfig | None = None) -> 
     verts, faces, centre = _mesh_arrays(vehicle)
     theta, phi = _view_angles(theta, phi)
     theta, phi = theta.detach().cpu().double(), phi.detach().cpu().double()
-    if not bool(torch.isfinite(theta).all() & torch.isfinite(phi).all()):
-        raise ValueError("Expected theta and phi to be finite radians; they hold NaN or inf")
+    check_finite("theta", theta, "radians")
+    check_finite("phi", phi, "radians")
     if phi.numel() and float(phi.abs().max()) > math.pi / 2 + 1e-6:  # beyond, drawn upside down (float32 π/2 is in)
         raise ValueError(f"Expected elevations phi in [-π/2, π/2] radians; got {float(phi.abs().max()):.3f} "
                          f"(the view (θ + π, π − φ) is the one meant)")

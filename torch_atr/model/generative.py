@@ -21,7 +21,7 @@ from torch import nn
 from tqdm import tqdm
 
 import torch_atr
-from torch_atr._checks import as_float_tensor, check_device, check_shape
+from torch_atr._checks import as_float_tensor, check_device, check_finite, check_shape
 from torch_atr.config import ConfigError, ModelConfig, TemplateConfig, config_from_dict
 from torch_atr.io import atomic_torch_save, check_output_file
 from torch_atr.model.identity import DEGREE, TWO_PI, IdentityManifold, dissimilarity, shortest_closed_path
@@ -144,9 +144,7 @@ class GenerativeShapeModel(nn.Module):
             raise ValueError(f"Expected at least 2 vehicles for an identity manifold; got {K}")
         if not templates.is_floating_point():
             raise ValueError(f"Expected signed-distance templates (floating); got dtype {templates.dtype}")
-        if not bool(templates.isfinite().all()):
-            raise ValueError(f"Expected finite templates; {int((~templates.isfinite()).sum())} value(s) are NaN or "
-                             f"infinite")
+        check_finite("templates", templates)
         if not isinstance(vehicle_classes, torch.Tensor) and any(  # a list, tuple or array of names
                 isinstance(c, str) for c in np.ravel(np.asarray(vehicle_classes, dtype=object))):
             raise ValueError(f"Expected vehicle_classes as indices into class_names; got names "
@@ -164,7 +162,7 @@ class GenerativeShapeModel(nn.Module):
         wide = templates.to(torch.float64)
 
         def as_wide(name: str, x) -> torch.Tensor:
-            return _finite_radians(name, as_float_tensor(name, x, like=wide).to(wide))
+            return check_finite(name, as_float_tensor(name, x, like=wide).to(wide), "radians")
 
         theta, phi = as_wide("theta", theta), as_wide("phi", phi)
         check_shape("theta", theta, (V,))
@@ -199,8 +197,7 @@ class GenerativeShapeModel(nn.Module):
         out = [as_float_tensor(name, value, like=like).to(like) for name, value in queries.items()]
         for name, value in zip(queries, out):
             check_shape(name, value, ("N",))
-            if not bool(torch.isfinite(value).all()):
-                raise ValueError(f"Expected {name} to be finite radians; it holds NaN or inf")
+            check_finite(name, value, "radians")
         if len({value.shape[0] for value in out}) > 1:
             raise ValueError("Expected " + ", ".join(queries) + " of one length N; got "
                              + ", ".join(str(tuple(v.shape)) for v in out))
@@ -592,15 +589,6 @@ def load_checkpoint(path: str | os.PathLike, map_location=None) -> tuple[Generat
     return model, extra
 
 
-def _finite_radians(name: str, x: torch.Tensor) -> torch.Tensor:
-    """``x`` itself, or ValueError naming it when it holds NaN or inf (views of the fit: a NaN made
-    ``eigh`` fail to converge, or every kernel width NaN)."""
-    if not bool(x.isfinite().all()):
-        raise ValueError(f"Expected {name} to be finite radians; {int((~x.isfinite()).sum())} value(s) are NaN or "
-                         f"infinite")
-    return x
-
-
 def _fit_core_and_identity(rbf: RBFViewMapping, Y: torch.Tensor, theta: torch.Tensor, phi: torch.Tensor,
                            ridge: float, pixel_rank: int | None, labels: torch.Tensor,
                            order: torch.Tensor) -> tuple[TensorCore, IdentityManifold]:
@@ -640,9 +628,9 @@ def fine_tune_widths(rbf: RBFViewMapping, train: torch.Tensor, theta, phi, val: 
     if not isinstance(rbf, RBFViewMapping):
         raise ValueError(f"Expected an RBFViewMapping; got {type(rbf).__name__}")
     like = rbf.log_width
-    theta, phi, val_theta, val_phi = (_finite_radians(name, as_float_tensor(name, x, like=like).to(like))
-                                      for name, x in (("theta", theta), ("phi", phi), ("val_theta", val_theta),
-                                                      ("val_phi", val_phi)))
+    theta, phi, val_theta, val_phi = (  # a NaN view made eigh fail to converge, or every kernel width NaN
+        check_finite(name, as_float_tensor(name, x, like=like).to(like), "radians")
+        for name, x in (("theta", theta), ("phi", phi), ("val_theta", val_theta), ("val_phi", val_phi)))
     check_shape("train", train, ("K", theta.shape[0], "d"))
     check_shape("val", val, (train.shape[0], val_theta.shape[0], train.shape[2]))
     with torch.no_grad():  # one vehicle at a time, so no widened copy of the templates is made
