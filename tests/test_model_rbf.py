@@ -82,6 +82,18 @@ def test_centres_of_two_float_dtypes_give_one_dtype():
     torch.testing.assert_close(rbf(theta, phi), reference(theta, phi), rtol=0, atol=0)
 
 
+def test_forward_takes_lists_and_arrays_and_names_bad_queries():
+    """A list of views raised AttributeError ('list' object has no attribute 'to')."""
+    theta, phi = _grid(6, [0.0, 20.0])
+    rbf = RBFViewMapping(theta, phi)
+    expected = rbf(theta[:3], phi[:3])
+    torch.testing.assert_close(rbf(theta[:3].tolist(), phi[:3].numpy()), expected, rtol=0, atol=0)
+    with pytest.raises(ValueError, match=r"Expected phi to have shape \(3\); got \(2,\)"):
+        rbf(theta[:3].tolist(), phi[:2].tolist())
+    with pytest.raises(ValueError, match=r"Expected theta to be numeric"):
+        rbf("0.3", [0.1])
+
+
 def _lstsq_reference(psi: np.ndarray, Y: np.ndarray, ridge: float) -> np.ndarray:
     """Per-vehicle ridge regression as ordinary least squares on [Ψ; √λ I] b = [y; 0]."""
     V, P = psi.shape

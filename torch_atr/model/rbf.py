@@ -126,9 +126,11 @@ class RBFViewMapping(nn.Module):
         return view_vectors(self.centres_theta, self.centres_phi)
 
     def forward(self, theta: torch.Tensor, phi: torch.Tensor) -> torch.Tensor:
-        """Ψ(Θ) for theta, phi: (N,) radians (taken in the centres' dtype and device). Returns (N, Nc + 4)."""
+        """Ψ(Θ) for theta, phi: (N,) radians (tensors, arrays or lists; taken in the centres' dtype and
+        device). Returns (N, Nc + 4)."""
         like = self.centres_u
-        return rbf_features(view_vectors(theta.to(like), phi.to(like)), like, self.widths)
+        theta, phi = (as_float_tensor(name, x, like=like).to(like) for name, x in (("theta", theta), ("phi", phi)))
+        return rbf_features(view_vectors(theta, phi), like, self.widths)
 
     def fit(self, theta: torch.Tensor, phi: torch.Tensor, Y: torch.Tensor, ridge: float) -> torch.Tensor:
         """Every Bᵏ of eq. 4.13 at once by regularised least squares.
