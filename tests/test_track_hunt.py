@@ -2,11 +2,14 @@
 
 import math
 
+import numpy as np
 import torch
 
+from clips import Clip
 from torch_atr.config import load_config
 from torch_atr.data.synthetic import SceneConfig, SyntheticSequence
 from torch_atr.tracking import Tracker, TrackerConfig
+from torch_atr.tracking.blob import BOX_COLUMNS, BlobTracker
 from torch_atr.tracking.initialise import best_hypotheses, hypothesis_shares
 
 
@@ -37,3 +40,20 @@ def test_a_single_particle_starts_blind_on_the_best_hypothesis(model):
     tracker = Tracker(model, seq.camera, load_config(TrackerConfig, None, ["filter.particles=1"]), seed=0)
     row = tracker.run(seq, progress=False).rows[0]
     assert row["lost"] == 0 and row["class"] == "suv"
+
+
+def test_an_uncalibrated_rows_silhouette_lies_on_its_own_frames_blob(model):
+    """The overlay video places each row's estimate after the run (tracker.silhouette_at(row)); the
+    blob tracker laid every one on the last frame's blob, 34 px from its own at the start of this SUV
+    driving by. Each row now holds its blob's box (the mask's, by NumPy) and its silhouette is the
+    one the run placed on that frame."""
+    seq = Clip(SyntheticSequence("isuzu_rodeo", SceneConfig(frames=20)), camera=False)
+    tracker = BlobTracker(model, load_config(TrackerConfig, None, ["filter.particles=100"]), seed=0)
+    result = tracker.run(seq, progress=False)
+    assert len(result.snapshots) == 6
+    for shot in result.snapshots:
+        row = result.rows[shot["frame"]]
+        rows, cols = np.nonzero(shot["mask"])
+        assert [row[k] for k in BOX_COLUMNS] == [cols.min(), rows.min(), cols.max(), rows.max()]
+        placed = tracker.silhouette_at(row, shot["mask"].shape).numpy()
+        assert placed.any() and np.array_equal(placed, shot["silhouette"])

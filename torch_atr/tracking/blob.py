@@ -37,6 +37,7 @@ from torch_atr.tracking.resampling import effective_sample_size
 
 THETA, PHI, ALPHA = range(3)
 ELEVATIONS_DEG = (0.0, 10.0, 20.0, 30.0, 40.0)  # the blind start's φ hypotheses (the training elevations)
+BOX_COLUMNS = ("blob_u0", "blob_v0", "blob_u1", "blob_v1")  # a row's blob box, the estimate laid on it (image px)
 
 
 def wrap_views(particles: torch.Tensor) -> torch.Tensor:
@@ -62,7 +63,8 @@ def predict_views(particles: torch.Tensor, dt: float, cfg: MotionConfig, generat
 class BlobTracker(Tracker):
     """Tracking of view and identity on the normalised blob of an uncalibrated sequence (module
     docstring). Same arguments as :class:`Tracker` without the camera; estimate rows carry θ, φ,
-    α, the class, the nearest vehicles, the class posterior, the ESS and the overlap, no x, y, z."""
+    α, the class, the nearest vehicles, the class posterior, the ESS, the overlap and the box of
+    the blob the estimate is laid on (``BOX_COLUMNS``; none before the first blob), no x, y, z."""
 
     needs_camera = False
 
@@ -111,8 +113,9 @@ class BlobTracker(Tracker):
             self._blob_box = kept
 
     def silhouette_at(self, row: dict, shape: tuple[int, int]) -> torch.Tensor:
-        """The estimate's silhouette laid on the last blob's box: (H, W) bool; none before the first blob."""
-        if self._blob_box is None:
+        """The estimate's silhouette laid on the row's blob box: (H, W) bool; none before the first blob. (On
+        the tracker's last box, a run's overlay video drew every frame's estimate where the last frame's blob was.)"""
+        if BOX_COLUMNS[0] not in row:
             return torch.zeros(tuple(shape), dtype=torch.bool, device=self.device)
         return super().silhouette_at(row, shape)
 
@@ -138,11 +141,11 @@ class BlobTracker(Tracker):
         side = max(box[2] - box[0], box[3] - box[1]) + 1
         return ((box[0] + box[2]) / 2, (box[1] + box[3]) / 2), tuple(box), 4.0 * side
 
-    def _windows(self, particles: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        """Predicted shapes y (N, L, L) and their windows laid on the current blob (uv, side: (N, 2))."""
+    def _windows(self, particles: torch.Tensor, box: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """Predicted shapes y (N, L, L) and their windows laid on the blob box (4,) (uv, side: (N, 2))."""
         y = self.appearance(particles[:, ALPHA], particles[:, THETA], particles[:, PHI])
         boxes = silhouette_boxes(y > 0)
-        uv, side = blob_windows(boxes, self._blob_box.to(boxes), self.appearance.size)
+        uv, side = blob_windows(boxes, box.to(boxes), self.appearance.size)
         return y, uv, side
 
     def _set_blob(self, distance: FrameDistance) -> None:
@@ -155,7 +158,7 @@ class BlobTracker(Tracker):
     def _log_likelihood(self, distance, particles: torch.Tensor) -> torch.Tensor:
         """Eq. 5.2 over each particle's silhouette box grown by τ (module docstring). Returns (N,)."""
         self._set_blob(distance)
-        y, uv, side = self._windows(particles)
+        y, uv, side = self._windows(particles, self._blob_box)
         L, template = self.appearance.size, self.model.template
         margin = template.tau_px * L / template.size_px  # τ in L-pixels
         boxes = silhouette_boxes(y > 0)
@@ -212,9 +215,11 @@ class BlobTracker(Tracker):
                **{f"p_{name}": posterior[c] for c, name in enumerate(model.class_names)},
                "best_theta": best[THETA], "best_phi": best[PHI], "best_alpha": best[ALPHA],
                "ess": effective_sample_size(w)}
+        if self._blob_box is not None:
+            row.update(zip(BOX_COLUMNS, self._blob_box))
         return {k: float(v) if isinstance(v, torch.Tensor) else v for k, v in row.items()}
 
     def _estimate_window(self, row: dict):
         est = torch.tensor([[row["theta"], row["phi"], row["alpha"]]], dtype=self.dtype, device=self.device)
-        _, uv, side = self._windows(est)
+        _, uv, side = self._windows(est, torch.tensor([row[k] for k in BOX_COLUMNS], dtype=self.dtype))
         return est[:, ALPHA], est[:, THETA], est[:, PHI], uv, side
