@@ -544,6 +544,8 @@ def test_a_refused_step_leaves_the_filter_as_it_was(model, btr):
             tracker.step(*args)
     with pytest.raises(ValueError, match="Expected dt"):
         tracker.step(btr.frame(1), dt=True)  # a bool is not a time
+    with pytest.raises(ValueError, match=r"size \(512, 640\)"):  # a mask's frame was taken unchecked
+        tracker.step(btr.frame(1)[::2, ::2], mask=np.zeros((512, 640), bool))
     assert torch.equal(tracker.particles, before[0]) and tracker._clock == before[1]
     assert torch.equal(tracker.generator.get_state(), before[2])
 

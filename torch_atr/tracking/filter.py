@@ -465,6 +465,8 @@ class Tracker:
                              f"got {dt!r}")
         if mask is not None:
             mask = self._check_mask(mask)
+            if frame is not None and self.segmenter.ready:  # a blind start measures the blob's contrast in it
+                self.segmenter.check_frame(frame)
         elif frame is None:
             raise ValueError("step needs a frame or a mask")
         else:
