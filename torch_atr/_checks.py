@@ -17,8 +17,9 @@ def check_device(name: str | torch.device) -> torch.device:
         probe = torch.zeros(1, device=torch.device(name))  # raises where the build or machine lacks it
         probe.cpu()  # raises on a device without data (meta)
     except (RuntimeError, AssertionError, TypeError, NotImplementedError) as exc:
-        raise ValueError(f"device {str(name)!r} is not available here (PyTorch {torch.__version__}: "
-                         f"{' '.join(str(exc).split())}); try cpu") from None
+        reason = " ".join(str(exc).split()).split(". ")[0].rstrip(".")  # mps's goes on for 7000 characters
+        raise ValueError(f"device {str(name)!r} is not available here (PyTorch {torch.__version__}: {reason}); "
+                         "try cpu") from None
     return probe.device
 
 
