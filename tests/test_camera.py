@@ -112,6 +112,25 @@ def test_points_behind_the_camera_are_nan():
     assert depth.tolist() == [-1.0, 0.0, 3.0]
 
 
+def test_points_beyond_the_distortion_fold_are_nan_not_imaged_inside():
+    """OpenCV's radial polynomial folds back: with this barrel lens a point 63° off the axis, far
+    outside the field of view, lands inside the image, on a pixel whose ray (cv2.undistortPoints)
+    points 9° off the axis. Its uv is NaN, as behind the camera; points inside the fold keep cv2's."""
+    dist = np.array([-0.35, 0.15, 0.0, 0.0, -0.03])  # d(r · radial)/dr = 0 at r² = 2.297 (56°)
+    cam = Camera(500.0, 500.0, 319.5, 239.5, 640, 480, dist=dist)
+    p = np.array([[20.0, 0.0, 10.0], [3.0, -2.0, 10.0], [1.4, 0.5, 1.0], [1.6, 0.0, 1.0]])  # r² 4, 0.13, 2.21, 2.56
+    ref, _ = cv2.projectPoints(p * [1.0, -1.0, 1.0], np.zeros(3), np.zeros(3), cam.K.numpy(), dist)
+    ref = ref.reshape(-1, 2)
+    assert 0 < ref[0, 0] < 640 and 0 < ref[0, 1] < 480  # OpenCV images the first point inside the frame ...
+    ray = cv2.undistortPoints(ref[:1].reshape(1, 1, 2), cam.K.numpy(), dist).ravel()
+    assert abs(ray[0] - 0.16) < 0.01  # ... on a pixel that sees another direction (x/z = 0.16, not 2)
+    uv, depth = cam.project(torch.from_numpy(p), world=False)
+    assert torch.isnan(uv[[0, 3]]).all() and depth[0] == 10.0
+    np.testing.assert_allclose(uv[1:3].numpy(), ref[1:3], atol=1e-9)
+    # Their pixels' rays are theirs (undistortion converges slowly near the fold: 1.6e-7 there).
+    np.testing.assert_allclose(cam.pixel_rays(cam.undistort(uv[1:3])).numpy(), p[1:3] / p[1:3, 2:], atol=1e-6)
+
+
 def test_project_batch_shapes_and_bad_shape():
     cam = _camera()
     pts = torch.from_numpy(_points_in_front(12, seed=2)).reshape(3, 4, 3)

@@ -271,6 +271,22 @@ def test_render_mask_skips_triangles_behind_the_camera():
     np.testing.assert_array_equal(straddling, want)
 
 
+def test_render_mask_draws_no_ghost_of_a_vehicle_beyond_the_distortion_fold():
+    """A box 63° right of the axis, outside this barrel lens's ~60° field of view: ray casting
+    through the pixels (cv2.undistortPoints) meets nothing; OpenCV's folding polynomial put 36,541
+    pixels of it inside the image."""
+    cam = Camera(500.0, 500.0, 319.5, 239.5, 640, 480, dist=[-0.35, 0.15, 0.0, 0.0, -0.03])
+    box = _box((4.0, 2.0, 1.5), (-2.0, -1.0, 0.0))
+    v, u = np.mgrid[0:480:4, 0:640:4]  # every 4th pixel: the ghost spanned hundreds
+    pixels = np.stack([u, v], axis=-1).reshape(-1, 1, 2).astype(np.float64)
+    rays = cv2.undistortPoints(pixels, cam.K.numpy(), cam.dist.numpy()).reshape(-1, 2) * [1.0, -1.0]  # y up
+    R, t = (a.numpy() for a in body_to_world(VehiclePose(20.0, -0.75, 10.0, 0.0)))
+    origins = np.tile(-np.linalg.inv(R) @ t, (len(rays), 1))  # the camera centre in the body frame
+    directions = np.column_stack([rays, np.ones(len(rays))]) @ np.linalg.inv(R).T
+    assert not box.ray.intersects_any(origins, directions).any()
+    assert not render_mask(box, cam, VehiclePose(20.0, -0.75, 10.0, 0.0)).any()
+
+
 def test_far_camera_mask_matches_the_template_at_view_of_pose():
     """Conventions agree end to end: a distant camera aimed at the bbox centre sees the template
     of the view that view_of_pose reports (not mirrored, not flipped)."""

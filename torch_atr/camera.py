@@ -7,6 +7,7 @@ with y flipped; :meth:`Camera.from_opencv` and :meth:`Camera.opencv_pose` conver
 
 from __future__ import annotations
 
+import math
 import numbers
 
 import cv2
@@ -35,6 +36,17 @@ def _number(name: str, value) -> float:
     if isinstance(value, bool) or not isinstance(value, numbers.Real):
         raise ValueError(f"Expected {name} to be a number; got {value!r}")
     return float(value)
+
+
+def _fold_r2(dist: torch.Tensor) -> float:
+    """r² = x² + y² (normalised coordinates) where the radial distortion of ``dist`` (5,) folds back:
+    the smallest s > 0 with d(r · (1 + k1 r² + k2 r⁴ + k3 r⁶)) / dr = 1 + 3 k1 s + 5 k2 s² + 7 k3 s³ = 0;
+    inf where there is none. Beyond it points of wider angle land nearer the principal point, so
+    OpenCV's model images points far outside the field of view inside the image."""
+    k1, k2, _, _, k3 = dist.tolist()
+    s = np.roots([7 * k3, 5 * k2, 3 * k1, 1.0])  # leading zeros dropped: k3 = 0 is a quadratic
+    s = s.real[(s.imag == 0) & (s.real > 0)]
+    return float(s.min()) if s.size else math.inf
 
 
 def _check_entries(name: str, value: torch.Tensor, bound: float, unit: str) -> None:
@@ -137,7 +149,8 @@ class Camera(nn.Module):
             points: (..., 3) metres, in the world frame (or the sensor frame if ``world=False``).
         Returns:
             uv: (..., 2) pixels (u right, v down); depth: (..., ) metres along the optical axis.
-            Points at or behind the camera (depth <= 0) get non-finite ``uv``.
+            Points at or behind the camera (depth <= 0), and with lens distortion those beyond
+            the radius where it folds back (r² >= :func:`_fold_r2`), get non-finite ``uv``.
         """
         p = self.world_to_sensor(points) if world else as_float_tensor("points", points, like=self.K)
         if p.shape[-1:] != (3,):
@@ -145,9 +158,11 @@ class Camera(nn.Module):
         z = p[..., 2]
         # OpenCV normalised coordinates: y points down.
         xd, yd = x, y = p[..., 0] / z, -p[..., 1] / z
+        seen = z > 0
         if bool(self.dist.any()):  # without distortion the terms below are 0 and 1: (x, y) as they are
             k1, k2, p1, p2, k3 = self.dist.to(p).unbind(0)
             r2 = x * x + y * y
+            seen = seen & (r2 < _fold_r2(self.dist))
             radial = 1 + k1 * r2 + k2 * r2 * r2 + k3 * r2 * r2 * r2
             xd = x * radial + 2 * p1 * x * y + p2 * (r2 + 2 * x * x)
             yd = y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y
@@ -155,7 +170,7 @@ class Camera(nn.Module):
         u = K[0, 0] * xd + K[0, 2]
         v = K[1, 1] * yd + K[1, 2]
         uv = torch.stack([u, v], dim=-1)
-        uv = torch.where((z > 0).unsqueeze(-1), uv, torch.full_like(uv, float("nan")))
+        uv = torch.where(seen.unsqueeze(-1), uv, torch.full_like(uv, float("nan")))
         return uv, z
 
     def undistort(self, uv: torch.Tensor) -> torch.Tensor:

@@ -245,7 +245,8 @@ def render_mask(vehicle, camera: Camera, pose: VehiclePose) -> torch.Tensor:
     """Perspective silhouette of a vehicle seen by a pinhole camera.
 
     Pixel (v, u) is set when its centre lies inside a projected triangle. Triangles with a
-    vertex at or behind the camera (depth <= 0) are skipped.
+    vertex at or behind the camera (depth <= 0), or beyond the radius where the lens distortion
+    folds back (:meth:`Camera.project` gives it no pixel), are skipped.
 
     Args:
         vehicle: a Vehicle (its ``.mesh``) or a ``trimesh.Trimesh`` in the body frame.
