@@ -141,3 +141,16 @@ def test_view_of_pose_flat_closed_form_equals_the_rotation_path():
     general = view_of_pose(VehiclePose(pos[:, 0], pos[:, 1], pos[:, 2], h, roll=zero, pitch=zero), cam)
     torch.testing.assert_close(flat[0], general[0])
     torch.testing.assert_close(flat[1], general[1])
+
+
+def test_view_of_pose_takes_numpy_roll_and_pitch_like_its_other_fields():
+    """Roll and pitch given as NumPy arrays (as x, y, z and heading may be) give the views that the
+    same angles as tensors give; an array raised 'The truth value of an array ... is ambiguous'."""
+    cam = Camera(500, 500, 320, 240, 640, 480)
+    x, h = np.array([1.0, -4.0, 9.0]), np.array([0.1, 2.2, 4.0])
+    for roll, pitch in ((np.zeros(3), np.zeros(3)), (np.array([0.1, 0.0, -0.2]), np.array([0.0, 0.3, 0.1]))):
+        got = view_of_pose(VehiclePose(x, -3.0, 40.0, h, roll=roll, pitch=pitch), cam)
+        want = view_of_pose(VehiclePose(torch.from_numpy(x), -3.0, 40.0, torch.from_numpy(h),
+                                        roll=torch.from_numpy(roll), pitch=torch.from_numpy(pitch)), cam)
+        torch.testing.assert_close(got, want)
+    assert view_of_pose(VehiclePose(1.0, -3.0, 40.0, 0.5, roll=np.float64(0.0)), cam)[0].shape == ()

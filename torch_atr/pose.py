@@ -19,6 +19,7 @@ front, π/2 the left side, π the rear.
 from __future__ import annotations
 
 import math
+import numbers
 from dataclasses import dataclass
 
 import torch
@@ -122,8 +123,8 @@ def camera_centre(camera: Camera) -> torch.Tensor:
 
 
 def _is_zero(value: float | torch.Tensor) -> bool:
-    """True for a number 0 (not a tensor: a tensor of angles takes the general path)."""
-    return not isinstance(value, torch.Tensor) and value == 0
+    """True for a number 0 (not a tensor or an array of angles: those take the general path)."""
+    return isinstance(value, numbers.Real) and value == 0
 
 
 def view_of_pose(pose: VehiclePose, camera: Camera) -> tuple[torch.Tensor, torch.Tensor]:
