@@ -397,6 +397,25 @@ def test_recognition_gives_other_classes_their_own_column_beside_table_6_1s():
                                              "| 1000 (thesis, SENSIAC) | 96/94/91/90 | — |"]
 
 
+def test_recognition_leaves_out_vehicles_of_a_class_the_model_does_not_know():
+    """A checkpoint without the car class scores a car's frames None (recognition_accuracy); the
+    table counted it as 0 % recognised, a column of cars at 0 and a tank beside it at 50 read 25."""
+    from torch_atr.experiments.report import mean_recognition
+    from torch_atr.experiments.sensiac_like import aggregate
+
+    cfg = SensiacLikeConfig(vehicles=("t_72", "toyota_camry"), ranges_m=(1000.0,), methods=("I",))
+
+    def seq(cls: str, accuracy: float | None) -> dict:
+        metrics = {"recognition_accuracy": accuracy, "frames_per_second": 10.0, "horizontal_error_m": 1.0,
+                   "range_error_m": 1.0, "aspect_error_rad": 0.1}
+        return {"class": cls, "range_m": 1000.0, "methods": {"I": {"metrics": metrics}}}
+
+    agg = aggregate([seq("tank", 0.5), seq("car", None), seq("unknown", None)], cfg)
+    assert agg["recognition"] == {"tank": {"1000": {"I": pytest.approx(50.0)}}}
+    assert mean_recognition(agg) == {"I": pytest.approx(50.0)}
+    assert agg["errors"]["horizontal_error_m"]["1000"] == {"I": pytest.approx(1.0)}  # the errors keep every vehicle
+
+
 def test_the_default_checkpoint_is_found_from_any_folder_and_a_missing_one_makes_no_folder(tmp_path, monkeypatch):
     """From another folder, "checkpoints/default.pt" failed, once OUT/sequences/ had been made."""
     from torch_atr.experiments.sensiac_like import REPO, resolve_checkpoint

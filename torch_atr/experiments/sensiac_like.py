@@ -371,14 +371,16 @@ def aggregate(results: list[dict], cfg: SensiacLikeConfig) -> dict:
     mean over vehicles}}} (Fig. 6.8), "frames_per_second": {method: mean}}; groups and ranges
     without a sequence are left out, as are vehicles of a class the model does not know.
     """
-    present = {r["class"] for r in results} - {"unknown"}
+    # A vehicle of a class the model does not know ("unknown" meshes too) has no recognition (None), not 0 %.
+    scored = [r for r in results if r["methods"][cfg.methods[0]]["metrics"]["recognition_accuracy"] is not None]
+    present = {r["class"] for r in scored}
     recognition: dict = {}
     for group in [g for g in GROUPS if g in present] + sorted(present - set(GROUPS)):
         for range_m in cfg.ranges_m:
-            cell = [r for r in results if r["class"] == group and r["range_m"] == range_m]
+            cell = [r for r in scored if r["class"] == group and r["range_m"] == range_m]
             if cell:
                 recognition.setdefault(group, {})[f"{range_m:g}"] = {
-                    m: 100 * float(np.mean([r["methods"][m]["metrics"]["recognition_accuracy"] or 0 for r in cell]))
+                    m: 100 * float(np.mean([r["methods"][m]["metrics"]["recognition_accuracy"] for r in cell]))
                     for m in cfg.methods}
     errors: dict = {}
     for measure in ("horizontal_error_m", "range_error_m", "aspect_error_rad"):
