@@ -326,8 +326,13 @@ def test_bad_inputs_raise():
         TemplateConfig(size_px=0)
     with pytest.raises(ValueError, match="window_m"):
         TemplateConfig(window_m=-1.0)
-    with pytest.raises(ValueError, match=r"positive image size; got height=0"):
+    with pytest.raises(ValueError, match=r"positive whole image size; got height=0"):
         fill_triangles(torch.zeros(1, 1, 3, 2), 0, 5)
+    # A fractional or non-numeric size was cut by int() (4.6 rows filled as 4) or failed inside it.
+    for height, width in ((4.6, 5), (4, "5"), (float("nan"), 5), (True, 5)):
+        with pytest.raises(ValueError, match=r"positive whole image size; got height=.*, width="):
+            fill_triangles(torch.zeros(1, 1, 3, 2), height, width)
+    assert fill_triangles(torch.zeros(1, 1, 3, 2), 4.0, np.int64(5)).shape == (1, 4, 5)
     with pytest.raises(ValueError, match=r"tri to have shape \(B, F, 3, 2\); got \(4, 3, 2\)"):
         fill_triangles(torch.zeros(4, 3, 2), 5, 5)
     with pytest.raises(ValueError, match="trimesh.Trimesh; got str"):

@@ -50,6 +50,7 @@ frames and masks that come from OpenCV (sequences, segmentation) are NumPy array
 from __future__ import annotations
 
 import math
+import numbers
 
 import torch
 import trimesh
@@ -194,8 +195,9 @@ def fill_triangles(tri: torch.Tensor, height: int, width: int) -> torch.Tensor:
         (B, H, W) bool on ``tri``'s device: pixel centres inside at least one triangle.
     """
     check_shape("tri", tri, ("B", "F", 3, 2))
-    if int(height) <= 0 or int(width) <= 0:
-        raise ValueError(f"Expected a positive image size; got height={height}, width={width}")
+    if not all(isinstance(n, numbers.Real) and not isinstance(n, bool) and n > 0 and float(n).is_integer()
+               for n in (height, width)):  # int() cut 4.6 rows to 4
+        raise ValueError(f"Expected a positive whole image size; got height={height!r}, width={width!r}")
     B, F = tri.shape[:2]
     xy = tri.reshape(B, 3 * F, 2)
     faces = torch.arange(3 * F, device=tri.device).reshape(F, 3)
