@@ -121,6 +121,25 @@ def test_another_experiment_is_refused_a_runs_folder_finished_or_not(run, tmp_pa
     assert (finished / "report.md").read_text() == (out / "report.md").read_text()
 
 
+def test_an_interrupted_run_is_not_claimed_by_an_experiment_of_another_layout(run, tmp_path):
+    """The studies run into an interrupted SENSIAC-like folder (sequences/, no results.json) ran,
+    wrote its report there, and the SENSIAC-like run was then refused its own folder; so did
+    sensiac-like into an interrupted studies folder and all into either."""
+    import shutil
+
+    out, _ = run
+    sensiac = shutil.copytree(out / "sequences", tmp_path / "sensiac" / "sequences").parent
+    studies = tmp_path / "studies"
+    (studies / "baseline" / "sequences").mkdir(parents=True)
+    cases = [(["studies", "--quick"], sensiac, "sequences"), (["all", "--quick"], sensiac, "sequences"),
+             (QUICK, studies, "baseline"), (["all", "--quick"], studies, "baseline")]
+    for argv, folder, part in cases:
+        with pytest.raises(OSError, match=re.escape(f"unfinished run ({folder / part})")):
+            main([*argv, "--out", str(folder)])
+    assert os.listdir(sensiac) == ["sequences"] and os.listdir(studies) == ["baseline"]
+    assert sorted(os.listdir(sensiac / "sequences")) == sorted(os.listdir(out / "sequences"))
+
+
 def _job_or_fail(name: str, _: float, folder) -> str:
     """A job for in_processes: "fail" raises; any other leaves a file ``name`` in ``folder``."""
     import time

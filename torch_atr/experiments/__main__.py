@@ -99,15 +99,23 @@ def main(argv: list[str] | None = None) -> dict:
     return agg
 
 
-def _check_out(out: Path, expected: str) -> None:
+def _check_out(out: Path, expected: str, parts=("sequences",)) -> None:
     """``OutputExistsError`` unless ``out`` is absent, empty or a folder of this experiment: its
-    results.json, where there is one, of format ``expected`` (another experiment's would be replaced)."""
+    results.json, where there is one, of format ``expected`` (another experiment's would be replaced);
+    where there is none (an interrupted run), its run folders (``sequences/`` and folders holding one)
+    among ``parts``, those this experiment makes (another experiment's interrupted run would be claimed)."""
     if out.exists() and (not out.is_dir() or (any(out.iterdir()) and not is_report_folder(out))):
         raise OutputExistsError(f"{out} exists and is not an experiment's folder; choose another --out")
     written = report_format(out)
     if written is not None and written != expected:
         raise OutputExistsError(f"{out} holds another experiment's report ({out / 'results.json'}: format "
                                 f"{written}); choose another --out")
+    if written is None and out.is_dir():
+        other = [p for p in sorted(out.iterdir()) if p.name not in parts
+                 and ((p / "sequences").is_dir() or (p.name == "sequences" and p.is_dir()))]
+        if other:
+            raise OutputExistsError(f"{out} holds another experiment's unfinished run ({other[0]}); choose another "
+                                    "--out, or resume that experiment there")
 
 
 def _studies(args: argparse.Namespace, given: dict, out: Path) -> list[dict]:
@@ -115,7 +123,7 @@ def _studies(args: argparse.Namespace, given: dict, out: Path) -> list[dict]:
     if fixed:
         raise ConfigError(f"studies: {', '.join(fixed)} cannot be given; each study sets them itself")
     configs = study_configs(args.quick, **given, tracker=tuple(args.overrides))
-    _check_out(out, STUDIES_FORMAT)
+    _check_out(out, STUDIES_FORMAT, configs)
     start = time.perf_counter()
     results = run_studies(out, configs, args.workers, ray_address=args.ray)
     rows = write_studies_report(out, configs, results, time.perf_counter() - start)
@@ -148,7 +156,7 @@ def _all(args: argparse.Namespace, out: Path) -> dict:
              if getattr(args, k)] + (["tracker overrides (key=value)"] if args.overrides else [])
     if given:
         raise ConfigError(f"all: {', '.join(given)} cannot be given; run that experiment alone to change it")
-    _check_out(out, COMBINED_FORMAT)
+    _check_out(out, COMBINED_FORMAT, EXPERIMENTS)
     common = ["--workers", str(args.workers), *(["--quick"] if args.quick else []),
               *(a for k, v in passed.items() if v is not None for a in (k, str(v)))]
     start = time.perf_counter()
