@@ -374,22 +374,22 @@ def test_tracker_takes_the_ground_row_from_the_first_blobs_contrast(model):
     assert errors["mask only"] == pytest.approx(errors["centre"], rel=0.05), errors
 
 
-def test_contrast_is_measured_only_for_the_contrast_rule(model, btr):
-    """A mask given with a frame the segmenter cannot read (the wrong size) starts blind at a fixed
-    ground row, the frame unread; the contrast rule needs the frame and names the mismatch."""
+def test_a_masks_frame_is_checked_before_anything_moves(model, btr):
+    """A mask given with a frame the segmenter cannot read (the wrong size) is refused whatever the
+    ground rule, before the mask or the particles are taken (the contrast rule read the frame after
+    they were); a mask alone starts blind under either rule."""
     frame = btr.frame(0)
     mask = ForegroundSegmenter(tracker_segmentation())
     mask.warm_up(btr.warmup_frames(20))
     mask = mask(frame)
-    for overrides, fails in (([], False), (["init.ground_row=null"], True)):
+    for overrides in ([], ["init.ground_row=null"]):
         tracker = Tracker(model, btr.camera, _config("filter.particles=100", "init.alpha_steps=6",
                                                      "init.azimuth_steps=6", *overrides), seed=0)
         tracker.warm_up(btr.warmup_frames(20))
-        if fails:
-            with pytest.raises(ValueError, match="like the warm-up frames"):
-                tracker.step(frame[:-1], mask=mask)
-        else:
-            assert tracker.step(frame[:-1], mask=mask)["lost"] == 0
+        with pytest.raises(ValueError, match="like the warm-up frames"):
+            tracker.step(frame[:-1], mask=mask)
+        assert tracker.last_mask is None and not tracker.initialised
+        assert tracker.step(None, mask=mask)["lost"] == 0
 
 
 def test_ground_row_from_contrast():
