@@ -62,6 +62,11 @@ def main(argv: list[str] | None = None) -> list[dict]:
     check_at_least("frames", args.frames, 1)
     check_at_least("particles", args.particles, 1)
     check_at_least("settle", args.settle, 0)
+    flags = {"filter.particles": "--particles", "filter.method": "--methods", "init.mode": "--inits"}
+    for override in args.set:  # a flag sets these, and the JSON's args must say what ran
+        flag = flags.get(override.partition("=")[0].strip())
+        if flag:
+            raise ConfigError(f"--set {override}: give {flag} instead")
     if args.settle >= args.frames:
         raise ConfigError(f"--settle {args.settle} leaves none of the --frames {args.frames} for the settled errors; "
                           f"lower it, e.g. --settle {args.frames // 5}")
