@@ -224,6 +224,24 @@ def test_the_unseen_report_names_a_catalog_vehicle_whole(tmp_path):
         assert f"\n| {shown} | tank | 50 |" in report, shown
 
 
+def test_the_unseen_reports_best_matches_are_at_the_nearest_range(tmp_path):
+    """Ranges listed far first: the per-mesh best matches were the first range's (3000 m), the
+    docstring's "nearest range" is 1000 m."""
+    from torch_atr.experiments.report import MEASURES
+    from torch_atr.experiments.unseen import write_unseen_report
+
+    mesh = "heldout:tank/quaternius_tank1.obj"
+    cfg = SensiacLikeConfig(vehicles=(mesh,), ranges_m=(3000.0, 1000.0), methods=("I",))
+    matches = {3000.0: ["m4_sherman", "t_55"], 1000.0: ["m1a2_abrams", "m2_bradley"]}
+    results = [{"vehicle": mesh, "class": "tank", "range_m": r, "methods": {"I": {"metrics": {
+        "recognition_accuracy": 0.5, "best_matches": matches[r], **{k: 1.0 for k, _ in MEASURES}}}}}
+        for r in cfg.ranges_m]
+    write_unseen_report(tmp_path, cfg, results, wall_s=1.0)
+    row = next(line for line in (tmp_path / "report.md").read_text().splitlines()
+               if line.startswith("| tank/quaternius_tank1.obj | tank |"))
+    assert row.endswith("| m1a2_abrams, m2_bradley |"), row
+
+
 @pytest.mark.slow
 def test_a_local_ray_cluster_gives_the_processes_results(run, tmp_path):
     pytest.importorskip("ray")

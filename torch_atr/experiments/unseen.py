@@ -79,7 +79,7 @@ def write_unseen_report(out: Path, cfg: SensiacLikeConfig, results: list[dict], 
     atomic_write_text(json.dumps(summary, indent=1) + "\n", out / "results.json")
     ranges = [f"{r:g}" for r in cfg.ranges_m]
     methods = "/".join(cfg.methods)
-    near = ranges[0]
+    near = f"{min(cfg.ranges_m):g}"  # the ranges as the user listed them, in any order
     known = {n: m for n, m in agg["meshes"].items() if m["class"] != "unknown"}
     unknown = {n: m for n, m in agg["meshes"].items() if m["class"] == "unknown"}
     lines = [
