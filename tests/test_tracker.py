@@ -550,6 +550,28 @@ def test_a_refused_step_leaves_the_filter_as_it_was(model, btr):
     assert torch.equal(tracker.generator.get_state(), before[2])
 
 
+def test_a_truth_start_on_a_class_the_model_lacks_spreads_the_identity(model, btr):
+    """A fire truck (class "unknown") from the truth: the start refused it, so `unseen --init truth`
+    stopped at the first truck; the pose is the truth's, α uniform on [0, 2π) (scipy's KS test),
+    with and without a camera."""
+    from scipy.stats import kstest
+
+    from torch_atr.tracking.blob import BlobTracker
+
+    truck = dataclasses.replace(btr.truth(0), vehicle="gazebo_fire_truck", vehicle_class="unknown")
+    tracker = Tracker(model, btr.camera, _config("filter.particles=4000", "init.mode=truth"), seed=0)
+    tracker.initialise(truck)
+    p = tracker.particles.double()
+    assert kstest(p[:, 5].numpy() / (2 * math.pi), "uniform").pvalue > 1e-3
+    assert p[:, :3].mean(0).tolist() == pytest.approx([truck.x, truck.y, truck.z], abs=0.05)
+    blob = BlobTracker(model, _config("filter.particles=4000"), seed=0)
+    blob.initialise(truck)
+    assert kstest(blob.particles[:, 2].double().numpy() / (2 * math.pi), "uniform").pvalue > 1e-3
+    known = Tracker(model, btr.camera, _config("filter.particles=50", "init.mode=truth"), seed=0)
+    known.initialise(btr.truth(0))
+    assert known.particles[:, 5].unique().numel() == 1  # a known class still starts at one α
+
+
 def test_reset_never_writes_into_the_callers_particles(model, btr, caplog):
     """After 11 blind frames the speeds are measured on the first step after a reset (its track
     holds the frames before it); they were set in the caller's own tensor, which the tracker held.

@@ -78,7 +78,8 @@ class BlobTracker(Tracker):
         self._blob_box: torch.Tensor | None = None  # the last blob's box (4,), image pixels
 
     def initialise(self, truth: FrameTruth) -> None:
-        """Particles around a truth's view (θ, φ) and its vehicle's α (or its class centre)."""
+        """Particles around a truth's view (θ, φ) and its vehicle's α (or its class centre; for a class
+        the model lacks, α uniform around the manifold)."""
         if not (math.isfinite(truth.theta) and math.isfinite(truth.phi)):
             raise ValueError(f"Truth initialisation without a camera needs the view theta, phi; got "
                              f"({truth.theta}, {truth.phi})")
@@ -87,8 +88,13 @@ class BlobTracker(Tracker):
         alpha = truth_alpha(self.model, truth.vehicle, truth.vehicle_class, self.cfg.init.alpha)
         n, std = self.cfg.filter.particles, self.cfg.init.heading_std_rad
         noise = torch.randn(n, 3, generator=self.generator, dtype=self.dtype, device=self.device)
-        mean = torch.tensor([truth.theta, truth.phi, alpha], dtype=self.dtype, device=self.device)
-        self._reset_views(mean + noise * torch.tensor([std, std, 0.0], dtype=self.dtype, device=self.device))
+        mean = torch.tensor([truth.theta, truth.phi, 0.0 if alpha is None else alpha], dtype=self.dtype,
+                            device=self.device)
+        particles = mean + noise * torch.tensor([std, std, 0.0], dtype=self.dtype, device=self.device)
+        if alpha is None:  # a class the model lacks: the identity is unknown
+            uniform = torch.rand(n, generator=self.generator, dtype=self.dtype, device=self.device)
+            particles[:, 2] = 2 * math.pi * uniform
+        self._reset_views(particles)
 
     def reset(self, particles: torch.Tensor) -> None:
         """Start from given particles: (N, 3) [θ, φ, α] describing the coming frame (equal weights; the

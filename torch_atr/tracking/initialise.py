@@ -2,7 +2,9 @@
 
 Truth (Table 5.1 and chapter 6.2): X₀ʲ ~ N(X₀, diag(σ₀²)) around the first frame's truth, a small
 positive speed (the thesis has no speed truth), and α₀ʲ at the true vehicle's αₖ when it is a
-training vehicle, else at the centre of its class's arc.
+training vehicle, else at the centre of its class's arc; for a class the model lacks (a truck,
+an "unknown" target) the identity is no part of the truth the start can use, and α₀ʲ is drawn
+uniformly around the manifold.
 
 Blind (what a real user has: one segmented blob and the camera). The range comes from the ground
 plane when the camera's height above flat ground is known: the vehicle meets the ground in or
@@ -49,6 +51,7 @@ drawn around the best ones (a mixture: equal shares, jittered by about half a gr
 
 from __future__ import annotations
 
+import logging
 import math
 from dataclasses import dataclass
 
@@ -65,6 +68,8 @@ from torch_atr.tracking.motion import ALPHA, HEADING, SPEED, STATE_DIM, X, Z
 from torch_atr.tracking.observation import blob_windows, cut_edges, log_likelihood, observe, silhouette_boxes
 
 INIT_MODES = ("blind", "truth")
+
+log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
@@ -148,31 +153,36 @@ def blob_column(mask: np.ndarray) -> float:
     return float(columns @ np.arange(columns.shape[0])) / float(columns.sum())
 
 
-def truth_alpha(model, vehicle: str, vehicle_class: str, mode: str = "vehicle") -> float:
+def truth_alpha(model, vehicle: str, vehicle_class: str, mode: str = "vehicle") -> float | None:
     """α₀ of the thesis's initialisation: the vehicle's αₖ (``mode="vehicle"`` and a training
-    vehicle) or the centre of its class's arc. Raises ValueError for a class the model lacks."""
+    vehicle) or the centre of its class's arc; None for a class the model lacks (a truck, an
+    "unknown" target: its identity is not part of the truth the start can use)."""
     if mode == "vehicle" and vehicle in model.vehicle_names:
         return float(model.alphas[model.vehicle_names.index(vehicle)])
     if vehicle_class not in model.class_names:
-        raise ValueError(f"Truth initialisation needs the target's class among the model's {model.class_names}; "
-                         f"got vehicle {vehicle!r} of class {vehicle_class!r}")
+        log.info("truth start: vehicle %r of class %r, not one of the model's %s: α spread over the whole "
+                 "manifold", vehicle, vehicle_class, model.class_names)
+        return None
     c = model.class_names.index(vehicle_class)
     arcs = [(start, end) for label, start, end in model.identity.class_arcs() if label == c]
     start, end = max(arcs, key=lambda arc: arc[1] - arc[0])  # its longest arc (classes are contiguous)
     return (start + end) / 2 % (2 * math.pi)
 
 
-def truth_particles(position: torch.Tensor, heading: float, alpha: float, n: int, cfg: InitConfig,
+def truth_particles(position: torch.Tensor, heading: float, alpha: float | None, n: int, cfg: InitConfig,
                     generator: torch.Generator | None = None) -> torch.Tensor:
     """Particles around a known state (module docstring).
 
     position: (3,) the vehicle's centre in the world frame (float tensor, its dtype and device are
-    the particles'); heading, alpha: radians; n: N. Returns (N, 6).
+    the particles'); heading, alpha: radians (alpha None: unknown, drawn uniformly on [0, 2π));
+    n: N. Returns (N, 6).
     """
     noise = torch.randn(n, STATE_DIM, generator=generator, dtype=position.dtype, device=position.device)
     std = torch.tensor([cfg.position_std_m] * 3 + [cfg.heading_std_rad, cfg.speed_std_mps, 0.0]).to(position)
-    mean = torch.cat([position, position.new_tensor([heading, cfg.speed_mps, alpha])])
+    mean = torch.cat([position, position.new_tensor([heading, cfg.speed_mps, 0.0 if alpha is None else alpha])])
     out = mean + noise * std
+    if alpha is None:
+        out[:, ALPHA] = 2 * math.pi * torch.rand(n, generator=generator, dtype=position.dtype, device=position.device)
     out[:, HEADING] = wrap_angle(out[:, HEADING])
     out[:, ALPHA] = wrap_angle(out[:, ALPHA])
     return out
