@@ -5,6 +5,7 @@ import dataclasses
 import json
 import os
 import re
+import sys
 
 import numpy as np
 import pytest
@@ -240,6 +241,19 @@ def test_the_unseen_reports_best_matches_are_at_the_nearest_range(tmp_path):
     row = next(line for line in (tmp_path / "report.md").read_text().splitlines()
                if line.startswith("| tank/quaternius_tank1.obj | tank |"))
     assert row.endswith("| m1a2_abrams, m2_bradley |"), row
+
+
+def test_a_folder_named_ray_is_not_taken_for_ray(tmp_path, monkeypatch):
+    """Run from a folder holding a folder 'ray' (an earlier --out ray), 'import ray' found that folder
+    and --ray failed with AttributeError: module 'ray' has no attribute 'is_initialized'."""
+    from torch_atr.config import ConfigError
+    from torch_atr.experiments.sensiac_like import _on_ray
+
+    (tmp_path / "ray").mkdir()
+    monkeypatch.syspath_prepend(str(tmp_path))
+    monkeypatch.delitem(sys.modules, "ray", raising=False)
+    with pytest.raises(ConfigError, match=f"found the folder {re.escape(str(tmp_path / 'ray'))}, not the package"):
+        next(_on_ray([], SensiacLikeConfig(), "local"))
 
 
 @pytest.mark.slow

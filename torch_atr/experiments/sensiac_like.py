@@ -349,6 +349,9 @@ def _on_ray(todo: list[tuple[str, float]], cfg: SensiacLikeConfig, address: str)
         import ray
     except ImportError as exc:
         raise ConfigError("--ray needs Ray: pip install -e \".[ray]\"") from exc
+    if not hasattr(ray, "remote"):  # a folder named ray in the working folder, imported in its place
+        raise ConfigError(f"--ray needs Ray: 'import ray' found the folder {list(ray.__path__)[0]}, not the package "
+                          "(pip install -e \".[ray]\", or run from another folder)")
     started = not ray.is_initialized()
     if started:
         ray.init(address=None if address == "local" else address, include_dashboard=False, log_to_driver=False)
