@@ -21,6 +21,7 @@ import json
 import math
 import numbers
 import os
+import re
 import warnings
 from pathlib import Path
 from typing import Any
@@ -141,6 +142,34 @@ def image_file_size(path: str | os.PathLike) -> tuple[int, int]:
     return image_size(str(path), width, height)
 
 
+_SCAN_END = re.compile(rb"\xff[^\x00\xd0-\xd7\xff]")  # in scan data FF 00 is a stuffed FF, FF D0-D7 a restart
+
+
+def _jpeg_cut_short(data: bytes) -> bool:
+    """Whether a JPEG (``data`` starts with SOI) ends before its EOI marker: its segments walked by their
+    lengths and its scans to the marker after them. Bytes after EOI (a camera's trailer) are not looked
+    at; a byte where a marker belongs is left to the decoder (False)."""
+    i = 2
+    while i + 2 <= len(data):
+        if data[i] != 0xFF:
+            return False
+        marker = data[i + 1]
+        if marker == 0xFF:  # a fill byte before a marker
+            i += 1
+        elif marker == 0xD9:
+            return False
+        elif 0xD0 <= marker <= 0xD7 or marker == 0x01:  # markers without a length
+            i += 2
+        else:
+            i += 2 + int.from_bytes(data[i + 2:i + 4], "big")
+            if marker == 0xDA:  # entropy-coded data runs to the next marker
+                end = _SCAN_END.search(data, i)
+                if end is None:
+                    return True
+                i = end.start()
+    return True
+
+
 def read_image(path: str | os.PathLike, expect_size: tuple[int, int] | None = None,
                expected_by: str = "") -> np.ndarray:
     """An image file's pixels as stored (OpenCV's ``IMREAD_UNCHANGED``: (H, W) grey or (H, W, C)
@@ -156,9 +185,8 @@ def read_image(path: str | os.PathLike, expect_size: tuple[int, int] | None = No
         raise InputError(f"{path}: image is {width} x {height} px; {expected_by} says {expect_size[0]} x "
                          f"{expect_size[1]}")
     data = Path(path).read_bytes()
-    if data[:2] == b"\xff\xd8" and data.rfind(b"\xff\xd9") < data.rfind(b"\xff\xda"):
-        raise InputError(f"{path}: the JPEG ends inside its image data (no end marker after its last scan): "
-                         "a file cut short")
+    if data[:2] == b"\xff\xd8" and _jpeg_cut_short(data):
+        raise InputError(f"{path}: the JPEG's data ends before its end-of-image marker: a file cut short")
     try:
         img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
     except cv2.error as exc:
