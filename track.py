@@ -111,7 +111,7 @@ def _track(cfg: TrackConfig, model: GenerativeShapeModel, tracker: Tracker | Blo
     if cfg.tensorboard:
         viz.log_track_tensorboard(out, result, figures)
     if cfg.video:
-        viz.write_overlay_video(out / "overlay.mp4", tracker, sequence, result, cfg.frames)
+        viz.write_overlay_video(out / "overlay.mp4", tracker, sequence, result)
     write_metrics(out, metrics)
 
     log.info("%s: %d frames at %.1f frames/s, %d lost", sequence.name, metrics["frames"],

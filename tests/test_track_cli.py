@@ -251,3 +251,29 @@ def test_the_tensorboard_command_it_names_works_for_a_folder_with_spaces(tmp_pat
     rows = list(csv.DictReader((out / "estimates.csv").open()))
     events = EventAccumulator(str(out)).Reload()
     assert [(e.step, e.value) for e in events.Scalars("estimate/x_m")] == [(0, pytest.approx(float(rows[0]["x"])))]
+
+
+def test_an_overlay_video_into_a_folder_named_in_bytes_that_are_not_utf8(tmp_path):
+    """cv2.VideoWriter crashed the process (SIGSEGV) on a Latin-1 folder name, after every other
+    output was written; the video is now written under an ASCII name and copied into place. Its
+    frames are counted by OpenCV reading a copy."""
+    import os
+
+    import cv2
+
+    try:
+        out = os.fsdecode(os.path.join(os.fsencode(tmp_path), b"r\xe9sultat"))
+        os.mkdir(out)
+        os.rmdir(out)
+    except OSError:
+        pytest.skip("this file system refuses names that are not UTF-8")
+    child = subprocess.run([sys.executable, "track.py", "--sequence", "synthetic:vehicle=bmp_2,range=1000,frames=3",
+                            "--particles", "50", "--init", "truth", "--video", "--out", out],
+                           capture_output=True, text=True, cwd=REPO, errors="surrogateescape")
+    assert child.returncode == 0, child.stderr[-2000:]
+    shutil.copyfile(os.path.join(out, "overlay.mp4"), tmp_path / "copy.mp4")
+    video = cv2.VideoCapture(str(tmp_path / "copy.mp4"))
+    count = 0
+    while video.read()[0]:
+        count += 1
+    assert count == 3

@@ -9,6 +9,8 @@ caller's business (:func:`save_figures`, or ``SummaryWriter.add_figure``).
 from __future__ import annotations
 
 import math
+import shutil
+import tempfile
 from pathlib import Path
 from typing import Sequence
 
@@ -464,19 +466,24 @@ def log_track_tensorboard(folder: str | Path, result, figures: dict) -> None:
             writer.add_figure(name, fig, close=False)
 
 
-def write_overlay_video(path: str | Path, tracker, sequence, result, frames: int | None = None) -> None:
+def write_overlay_video(path: str | Path, tracker, sequence, result) -> None:
     """Every tracked frame as the segmenter sees it, with the estimate's silhouette contour (red)
     and its class and α, as an MP4 (OpenCV's mp4v codec), written atomically."""
     import cv2
 
     fps = sequence.fps if math.isfinite(sequence.fps) else 1.0 / tracker.dt
-    with atomic_path(path, suffix=".mp4") as tmp:  # OpenCV picks the container by the extension
+    with atomic_path(path, suffix=".mp4") as tmp, tempfile.TemporaryDirectory() as scratch:
+        try:
+            str(tmp).encode("utf-8")
+            video = tmp  # OpenCV picks the container by the extension
+        except UnicodeEncodeError:  # OpenCV's writer crashes the process on a path that is not UTF-8 text
+            video = Path(scratch) / "overlay.mp4"
         writer = None
         for row in result.rows:
             frame = sequence.frame(row["frame"])
             image = cv2.cvtColor(tracker.segmenter.display(frame), cv2.COLOR_GRAY2BGR)
             if writer is None:
-                writer = cv2.VideoWriter(str(tmp), cv2.VideoWriter_fourcc(*"mp4v"), fps,
+                writer = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"mp4v"), fps,
                                          (image.shape[1], image.shape[0]))
             if "alpha" in row:
                 placed = tracker.silhouette_at(row, image.shape[:2]).cpu().numpy().astype(np.uint8)
@@ -487,3 +494,5 @@ def write_overlay_video(path: str | Path, tracker, sequence, result, frames: int
             writer.write(image)
         if writer is not None:
             writer.release()
+        if video != tmp and video.exists():
+            shutil.copyfile(video, tmp)
