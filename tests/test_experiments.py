@@ -6,6 +6,7 @@ import json
 import os
 import re
 import sys
+import types
 
 import numpy as np
 import pytest
@@ -249,9 +250,9 @@ def test_a_folder_named_ray_is_not_taken_for_ray(tmp_path, monkeypatch):
     from torch_atr.config import ConfigError
     from torch_atr.experiments.sensiac_like import _on_ray
 
-    (tmp_path / "ray").mkdir()
-    monkeypatch.syspath_prepend(str(tmp_path))
-    monkeypatch.delitem(sys.modules, "ray", raising=False)
+    folder = types.ModuleType("ray")  # what 'import ray' makes of a folder: a namespace package
+    folder.__path__ = [str(tmp_path / "ray")]
+    monkeypatch.setitem(sys.modules, "ray", folder)  # put back as it was, Ray installed or not
     with pytest.raises(ConfigError, match=f"found the folder {re.escape(str(tmp_path / 'ray'))}, not the package"):
         next(_on_ray([], SensiacLikeConfig(), "local"))
 
