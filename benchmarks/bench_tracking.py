@@ -62,11 +62,6 @@ def main(argv: list[str] | None = None) -> list[dict]:
     check_at_least("frames", args.frames, 1)
     check_at_least("particles", args.particles, 1)
     check_at_least("settle", args.settle, 0)
-    flags = {"filter.particles": "--particles", "filter.method": "--methods", "init.mode": "--inits"}
-    for override in args.set:  # a flag sets these, and the JSON's args must say what ran
-        flag = flags.get(override.partition("=")[0].strip())
-        if flag:
-            raise ConfigError(f"--set {override}: give {flag} instead")
     if args.settle >= args.frames:
         raise ConfigError(f"--settle {args.settle} leaves none of the --frames {args.frames} for the settled errors; "
                           f"lower it, e.g. --settle {args.frames // 5}")
@@ -83,6 +78,13 @@ def main(argv: list[str] | None = None) -> list[dict]:
     configs = {(init, method): load_config(TrackerConfig, None, [  # ConfigError names a bad --set override
         f"filter.particles={args.particles}", f"filter.method={method}", f"init.mode={init}", *args.set])
         for init in args.inits for method in args.methods}
+    for (init, method), cfg in configs.items():  # --set may not undo a flag: the JSON's args say what ran
+        ran = {"--particles": (cfg.filter.particles, args.particles), "--methods": (cfg.filter.method, method),
+               "--inits": (cfg.init.mode, init)}
+        for flag, (value, asked) in ran.items():
+            if value != asked:
+                raise ConfigError(f"--set {' '.join(args.set)} sets {value!r} where {flag} gave {asked!r}; "
+                                  f"give {flag} instead")
     sequences = {(vehicle, range_m): sequence(vehicle, SceneConfig(frames=args.frames, seed=args.seed), range_m)
                  for vehicle in args.vehicles for range_m in args.ranges}
     out = json_output(args.json, args.overwrite, NAME)

@@ -58,8 +58,9 @@ def error_line(capsys, name: str, argv: list[str]) -> str:
     ("bench_tracking", ["--particles", "0"], "--particles: expected a finite number >= 1"),
     ("bench_tracking", ["--device", "meta"], "device 'meta' is not available here"),
     ("bench_tracking", ["--inits", "foo"], "--inits foo: override init.mode=foo"),
-    ("bench_tracking", ["--set", "filter.particles=50"], "--set filter.particles=50: give --particles instead"),
-    ("bench_tracking", ["--set", "init.mode=truth"], "--set init.mode=truth: give --inits instead"),
+    ("bench_tracking", ["--set", "filter.particles=50"], "--set filter.particles=50 sets 50 where --particles gave"),
+    ("bench_tracking", ["--set", "filter={particles: 50}"], "sets 50 where --particles gave 1000; give --particles"),
+    ("bench_tracking", ["--set", "init.mode=truth"], "sets 'truth' where --inits gave 'blind'; give --inits instead"),
     ("bench_train", ["foo=1"], "train.py: override foo=1: unknown config key(s) foo"),
 ])
 def test_bad_argument_is_one_line(capsys, name, argv, expected):
