@@ -53,6 +53,11 @@ def test_window_size_is_f_w_over_depth():
     torch.testing.assert_close(side[0], torch.tensor([240.0, 216.0], dtype=torch.float64))
     torch.testing.assert_close(uv[0], torch.tensor([340.0, 276.0], dtype=torch.float64))
     assert side[1].isnan().all() and uv[1].isnan().all()  # behind the camera
+    barrel = Camera(500.0, 500.0, 320.0, 240.0, 640, 480, dist=[-0.35, 0.15, 0.0, 0.0, -0.03])
+    # 63° off the axis (r² = 3.84), beyond where k1..k3 fold back (r² = 2.30): its uv is NaN, and so its side
+    uv, side = project_windows(barrel, torch.tensor([[0.0, 0.0, 50.0], [98.0, 0.0, 50.0]], dtype=torch.float64), 12.0)
+    torch.testing.assert_close(side[0], torch.tensor([120.0, 120.0], dtype=torch.float64))
+    assert uv[1].isnan().all() and side[1].isnan().all()
 
 
 def test_sample_windows_matchesbilinear():

@@ -7,6 +7,7 @@ with y flipped; :meth:`Camera.from_opencv` and :meth:`Camera.opencv_pose` conver
 
 from __future__ import annotations
 
+import functools
 import math
 import numbers
 
@@ -38,12 +39,12 @@ def _number(name: str, value) -> float:
     return float(value)
 
 
-def _fold_r2(dist: torch.Tensor) -> float:
-    """r² = x² + y² (normalised coordinates) where the radial distortion of ``dist`` (5,) folds back:
+@functools.lru_cache(maxsize=64)  # a camera's every projection asks again (np.roots: about 35 us)
+def _fold_r2(k1: float, k2: float, k3: float) -> float:
+    """r² = x² + y² (normalised coordinates) where the radial distortion k1, k2, k3 folds back:
     the smallest s > 0 with d(r · (1 + k1 r² + k2 r⁴ + k3 r⁶)) / dr = 1 + 3 k1 s + 5 k2 s² + 7 k3 s³ = 0;
     inf where there is none. Beyond it points of wider angle land nearer the principal point, so
     OpenCV's model images points far outside the field of view inside the image."""
-    k1, k2, _, _, k3 = dist.tolist()
     s = np.roots([7 * k3, 5 * k2, 3 * k1, 1.0])  # leading zeros dropped: k3 = 0 is a quadratic
     s = s.real[(s.imag == 0) & (s.real > 0)]
     return float(s.min()) if s.size else math.inf
@@ -162,7 +163,7 @@ class Camera(nn.Module):
         if bool(self.dist.any()):  # without distortion the terms below are 0 and 1: (x, y) as they are
             k1, k2, p1, p2, k3 = self.dist.to(p).unbind(0)
             r2 = x * x + y * y
-            seen = seen & (r2 < _fold_r2(self.dist))
+            seen = seen & (r2 < _fold_r2(*self.dist[[0, 1, 4]].tolist()))
             radial = 1 + k1 * r2 + k2 * r2 * r2 + k3 * r2 * r2 * r2
             xd = x * radial + 2 * p1 * x * y + p2 * (r2 + 2 * x * x)
             yd = y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y

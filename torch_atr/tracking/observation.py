@@ -55,13 +55,14 @@ def project_windows(camera: Camera, centres: torch.Tensor, window_m: float) -> t
         centres: (N, 3) window centres in the camera's world frame, metres.
         window_m: W, the window's world size, metres.
     Returns:
-        uv: (N, 2) pixel position of each window centre (NaN at or behind the camera);
-        side: (N, 2) window size (sᵤ, s_v) in image pixels (NaN at or behind the camera).
+        uv: (N, 2) pixel position of each window centre (NaN at or behind the camera, and
+            beyond the radius where the lens distortion folds back: :meth:`Camera.project`);
+        side: (N, 2) window size (sᵤ, s_v) in image pixels (NaN where uv is).
     """
     check_shape("centres", centres, ("N", 3))
     uv, depth = camera.project(centres)
     f = torch.stack([camera.K[0, 0], camera.K[1, 1]]).to(uv)
-    side = torch.where(depth.unsqueeze(-1) > 0, window_m * f / depth.unsqueeze(-1), torch.full_like(uv, math.nan))
+    side = torch.where(uv.isfinite(), window_m * f / depth.unsqueeze(-1), torch.full_like(uv, math.nan))
     return uv, side
 
 
