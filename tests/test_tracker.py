@@ -550,7 +550,7 @@ def test_a_refused_step_leaves_the_filter_as_it_was(model, btr):
     assert torch.equal(tracker.generator.get_state(), before[2])
 
 
-def test_a_truth_start_on_a_class_the_model_lacks_spreads_the_identity(model, btr):
+def test_a_truth_start_on_a_class_the_model_lacks_spreads_the_identity(model, btr, caplog):
     """A fire truck (class "unknown") from the truth: the start refused it, so `unseen --init truth`
     stopped at the first truck; the pose is the truth's, α uniform on [0, 2π) (scipy's KS test),
     with and without a camera."""
@@ -570,6 +570,10 @@ def test_a_truth_start_on_a_class_the_model_lacks_spreads_the_identity(model, bt
     known = Tracker(model, btr.camera, _config("filter.particles=50", "init.mode=truth"), seed=0)
     known.initialise(btr.truth(0))
     assert known.particles[:, 5].unique().numel() == 1  # a known class still starts at one α
+    with caplog.at_level("INFO", logger="torch_atr.tracking.initialise"):
+        for vehicle_class in ("unknown", "Tank"):  # a misspelling is warned of
+            known.initialise(dataclasses.replace(truck, vehicle_class=vehicle_class))
+    assert [r.levelname for r in caplog.records] == ["INFO", "WARNING"]
 
 
 def test_reset_never_writes_into_the_callers_particles(model, btr, caplog):

@@ -411,7 +411,8 @@ class Tracker:
     def initialise(self, truth: FrameTruth) -> None:
         """The thesis's initialisation from one frame's truth (``InitConfig``, mode "truth").
 
-        Needs the truth's position (x, y, z), heading and, for α, its vehicle or class.
+        Needs the truth's position (x, y, z) and heading; α starts at its vehicle's or class's, or
+        spread around the manifold for a class the model lacks (:func:`truth_alpha`).
         """
         if not isinstance(truth, FrameTruth):
             raise ValueError(f"Expected a FrameTruth (sequence.truth(i)); got {type(truth).__name__}")

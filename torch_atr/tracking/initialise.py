@@ -159,9 +159,10 @@ def truth_alpha(model, vehicle: str, vehicle_class: str, mode: str = "vehicle") 
     "unknown" target: its identity is not part of the truth the start can use)."""
     if mode == "vehicle" and vehicle in model.vehicle_names:
         return float(model.alphas[model.vehicle_names.index(vehicle)])
-    if vehicle_class not in model.class_names:
-        log.info("truth start: vehicle %r of class %r, not one of the model's %s: α spread over the whole "
-                 "manifold", vehicle, vehicle_class, model.class_names)
+    if vehicle_class not in model.class_names:  # a misspelt class ("Tank") is said louder than "unknown"
+        level = logging.INFO if vehicle_class in ("", "unknown") else logging.WARNING
+        log.log(level, "truth start: vehicle %r of class %r, not one of the model's %s: α spread over the whole "
+                "manifold", vehicle, vehicle_class, model.class_names)
         return None
     c = model.class_names.index(vehicle_class)
     arcs = [(start, end) for label, start, end in model.identity.class_arcs() if label == c]
