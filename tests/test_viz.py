@@ -173,3 +173,21 @@ def test_a_one_frame_run_has_no_negative_time():
         assert ax.get_xlim() == pytest.approx((0.0, 0.5))
     later = [{**rows[0], "time_s": 3.0}]
     assert viz.error_figure(later, "one").axes[0].get_xlim() == pytest.approx((2.5, 3.5))
+
+
+def test_view_figure_plots_the_azimuth_against_time_below():
+    """The second panel: the estimated azimuth (degrees, 0-360) at each estimated frame's time, and the
+    truth's at every frame; a grazing camera's views, all at φ ≈ 0, are told apart there."""
+    rows = [{"frame": i, "time_s": i / 30, "lost": int(i < 2), "true_theta": 0.1 * i - 0.5, "true_phi": 0.01,
+             **({"theta": 0.1 * i - 0.4, "phi": 0.01} if i >= 2 else {})} for i in range(10)]
+    fig = viz.view_figure(rows, "grazing")
+    above, below = fig.axes[:2]
+    assert below.get_ylim() == (0.0, 360.0) and below.get_xlabel() == "time (s)"
+    assert below.get_ylabel() == "azimuth θ (degrees)"
+    estimate = below.collections[0].get_offsets()
+    np.testing.assert_allclose(estimate[:, 0], [i / 30 for i in range(2, 10)])
+    np.testing.assert_allclose(estimate[:, 1], [math.degrees(0.1 * i - 0.4) % 360 for i in range(2, 10)])
+    truth = below.lines[0]
+    np.testing.assert_allclose(truth.get_ydata(), [math.degrees(0.1 * i - 0.5) % 360 for i in range(10)])
+    assert [t.get_text() for t in below.get_legend().get_texts()] == ["estimate", "truth"]
+    assert fig.axes[2].get_ylabel() == "time (s)"  # the colour key

@@ -9,8 +9,9 @@ import numpy as np
 import torch
 
 
-def check_device(name: str | torch.device) -> torch.device:
-    """The torch device ``name`` (``"cpu"``, ``"cuda"``, ``"cuda:1"``, ``"mps"``, ...) as a tensor on
+def check_device(name: str | int | torch.device) -> torch.device:
+    """The torch device ``name`` (``"cpu"``, ``"cuda"``, ``"cuda:1"``, ``"mps"``, ..., or an index: 0 is
+    ``cuda:0``, as ``torch.device(0)`` takes it) as a tensor on
     it reports it (``"cpu:0"`` → cpu, ``"cuda"`` → cuda:0), if this machine has it and it holds
     data; ``ValueError`` naming it otherwise (PyTorch would fail later, with less to go on)."""
     try:

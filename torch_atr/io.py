@@ -97,7 +97,8 @@ def _is_stale_temp(path: Path) -> bool:
 @contextmanager
 def atomic_path(path: str | os.PathLike, suffix: str = "") -> Iterator[Path]:
     """Yield a temporary path beside ``path`` (ending ``.tmp`` + ``suffix``, e.g. ".mp4" for a
-    writer that picks its format by the extension); on success rename it over ``path``.
+    writer that picks its format by the extension); on success rename it over ``path`` (for a
+    symbolic link: beside and over the link's target, below).
 
     The temporary file is removed if the block raises, so nothing half written is left; one left
     by a killed write of the same target is removed when this write starts. A symbolic link is
