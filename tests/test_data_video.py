@@ -348,3 +348,24 @@ def test_image_headers_are_checked_before_decoding(tmp_path):
     (folder / "a1.png").write_bytes(b"\x89PNG\r\n\x1a\n garbage")
     with pytest.raises(InputError, match=re.escape(f"{folder / 'a1.png'}: cannot be read as an image")):
         seq.frame(1)
+
+
+def test_frames_of_an_h264_transport_stream_are_its_own_after_any_seek():
+    """OpenCV's seek to frames 0-12 of this H.264 MPEG-TS (B-frames, a keyframe every 12) lands on
+    frame 12 without a word, so frame(0) and every frame read after it were 12 frames late. Each
+    frame is compared with OpenCV's own reading from the start, which is exact, and with the frame
+    as drawn (a square at column 2i, brightness 40 + 4i).
+
+    tests/data/h264_bframes.ts (10 KB) was made with ffmpeg 9.0 (imageio-ffmpeg 0.8.1): 30 frames of 64 x 48,
+    frame i grey 40 + 4i with a white 8 x 16 square at columns 2i..2i+7 of rows 8..23, piped as raw
+    RGB to ``ffmpeg -r 30 -c:v libx264 -bf 3 -g 12 -crf 20 -pix_fmt yuv420p -f mpegts``."""
+    path = Path(__file__).parent / "data" / "h264_bframes.ts"
+    capture = cv2.VideoCapture(str(path))
+    reference = []
+    while (frame := capture.read())[0]:
+        reference.append(cv2.cvtColor(frame[1], cv2.COLOR_BGR2GRAY))
+    assert [int(np.argmax(f[16])) // 2 for f in reference] == list(range(30))  # the square's column: 2i
+    seq = open_sequence(f"video:{path}")
+    assert len(seq) == 30
+    for i in [*range(30), 5, 0, 29, 13, 3]:  # in order, then back and forth
+        assert np.array_equal(seq.frame(i), reference[i]), i

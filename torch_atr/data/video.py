@@ -69,6 +69,9 @@ class VideoSequence(Sequence):
         color: RGB (H, W, 3) uint8 frames instead of grey (H, W).
         fps: frame rate; None = the video's own rate, NaN for images (they carry none).
     Video frames are read by seeking (``CAP_PROP_POS_FRAMES``) unless they follow the last one read.
+    OpenCV seeks by timestamp, and in some files (an H.264 MPEG-TS with B-frames, a variable frame
+    rate) lands on another frame without a word; a frame whose timestamp after a seek is not its own
+    is read again from the start of the video, frame by frame.
     """
 
     def __init__(self, path: str | os.PathLike, camera: Camera | None = None, color: bool = False,
@@ -159,14 +162,34 @@ class VideoSequence(Sequence):
             return self._read_image(i)
         if self._cap is None:
             raise ValueError(f"{self.path}: the sequence is closed")
-        if i != self._pos:
+        sought = i != self._pos
+        if sought:
             self._cap.set(cv2.CAP_PROP_POS_FRAMES, i)
         ok, img = self._cap.read()
+        if ok and sought and not self._read_at(i):
+            ok, img = self._read_from_start(i)
         if not ok:
             self._pos = -1
             raise InputError(f"{self.path}: cannot read frame {i} of {self._n}")
         self._pos = i + 1
         return _convert(img, self.color, f"{self.path} frame {i}")
+
+    def _read_at(self, i: int) -> bool:
+        """Whether the frame just read is frame ``i`` by its timestamp (true where the video gives no rate)."""
+        rate = self._cap.get(cv2.CAP_PROP_FPS)
+        if not 0 < rate < math.inf:
+            return True
+        return abs(self._cap.get(cv2.CAP_PROP_POS_MSEC) - 1000.0 * i / rate) < 500.0 / rate
+
+    def _read_from_start(self, i: int) -> tuple[bool, np.ndarray | None]:
+        """Frame ``i`` from a capture opened afresh, the ``i`` frames before it decoded and dropped."""
+        logger.debug("%s: a seek to frame %d landed elsewhere; reading from the start", self.path, i)
+        self._cap.release()
+        self._cap = cv2.VideoCapture(self.path)
+        for _ in range(i):
+            if not self._cap.grab():
+                return False, None
+        return self._cap.read()
 
     def close(self) -> None:
         if self._cap is not None:
