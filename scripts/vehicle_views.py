@@ -22,6 +22,7 @@ import numpy as np
 import torch
 import trimesh
 
+from torch_atr.io import atomic_path
 from torch_atr.render import view_basis, view_directions
 from torch_atr.vehicles import Vehicle, load_catalog, load_heldout_meshes
 
@@ -90,9 +91,11 @@ def main() -> None:
     logging.basicConfig(level=logging.INFO, format="%(message)s")
     vehicles = [v for s in args.split for v in (load_heldout_meshes() if s == "heldout" else load_catalog(s))]
     sheet = contact_sheet(vehicles)
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    if not cv2.imwrite(str(args.out), sheet):
-        raise OSError(f"could not write {args.out}")
+    ok, png = cv2.imencode(".png", sheet)  # cv2.imwrite crashes the process on a path that is not UTF-8
+    if not ok:
+        raise OSError(f"could not encode {args.out}")
+    with atomic_path(args.out) as tmp:
+        png.tofile(tmp)
     log.info("wrote %s: %d vehicles, %dx%d px", args.out, len(vehicles), sheet.shape[1], sheet.shape[0])
 
 
