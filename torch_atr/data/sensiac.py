@@ -17,15 +17,18 @@ spec's option) decides explicitly. Frames are at most 16384 px a side and 2**26 
 ``.agt`` ground truth ("ARF Ground Truth", a small keyword language). A bare word followed by
 ``{`` opens a block, ``}`` closes it; every other line is ``Key value...`` with quoted strings
 or numbers, e.g. ``TgtType "BTR70"``, ``Range "1000.5"``, ``PixLoc 320 256``,
-``Time year julian_day hour min sec ms``. A value may also sit on the line after its key. The
-frames are the ``TgtUpd`` blocks of ``Agt -> TgtSect``, in order; a frame's target is its first
-``Tgt``. ``Aspect`` is in degrees, 0 when the target faces the sensor, clockwise seen from
-above; it is kept in ``FrameTruth.aspect`` (in radians), which equals θ of METHOD.md's view Θ.
-The elevation φ needs the sensor's calibration and is left unknown. ``TgtType`` names the
-vehicle; its class comes from :data:`SENSIAC_CLASSES`, the thesis's grouping of SENSIAC's
-targets (thesis 1: tanks T72, 2S3, ZSU23; APCs BTR70, BRDM2, BMP2; the Isuzu SUV; the Ford
-pickup) and of our SENSIAC-like test split, matched on letters and digits alone ("BMP2",
-"bmp_2" and "BMP-2" alike); any other vehicle's class is left unknown.
+``Time year julian_day hour min sec ms``. A value may also sit on the line after its key, and
+several keys may share a line (the grammar takes line breaks as white space). The frames are the
+``TgtUpd`` blocks of ``Agt -> TgtSect``, in order, or, when each carries a ``Keyword "Frame# N"``
+line (1-based), at the frames they name. A frame's target is its first ``Tgt`` with a
+``TgtType`` (the specification gives one to targets scored for ATR only). ``Aspect`` is in
+degrees, 0 when the target faces the sensor, clockwise seen from above; it is kept in
+``FrameTruth.aspect`` (in radians), which equals θ of METHOD.md's view Θ. The elevation φ needs
+the sensor's calibration and is left unknown. ``TgtType`` names the vehicle; its class comes
+from :data:`SENSIAC_CLASSES`, the thesis's grouping of SENSIAC's targets (thesis 1: tanks T72,
+2S3, ZSU23; APCs BTR70, BRDM2, BMP2; the Isuzu SUV; the Ford pickup) and of our SENSIAC-like
+test split, matched on letters and digits alone ("BMP2", "bmp_2" and "BMP-2" alike); any other
+vehicle's class is left unknown.
 
 ``.bbox_met`` per-frame bounding-box metadata, a comma-separated file of 18 columns and no
 header. The only public loader we found (a DSIAC tool on GitHub) names the first eleven
@@ -259,9 +262,27 @@ def _agt_tokens(text: str, source: str) -> list[tuple[str, str, int, bool]]:
     return tokens
 
 
+# The specification's keywords (its lex source) and AGTJ's Keyword and PixBox. The grammar takes
+# line breaks as white space, so one of these ends the values before it: ``Tgt { TgtType "T72"
+# PixLoc 10 20 }`` holds two attributes.
+AGT_KEYWORDS = frozenset((
+    "Agt TgtSect TgtUpd Tgt TgtAbs TgtSenRel SenSect SenUpd PrjSect Comment Keyword PixRange Aspect Azimuth "
+    "Elevation Fov LatLong Name Obscuration PlyId Pitch PixLoc PixBox Range Roll Scenario Site Stake TgtType "
+    "Time Utm").split())
+
+
 def _opens_value(token: tuple[str, str, int, bool]) -> bool:
     kind, tok, _, _ = token
     return kind == "str" or (kind == "word" and not _IDENT_RE.fullmatch(tok))
+
+
+def _is_value(tokens: list[tuple[str, str, int, bool]], j: int, line: int) -> bool:
+    """Whether token j, on ``line``, is a value: a string or word that is not a keyword and not
+    the name of a block (a word followed by ``{``)."""
+    kind, tok, tok_line, _ = tokens[j]
+    if tok_line != line or kind not in ("str", "word"):
+        return False
+    return kind == "str" or not (tok in AGT_KEYWORDS or (j + 1 < len(tokens) and tokens[j + 1][0] == "{"))
 
 
 def parse_agt(text: str, source: str = "<agt>") -> AgtBlock:
@@ -289,14 +310,14 @@ def parse_agt(text: str, source: str = "<agt>") -> AgtBlock:
             i += 2
             continue
         values, j = [], i + 1
-        while j < len(tokens) and tokens[j][2] == line and tokens[j][0] in ("str", "word"):
+        while j < len(tokens) and _is_value(tokens, j, line):
             values.append(tokens[j][1])
             j += 1
         # A key alone on its line takes its values from the next line if that opens with a
         # quoted string or a number (the layout of the 1999 spec's examples).
         if not values and j < len(tokens) and tokens[j][3] and _opens_value(tokens[j]):
             cont = tokens[j][2]
-            while j < len(tokens) and tokens[j][2] == cont and tokens[j][0] in ("str", "word"):
+            while j < len(tokens) and _is_value(tokens, j, cont):
                 values.append(tokens[j][1])
                 j += 1
         if stack[-1] is root:
@@ -364,9 +385,25 @@ def vehicle_class(vehicle: str) -> str:
     return SENSIAC_CLASSES.get(re.sub(r"[^a-z0-9]", "", vehicle.lower()), "")
 
 
-def agt_frame_truths(agt: AgtBlock, source: str = "<agt>") -> list[FrameTruth | None]:
-    """Per-frame truth: one entry per ``TgtUpd`` (None when it holds no time and no target)."""
-    truths: list[FrameTruth | None] = []
+_FRAME_NUMBER_RE = re.compile(r"Frame#\s*(\d+)", re.IGNORECASE)
+AGT_MAX_FRAME = 2**24  # 155 hours at 30 Hz; a larger Frame# is not a frame of any ARF
+
+
+def _frame_number(upd: AgtBlock, source: str) -> int | None:
+    """The 1-based frame a ``TgtUpd``'s ``Keyword "Frame# N"`` (or ``Comment``) names, or None."""
+    for a in upd.attrs:
+        if a.key in ("Keyword", "Comment") and (m := _FRAME_NUMBER_RE.search(" ".join(a.values))):
+            digits = m.group(1).lstrip("0") or "0"
+            if digits == "0" or len(digits) > 8 or int(digits) > AGT_MAX_FRAME:
+                raise InputError(f"{source}, line {a.line}: Frame# {m.group(1)}: frames count from 1 "
+                                 f"to at most {AGT_MAX_FRAME}")
+            return int(digits)
+    return None
+
+
+def _agt_truths(agt: AgtBlock, source: str) -> tuple[list[FrameTruth | None], bool]:
+    """:func:`agt_frame_truths`, and whether the ``TgtUpd`` blocks number their frames."""
+    updates: list[tuple[AgtBlock, int | None, FrameTruth | None]] = []
     multi = 0
     for sect in agt.find("TgtSect"):
         for upd in sect.find("TgtUpd"):
@@ -376,8 +413,8 @@ def agt_frame_truths(agt: AgtBlock, source: str = "<agt>") -> list[FrameTruth | 
                 values["time_s"] = _agt_time(time, source)
             tgts = upd.find("Tgt")
             multi += len(tgts) > 1
-            if tgts:
-                tgt = tgts[0]
+            if tgts:  # the first target scored for ATR; a Tgt without TgtType is a false alarm or clutter
+                tgt = next((t for t in tgts if t.attr("TgtType") is not None), tgts[0])
                 if (a := tgt.attr("TgtType")) is not None:
                     values["vehicle"] = " ".join(a.values)
                     values["vehicle_class"] = vehicle_class(values["vehicle"])
@@ -389,10 +426,33 @@ def agt_frame_truths(agt: AgtBlock, source: str = "<agt>") -> list[FrameTruth | 
                     values["u"], values["v"] = _numbers(a, 2, source)
                 if (a := tgt.attr("PixBox")) is not None:
                     values["u0"], values["v0"], values["u1"], values["v1"] = _numbers(a, 4, source)
-            truths.append(FrameTruth(**values) if values else None)
+            updates.append((upd, _frame_number(upd, source), FrameTruth(**values) if values else None))
     if multi:
-        logger.warning("%s: %d frames list more than one Tgt; using the first of each", source, multi)
-    return truths
+        logger.warning("%s: %d frames list more than one Tgt; using the first with a TgtType of each", source, multi)
+    numbered = [u for u in updates if u[1] is not None]
+    if not numbered:
+        return [t for _, _, t in updates], False
+    if len(numbered) < len(updates):
+        missing = next(upd for upd, k, _ in updates if k is None)
+        raise InputError(f"{source}, line {missing.line}: this TgtUpd has no Frame# line, but the TgtUpd at line "
+                         f"{numbered[0][0].line} has one; which frame it holds is unknown")
+    truths: list[FrameTruth | None] = [None] * max(k for _, k, _ in updates)
+    first: dict[int, AgtBlock] = {}
+    for upd, k, t in updates:
+        if k in first:
+            raise InputError(f"{source}, line {upd.line}: TgtUpd numbers frame {k}, as the TgtUpd at line "
+                             f"{first[k].line} does")
+        first[k] = upd
+        truths[k - 1] = t
+    return truths, True
+
+
+def agt_frame_truths(agt: AgtBlock, source: str = "<agt>") -> list[FrameTruth | None]:
+    """Per-frame truth (None where a frame has no time and no target): the ``TgtUpd`` blocks in
+    order, one a frame, or, when each names its frame in a ``Keyword "Frame# N"`` line (1-based,
+    as the ATR database's files do), each at its frame, None between them. Raises
+    ``InputError`` naming the line when only some are numbered or two name the same frame."""
+    return _agt_truths(agt, source)[0]
 
 
 def _fmt(x: float) -> str:
@@ -543,9 +603,9 @@ class SensiacSequence(Sequence):
         self.camera = camera
         agt = _companion(arf, agt_path, ".agt", "agt")
         met = _companion(arf, bbox_met_path, ".bbox_met", "metric")
-        agt_truths = agt_frame_truths(read_agt(agt), str(agt)) if agt is not None else []
+        agt_truths, numbered = _agt_truths(read_agt(agt), str(agt)) if agt is not None else ([], False)
         met_rows = read_bbox_met(met) if met is not None else []
-        self._truths = _merge_truth(header.frames, agt_truths, met_rows, str(arf))
+        self._truths = _merge_truth(header.frames, agt_truths, met_rows, str(arf), numbered)
         self.meta = {"arf": str(arf), "agt": None if agt is None else str(agt),
                      "bbox_met": None if met is None else str(met), "arf_layout": layout,
                      "arf_version": header.version, "arf_image_type": header.image_type,
@@ -571,10 +631,16 @@ class SensiacSequence(Sequence):
         self._mm = None
 
 
-def _merge_truth(n: int, agt: list[FrameTruth | None], met: list[BboxMetRow], source: str) -> list[FrameTruth | None]:
+def _merge_truth(n: int, agt: list[FrameTruth | None], met: list[BboxMetRow], source: str,
+                 numbered: bool = False) -> list[FrameTruth | None]:
     """Per frame: the AGT truth, with the bbox_met upper-left corner (and the lower-right one
-    mirrored about PixLoc) where the AGT has no PixBox."""
-    if agt and len(agt) != n:
+    mirrored about PixLoc) where the AGT has no PixBox. ``numbered``: the AGT's frames were placed
+    by their Frame# lines, so only frames beyond the ARF's are worth a warning."""
+    if numbered:
+        if len(agt) > n:
+            logger.warning("%s: the AGT numbers frames up to %d, the ARF has %d; ignoring the truth beyond it",
+                           source, len(agt), n)
+    elif agt and len(agt) != n:
         logger.warning("%s: the AGT has %d frames, the ARF %d; matching by index", source, len(agt), n)
     times = [t.time_s for t in agt if t is not None and math.isfinite(t.time_s)]
     if any(b < a for a, b in zip(times, times[1:])):
