@@ -92,15 +92,31 @@ def test_arf_bad_magic(tmp_path):
         SensiacSequence(path)
 
 
-def test_arf_8_bit_image_type_is_rejected(tmp_path):
-    """An 8-bit ARF (one byte a pixel) is named as such, not reported as truncated."""
+@pytest.mark.parametrize("image_type", [0, 3, 6])
+def test_arf_image_types_of_other_pixel_sizes_are_rejected(tmp_path, image_type):
+    """Type 0 is eight_bit and 6 long_word in public readers' type maps (3 is in none): named as
+    unsupported, not reported as truncated."""
     path = tmp_path / "bytes.arf"
     frames = _frames(n=4, rows=6, cols=8)
-    path.write_bytes(struct.pack(">8I", 0xBBBBBAAD, 2, 6, 8, 3, 4, 32, 0)
+    path.write_bytes(struct.pack(">8I", 0xBBBBBAAD, 2, 6, 8, image_type, 4, 32, 0)
                      + frames.astype(np.uint8).tobytes())
     with pytest.raises(ValueError, match=re.escape(
-            f"{path}: ARF image type 3 (byte offset 16) is not supported; this reader reads type 5")):
+            f"{path}: ARF image type {image_type} (byte offset 16) is not supported; this reader reads types "
+            f"1 (ten_bit), 2 (twelve_bit), 5 (short_word), 16-bit pixels")):
         SensiacSequence(path)
+
+
+@pytest.mark.parametrize("image_type", [1, 2])
+def test_arf_ten_and_twelve_bit_words_are_read_as_16_bit_pixels(tmp_path, image_type):
+    """ten_bit and twelve_bit ARFs store one big-endian 16-bit word a pixel, as short_word does
+    (they were refused); the pixels against NumPy's reading of the words."""
+    path = tmp_path / "words.arf"
+    frames = (_frames(n=3, rows=6, cols=8).astype(np.int64) % 4096).astype(">u2")
+    path.write_bytes(struct.pack(">8I", 0xBBBBBAAD, 2, 6, 8, image_type, 3, 32, 0) + frames.tobytes())
+    seq = SensiacSequence(path)
+    assert len(seq) == 3
+    for k in range(3):
+        np.testing.assert_array_equal(seq.frame(k), frames[k].astype(np.uint16))
 
 
 def test_arf_truncated(tmp_path):

@@ -2,7 +2,7 @@
 
 ``.arf`` video. A 32-byte big-endian header of eight uint32 (magic 0xBBBBBAAD, version, rows,
 cols, image type, frame count, data offset, subheader flags), then per frame rows x cols
-big-endian uint16 pixels. Some files follow each frame with a 40-byte trailer (in public
+big-endian uint16 pixels (image types 1, 2 and 5: ten_bit, twelve_bit, short_word). Some files follow each frame with a 40-byte trailer (in public
 readers: ten uint32 x, y, azimuth, elevation, year, day, hour, min, sec, ms), some do not; the
 layout, ``"contiguous"`` or ``"trailer40"``, is recorded in ``meta["arf_layout"]``. The file
 size decides it when it fits one layout only, unless the header's subheader flags declare
@@ -71,6 +71,9 @@ ARF_HEADER = struct.Struct(">8I")
 ARF_TRAILER_BYTES = 40
 ARF_VERSION = 2
 ARF_IMAGE_TYPE_U16 = 5  # "short_word" in public ARF readers
+# The image types stored as one 16-bit word a pixel: "ten_bit", "twelve_bit" and "short_word" in the
+# public Python ARF reader's type map (type 0 is eight_bit, 6 and up 32- and 64-bit words).
+ARF_WORD_TYPES = {1: "ten_bit", 2: "twelve_bit", ARF_IMAGE_TYPE_U16: "short_word"}
 ARF_FLAG_FRAMEDATA = 0x10  # subheader flag bit 4: per-frame data (the 40-byte trailers) follows each frame
 ARF_LAYOUTS = ("contiguous", "trailer40")
 SENSIAC_FPS = 30.0  # thesis ch. 6.2; the ARF header carries no frame rate
@@ -115,9 +118,9 @@ def read_arf_header(path: str | os.PathLike, layout: str | None = None) -> tuple
     h = ArfHeader(*ARF_HEADER.unpack(raw))
     if h.magic != ARF_MAGIC:
         raise InputError(f"{path}: bad ARF magic 0x{h.magic:08X} at byte offset 0; expected 0x{ARF_MAGIC:08X}")
-    if h.image_type != ARF_IMAGE_TYPE_U16:
-        raise InputError(f"{path}: ARF image type {h.image_type} (byte offset 16) is not supported; "
-                         f"this reader reads type {ARF_IMAGE_TYPE_U16} (16-bit pixels) only")
+    if h.image_type not in ARF_WORD_TYPES:
+        raise InputError(f"{path}: ARF image type {h.image_type} (byte offset 16) is not supported; this reader "
+                         f"reads types {', '.join(f'{k} ({v})' for k, v in ARF_WORD_TYPES.items())}, 16-bit pixels")
     if h.rows == 0 or h.cols == 0:
         raise InputError(f"{path}: ARF header gives rows={h.rows}, cols={h.cols} (byte offsets 8, 12); "
                          f"a frame needs at least one pixel")
