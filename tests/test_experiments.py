@@ -244,6 +244,22 @@ def test_the_unseen_reports_best_matches_are_at_the_nearest_range(tmp_path):
     assert row.endswith("| m1a2_abrams, m2_bradley |"), row
 
 
+def test_two_jobs_that_would_share_a_result_file_are_refused(monkeypatch):
+    """Results are filed as job_name (a held-out path with '/' and ' ' flattened to '_') and tabled by
+    f"{range:g}": 'a b.obj' and 'a_b.obj', or 1000 and 1000.0000001 m, shared a file (the second
+    overwrote the first; a resume read one for both)."""
+    from torch_atr.config import ConfigError
+    from torch_atr.experiments import sensiac_like
+
+    with pytest.raises(ConfigError, match=r"^ranges_m: '1000.0' and '1000.0000001' would share the result name "
+                                          r"'1000'"):
+        SensiacLikeConfig(vehicles=("t_72",), ranges_m=(1000.0, 1000.0000001))
+    monkeypatch.setattr(sensiac_like, "check_vehicle", lambda vehicle: None)  # two manifest entries, say
+    with pytest.raises(ConfigError, match=r"^vehicles: 'heldout:car/a b.obj' and 'heldout:car/a_b.obj' would share"):
+        SensiacLikeConfig(vehicles=("heldout:car/a b.obj", "heldout:car/a_b.obj"), ranges_m=(1000.0,))
+    SensiacLikeConfig(vehicles=("t_72", "t_72"), ranges_m=(1000.0, 1000.0))  # the same job twice is one job
+
+
 def test_a_folder_named_ray_is_not_taken_for_ray(tmp_path, monkeypatch):
     """Run from a folder holding a folder 'ray' (an earlier --out ray), 'import ray' found that folder
     and --ray failed with AttributeError: module 'ray' has no attribute 'is_initialized'."""
