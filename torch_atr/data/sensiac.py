@@ -2,8 +2,9 @@
 
 ``.arf`` video. A 32-byte big-endian header of eight uint32 (magic 0xBBBBBAAD, version, rows,
 cols, image type, frame count, data offset, subheader flags), then per frame rows x cols
-big-endian uint16 pixels (image types 1, 2 and 5: ten_bit, twelve_bit, short_word). Some files follow each frame with a 40-byte trailer (in public
-readers: ten uint32 x, y, azimuth, elevation, year, day, hour, min, sec, ms), some do not; the
+big-endian uint16 pixels (image types 1, 2 and 5: ten_bit, twelve_bit, short_word). Some files
+follow each frame with a 40-byte trailer (in public readers: ten uint32 x, y, azimuth,
+elevation, year, day, hour, min, sec, ms), some do not; the
 layout, ``"contiguous"`` or ``"trailer40"``, is recorded in ``meta["arf_layout"]``. The file
 size decides it when it fits one layout only, unless the header's subheader flags declare
 per-frame data (bit 0x10, "frame data" in public readers) and the size has no room for it: that
