@@ -142,6 +142,16 @@ def image_file_size(path: str | os.PathLike) -> tuple[int, int]:
     return image_size(str(path), width, height)
 
 
+def opencv_can_open(path: str | os.PathLike) -> bool:
+    """Whether OpenCV's file readers and writers take ``path``: they crash the process (a segmentation
+    fault) on one that is not UTF-8 text (bytes of a Latin-1 name, which Python keeps as surrogates)."""
+    try:
+        os.fspath(path).encode("utf-8")
+    except UnicodeEncodeError:
+        return False
+    return True
+
+
 _SCAN_END = re.compile(rb"\xff[^\x00\xd0-\xd7\xff]")  # in scan data FF 00 is a stuffed FF, FF D0-D7 a restart
 
 

@@ -19,6 +19,7 @@ import torch
 
 from torch_atr._checks import check_shape
 from torch_atr.io import atomic_path
+from torch_atr.validate import opencv_can_open
 
 
 def pyplot():
@@ -473,11 +474,8 @@ def write_overlay_video(path: str | Path, tracker, sequence, result) -> None:
 
     fps = sequence.fps if math.isfinite(sequence.fps) else 1.0 / tracker.dt
     with atomic_path(path, suffix=".mp4") as tmp, tempfile.TemporaryDirectory() as scratch:
-        try:
-            str(tmp).encode("utf-8")
-            video = tmp  # OpenCV picks the container by the extension
-        except UnicodeEncodeError:  # OpenCV's writer crashes the process on a path that is not UTF-8 text
-            video = Path(scratch) / "overlay.mp4"
+        # OpenCV picks the container by the extension; its writer cannot take every path Python can
+        video = tmp if opencv_can_open(tmp) else Path(scratch) / "overlay.mp4"
         writer = None
         for row in result.rows:
             frame = sequence.frame(row["frame"])

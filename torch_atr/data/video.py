@@ -22,7 +22,7 @@ import numpy as np
 
 from torch_atr.camera import Camera
 from torch_atr.data.sequence import Sequence, check_fps, parse_reader_spec, register_scheme
-from torch_atr.validate import InputError, image_size, read_image, show
+from torch_atr.validate import InputError, image_size, opencv_can_open, read_image, show
 
 logger = logging.getLogger(__name__)
 
@@ -119,11 +119,9 @@ class VideoSequence(Sequence):
 
     def _open_video(self, p: Path) -> tuple[int, int]:
         """Open the video ``p``, set its name, fps, length and meta; return its (height, width)."""
-        try:
-            str(p).encode("utf-8")
-        except UnicodeEncodeError:  # bytes that are not UTF-8, kept by Python as surrogates
+        if not opencv_can_open(p):
             raise InputError(f"{show(str(p))}: the path is not UTF-8 text, and OpenCV's video reader crashes the "
-                             f"process (a segmentation fault) on such a path; rename the file") from None
+                             f"process (a segmentation fault) on such a path; rename the file")
         cap = cv2.VideoCapture(str(p))
         if not cap.isOpened():
             raise InputError(f"{p}: OpenCV cannot open it as a video")
