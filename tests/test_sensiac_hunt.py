@@ -72,6 +72,14 @@ def test_numbered_frames_place_the_truth(tmp_path, caplog):
     assert "matching by index" not in caplog.text
 
 
+def test_a_comment_that_mentions_a_frame_does_not_number_one():
+    """Only a Keyword whose whole value is "Frame# N" numbers a TgtUpd: an operator's comment naming a
+    frame made an unnumbered file a half-numbered one, refused."""
+    text = AGT_NUMBERED.replace('Keyword "Frame# 2"', 'Comment "as frame# 1, smoke"').replace(
+        'Keyword "Frame# 4"', 'Keyword "Frame# 4 of a re-run"')
+    assert [t.u for t in _truths(text)] == [10.0, 11.0]  # matched by index
+
+
 def test_frame_numbers_beyond_the_arf_are_warned_of(tmp_path, caplog):
     write_arf(tmp_path / "s.arf", np.zeros((3, 4, 6), np.uint16))
     (tmp_path / "s.agt").write_text(AGT_NUMBERED)

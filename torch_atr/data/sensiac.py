@@ -389,14 +389,15 @@ def vehicle_class(vehicle: str) -> str:
     return SENSIAC_CLASSES.get(re.sub(r"[^a-z0-9]", "", vehicle.lower()), "")
 
 
-_FRAME_NUMBER_RE = re.compile(r"Frame#\s*(\d+)", re.IGNORECASE)
+_FRAME_NUMBER_RE = re.compile(r"\s*Frame#\s*(\d+)\s*", re.IGNORECASE)  # a Keyword's whole value
 AGT_MAX_FRAME = 2**24  # 155 hours at 30 Hz; a larger Frame# is not a frame of any ARF
 
 
 def _frame_number(upd: AgtBlock, source: str) -> int | None:
-    """The 1-based frame a ``TgtUpd``'s ``Keyword "Frame# N"`` (or ``Comment``) names, or None."""
+    """The 1-based frame a ``TgtUpd``'s ``Keyword "Frame# N"`` names, or None (a comment that
+    mentions a frame is not one)."""
     for a in upd.attrs:
-        if a.key in ("Keyword", "Comment") and (m := _FRAME_NUMBER_RE.search(" ".join(a.values))):
+        if a.key == "Keyword" and (m := _FRAME_NUMBER_RE.fullmatch(" ".join(a.values))):
             digits = m.group(1).lstrip("0") or "0"
             if digits == "0" or len(digits) > 8 or int(digits) > AGT_MAX_FRAME:
                 raise InputError(f"{source}, line {a.line}: Frame# {m.group(1)}: frames count from 1 "
