@@ -45,6 +45,12 @@ def test_a_symbolic_link_is_written_through(tmp_path):
     assert (tmp_path / "store" / "v3.pt").read_text() == "new"
     assert (tmp_path / "store" / "v4.pt").read_text() == "fresh"
     assert sorted(p.name for p in (tmp_path / "store").iterdir()) == ["v3.pt", "v4.pt"]
+    (tmp_path / "a").symlink_to(tmp_path / "b")
+    (tmp_path / "b").symlink_to(tmp_path / "a")  # a loop: refused as the shell refuses it, both links kept
+    with pytest.raises(OSError, match=f"^\\[Errno {errno.ELOOP}\\] cannot write {tmp_path / 'a'}: "):
+        atomic_write_text("x", tmp_path / "a")
+    assert subprocess.run(["sh", "-c", f"echo x > '{tmp_path / 'a'}'"], capture_output=True).returncode != 0
+    assert (tmp_path / "a").is_symlink() and (tmp_path / "b").is_symlink()
 
 
 def test_failed_write_keeps_the_old_content(tmp_path):

@@ -11,6 +11,7 @@ that is not ours, and over our own only when the user said so (``--overwrite``).
 from __future__ import annotations
 
 import csv
+import errno
 import fcntl
 import hashlib
 import io
@@ -108,6 +109,8 @@ def atomic_path(path: str | os.PathLike, suffix: str = "") -> Iterator[Path]:
     if not re.fullmatch(_TEMP_SUFFIX, suffix):
         raise ValueError(f"suffix must be empty or a short extension like '.mp4'; got {suffix!r}")
     target = Path(os.path.realpath(path)) if path.is_symlink() else path
+    if target.is_symlink():  # realpath stops in a loop of links (a -> b -> a), as a shell's > fails there
+        raise OSError(errno.ELOOP, f"cannot write {path}: {os.strerror(errno.ELOOP)}")
     try:
         target.parent.mkdir(parents=True, exist_ok=True)
         fd, tmp = tempfile.mkstemp(prefix=f".{hidden_stem(target.name)}.", suffix=".tmp" + suffix, dir=target.parent)
