@@ -486,10 +486,10 @@ def _grey_frames(frames: Iterable[np.ndarray], what: str, limit: int | None = No
 
 
 def _from_nearest(stack: np.ndarray, skip: np.ndarray) -> np.ndarray:
-    """Each value of ``stack`` (K, H, W) where ``skip`` (K, H, W) bool is set replaced by the same
+    """Each value of ``stack`` (K, ...) where ``skip`` (K, ...) bool is set replaced by the same
     pixel's value in the nearest frame before it where it is not, else the nearest after it; kept
-    where it is set in every frame. Returns (K, H, W) of ``stack``'s dtype."""
-    k = np.arange(stack.shape[0])[:, None, None]
+    where it is set in every frame. Returns (K, ...) of ``stack``'s dtype."""
+    k = np.arange(stack.shape[0]).reshape(-1, *[1] * (stack.ndim - 1))
     before = np.maximum.accumulate(np.where(skip, -1, k), axis=0)  # the last kept frame up to each
     after = np.minimum.accumulate(np.where(skip, k.size, k)[::-1], axis=0)[::-1]  # the first kept from each
     source = np.where(before >= 0, before, np.where(after < k.size, after, k))
@@ -722,9 +722,11 @@ class ForegroundSegmenter:
         else:
             stack = np.stack(greys)  # (K, H, W)
             missing = ~np.isfinite(stack) if stack.dtype.kind == "f" else np.zeros((), dtype=bool)
-            # The finite pixels (a float frame's in float64), partitioned in place by the percentiles: the
-            # stack in float64, its finite pixels and percentile's copy took 50 4K frames to 10 GB.
-            finite = stack[~missing] if missing.any() else stack
+            any_missing = bool(missing.any())
+            # The finite pixels (a float frame's in float64), partitioned in place by the percentiles (the
+            # stack itself when all are: it is not read again): the stack in float64, its finite pixels and
+            # percentile's copy took 50 4K frames to 10 GB.
+            finite = stack[~missing] if any_missing else stack
             if finite.size == 0:
                 raise ValueError("warm_up: the frames hold no finite pixel (all NaN or infinite)")
             finite = finite.astype(np.float64, copy=False) if finite.dtype.kind == "f" else finite
@@ -732,8 +734,10 @@ class ForegroundSegmenter:
             span = float(hi - lo) or 1.0  # a flat background still gets a valid map
             self.levels = (float(lo) - cfg.headroom * span, float(lo) + (1 + cfg.headroom) * span)
             logger.debug("IR normalisation: [%.1f, %.1f] -> [0, 255]", *self.levels)
-            if missing.any():  # no data: MOG2 learns the pixel's value in the nearest frame with it
-                greys = list(_from_nearest(stack, missing))
+            if any_missing:  # no data: MOG2 learns the pixel's value in the nearest frame with it
+                gaps = missing.any(axis=0)  # (H, W): only these pixels are filled (the whole stack's
+                stack[:, gaps] = _from_nearest(stack[:, gaps], missing[:, gaps])  # indices took 11 copies)
+                greys = list(stack)
         self._mog = _TiledMOG2(greys[0].shape, cfg.history, cfg.var_threshold, cfg.detect_shadows)
         for grey in greys:
             self._mog.apply(self.display(grey), -1)
