@@ -251,13 +251,19 @@ def test_two_jobs_that_would_share_a_result_file_are_refused(monkeypatch):
     from torch_atr.config import ConfigError
     from torch_atr.experiments import sensiac_like
 
-    with pytest.raises(ConfigError, match=r"^ranges_m: '1000.0' and '1000.0000001' would share the result name "
-                                          r"'1000'"):
+    with pytest.raises(ConfigError, match=r"^vehicles and ranges_m: \('t_72', 1000.0\) and \('t_72', 1000.0000001\) "
+                                          r"would share the result file 't_72_1000m_blind_seed0'"):
         SensiacLikeConfig(vehicles=("t_72",), ranges_m=(1000.0, 1000.0000001))
     monkeypatch.setattr(sensiac_like, "check_vehicle", lambda vehicle: None)  # two manifest entries, say
-    with pytest.raises(ConfigError, match=r"^vehicles: 'heldout:car/a b.obj' and 'heldout:car/a_b.obj' would share"):
+    with pytest.raises(ConfigError, match=r"\('heldout:car/a b.obj', 1000.0\) and \('heldout:car/a_b.obj', 1000.0\)"):
         SensiacLikeConfig(vehicles=("heldout:car/a b.obj", "heldout:car/a_b.obj"), ranges_m=(1000.0,))
-    SensiacLikeConfig(vehicles=("t_72", "t_72"), ranges_m=(1000.0, 1000.0))  # the same job twice is one job
+
+
+def test_a_vehicle_or_range_listed_twice_is_one_job():
+    """'--vehicles t_72 t_72' ran each sequence twice (run_all's jobs are vehicles × ranges) and
+    weighed it twice in the means; the repeats go, the order stays."""
+    cfg = SensiacLikeConfig(vehicles=("t_72", "bmp_2", "t_72"), ranges_m=(1500.0, 1000.0, 1500.0))
+    assert (cfg.vehicles, cfg.ranges_m) == (("t_72", "bmp_2"), (1500.0, 1000.0))
 
 
 def test_a_folder_named_ray_is_not_taken_for_ray(tmp_path, monkeypatch):

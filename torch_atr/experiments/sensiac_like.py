@@ -85,16 +85,16 @@ class SensiacLikeConfig:
         for vehicle in self.vehicles:  # and the inputs, before a run folder is made
             check_vehicle(vehicle)
         resolve_checkpoint(self.checkpoint)
-        # Results are filed and tabled by job_name and f"{range:g}": two jobs of one name would share
-        # a file (the second overwrites the first, a resume reads one for both).
-        for what, names in (("vehicles", {v: job_name(v, 0.0, self) for v in self.vehicles}),
-                            ("ranges_m", {r: f"{r:g}" for r in self.ranges_m})):
-            seen: dict[str, object] = {}
-            for value, name in names.items():
-                if seen.setdefault(name, value) != value:
-                    raise ConfigError(f"{what}: {show(str(seen[name]))} and {show(str(value))} would share the "
-                                      f"result name {show(name)}; rename one (or give ranges that differ in their "
-                                      f"first 6 digits)")
+        for key in ("vehicles", "ranges_m"):  # one job each: a repeat ran twice and weighed twice in the means
+            object.__setattr__(self, key, tuple(dict.fromkeys(getattr(self, key))))
+        # Results are filed by job_name: two jobs of one name would share a file (the second overwriting
+        # the first, a resume reading one for both).
+        seen: dict[str, tuple[str, float]] = {}
+        for job in ((v, r) for v in self.vehicles for r in self.ranges_m):
+            name = job_name(*job, self)
+            if seen.setdefault(name, job) != job:
+                raise ConfigError(f"vehicles and ranges_m: {show(seen[name])} and {show(job)} would share the result "
+                                  f"file {show(name)}; rename one (or give ranges that differ in their first 6 digits)")
 
     def tracker_overrides(self, method: str) -> list[str]:
         return [f"filter.particles={self.particles}", f"filter.method={method}", f"init.mode={self.init}",
