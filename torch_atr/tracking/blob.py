@@ -83,18 +83,13 @@ class BlobTracker(Tracker):
         if not (math.isfinite(truth.theta) and math.isfinite(truth.phi)):
             raise ValueError(f"Truth initialisation without a camera needs the view theta, phi; got "
                              f"({truth.theta}, {truth.phi})")
-        from torch_atr.tracking.initialise import truth_alpha
+        from torch_atr.tracking.initialise import start_alphas, truth_alpha
 
         alpha = truth_alpha(self.model, truth.vehicle, truth.vehicle_class, self.cfg.init.alpha)
         n, std = self.cfg.filter.particles, self.cfg.init.heading_std_rad
         noise = torch.randn(n, 3, generator=self.generator, dtype=self.dtype, device=self.device)
-        mean = torch.tensor([truth.theta, truth.phi, 0.0 if alpha is None else alpha], dtype=self.dtype,
-                            device=self.device)
-        particles = mean + noise * torch.tensor([std, std, 0.0], dtype=self.dtype, device=self.device)
-        if alpha is None:  # a class the model lacks: the identity is unknown
-            uniform = torch.rand(n, generator=self.generator, dtype=self.dtype, device=self.device)
-            particles[:, 2] = 2 * math.pi * uniform
-        self._reset_views(particles)
+        views = torch.tensor([truth.theta, truth.phi], dtype=self.dtype, device=self.device) + noise[:, :2] * std
+        self._reset_views(torch.cat([views, start_alphas(alpha, n, self.generator, views)[:, None]], dim=1))
 
     def reset(self, particles: torch.Tensor) -> None:
         """Start from given particles: (N, 3) [θ, φ, α] describing the coming frame (equal weights; the

@@ -170,6 +170,14 @@ def truth_alpha(model, vehicle: str, vehicle_class: str, mode: str = "vehicle") 
     return (start + end) / 2 % (2 * math.pi)
 
 
+def start_alphas(alpha: float | None, n: int, generator: torch.Generator | None, like: torch.Tensor) -> torch.Tensor:
+    """(n,) α₀ of a truth start in ``like``'s dtype and device: ``alpha`` in every particle, or drawn
+    uniformly on [0, 2π) where it is None (a class the model lacks, :func:`truth_alpha`)."""
+    if alpha is None:
+        return 2 * math.pi * torch.rand(n, generator=generator, dtype=like.dtype, device=like.device)
+    return torch.full((n,), alpha, dtype=like.dtype, device=like.device)
+
+
 def truth_particles(position: torch.Tensor, heading: float, alpha: float | None, n: int, cfg: InitConfig,
                     generator: torch.Generator | None = None) -> torch.Tensor:
     """Particles around a known state (module docstring).
@@ -180,10 +188,8 @@ def truth_particles(position: torch.Tensor, heading: float, alpha: float | None,
     """
     noise = torch.randn(n, STATE_DIM, generator=generator, dtype=position.dtype, device=position.device)
     std = torch.tensor([cfg.position_std_m] * 3 + [cfg.heading_std_rad, cfg.speed_std_mps, 0.0]).to(position)
-    mean = torch.cat([position, position.new_tensor([heading, cfg.speed_mps, 0.0 if alpha is None else alpha])])
-    out = mean + noise * std
-    if alpha is None:
-        out[:, ALPHA] = 2 * math.pi * torch.rand(n, generator=generator, dtype=position.dtype, device=position.device)
+    out = torch.cat([position, position.new_tensor([heading, cfg.speed_mps, 0.0])]) + noise * std
+    out[:, ALPHA] = start_alphas(alpha, n, generator, position)
     out[:, HEADING] = wrap_angle(out[:, HEADING])
     out[:, ALPHA] = wrap_angle(out[:, ALPHA])
     return out
