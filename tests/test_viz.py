@@ -55,7 +55,7 @@ def test_track_figures_of_a_run_without_an_estimate_span_it_and_say_so():
     rows = [{"frame": i, "time_s": i / 30, "lost": 1, "mask_area_px": 0} for i in range(61)]
     alpha = viz.alpha_figure(rows, model, "empty")
     view = viz.view_figure(rows, "empty")
-    assert alpha.axes[0].get_xlim() == pytest.approx((0.0, 2.0))
+    assert alpha.axes[0].get_xlim() == pytest.approx((0.0, 2.0 + 1 / 60))
     for fig in (alpha, view):
         assert "no estimate" in " ".join(text.get_text() for text in fig.axes[0].texts)
     blank = np.zeros((40, 50), dtype=bool)
@@ -160,8 +160,8 @@ def test_error_figure_spans_the_run_as_the_alpha_figure_does():
     rows = [{"frame": i, "time_s": i / 30, "lost": int(i < 30), "true_x": 0.5, "true_z": 900.0, "true_theta": 1.0,
              **({"x": 0.8, "z": 905.0, "theta": 1.2, "alpha": 0.3} if i >= 30 else {})} for i in range(61)]
     for ax in viz.error_figure(rows, "late").axes:
-        assert ax.get_xlim() == pytest.approx((0.0, 2.0))
-    assert viz.alpha_figure(rows, model, "late").axes[0].get_xlim() == pytest.approx((0.0, 2.0))
+        assert ax.get_xlim() == pytest.approx((0.0, 2.0 + 1 / 60))
+    assert viz.alpha_figure(rows, model, "late").axes[0].get_xlim() == pytest.approx((0.0, 2.0 + 1 / 60))
 
 
 def test_a_one_frame_run_has_no_negative_time():

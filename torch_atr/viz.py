@@ -280,15 +280,14 @@ def _note_no_estimate(ax) -> None:
 
 
 def _span_run(ax, t: np.ndarray) -> None:
-    """Set the time axis of ``ax`` to the whole run, frames with an estimate or not; t: (T,) seconds.
-    A one-frame run gets half a second either side, cut at 0 s (matplotlib's ±0.05 s ran through
-    negative time)."""
-    times = t[np.isfinite(t)]
-    if times.size:
-        lo, hi = times.min(), times.max()
-        if hi == lo:
-            lo, hi = max(lo - 0.5, min(lo, 0.0)), hi + 0.5
-        ax.set_xlim(lo, hi)
+    """Set the time axis of ``ax`` to the whole run, frames with an estimate or not, and half a frame
+    after the last (whose marker the edge cut in half); t: (T,) seconds. A one-frame run gets half a
+    second either side, cut at 0 s (matplotlib's ±0.05 s ran through negative time)."""
+    times = np.unique(t[np.isfinite(t)])
+    if times.size == 1:
+        ax.set_xlim(times[0] - 0.5 if times[0] < 0 else max(times[0] - 0.5, 0.0), times[0] + 0.5)
+    elif times.size:
+        ax.set_xlim(times[0], times[-1] + 0.5 * np.median(np.diff(times)))
 
 
 def alpha_figure(rows: list[dict], model, title: str):
@@ -367,12 +366,12 @@ def view_figure(rows: list[dict], title: str):
     sc = ax.scatter(theta[est], phi[est], c=t[est], s=10, cmap="viridis", label="estimate")
     ax_time.scatter(t[est], theta[est], c=t[est], s=10, cmap="viridis", label="estimate")
     if np.isfinite(true_phi).any():
-        ax.plot(true_theta, true_phi, ".", ms=2, color="crimson", label="truth")
+        ax.plot(true_theta, true_phi, ".", ms=3, color="crimson", label="truth")
     elif np.isfinite(true_theta).any():  # an aspect without an elevation (SENSIAC's truth): ticks along the bottom
         ax.plot(true_theta, np.full(true_theta.shape, 0.02), "|", ms=8, color="crimson",
                 transform=ax.get_xaxis_transform(), label="true azimuth (elevation unknown)")
     if np.isfinite(true_theta).any():
-        ax_time.plot(t, true_theta, ".", ms=2, color="crimson", label="truth")
+        ax_time.plot(t, true_theta, ".", ms=3, color="crimson", label="truth")
     if not est.any():
         _note_no_estimate(ax)
     shown = np.concatenate([phi[np.isfinite(phi)], true_phi[np.isfinite(true_phi)], [-5.0, 50.0]])  # training: 0°-40°
