@@ -235,9 +235,10 @@ def test_a_device_this_machine_lacks_is_named_not_blamed_on_the_file(saved):
     for device in ("cpu", "cpu:0", torch.device("cpu")):  # torch.load itself refuses "cpu:0"
         assert load_checkpoint(saved, map_location=device)[0].alphas.device.type == "cpu"
     if not torch.backends.mps.is_available():  # PyTorch's reason was 7000 characters, its backend list
-        with pytest.raises(ValueError, match=r"^device 'mps' is not available here \(PyTorch [^:]*: Could not run "
-                                             r"'aten::[\w.]+' with arguments from the 'MPS' backend\); try cpu$"):
+        with pytest.raises(ValueError, match=r"^device 'mps' is not available here \(PyTorch [^:]*: [^\n]*\); try cpu$"
+                           ) as info:
             load_checkpoint(saved, map_location="mps")
+        assert len(str(info.value)) < 300  # PyTorch's one sentence, whatever its wording
 
 
 def test_save_replaces_a_checkpoint_but_never_another_file(model, saved, tmp_path):
