@@ -160,10 +160,11 @@ class Camera(nn.Module):
         # OpenCV normalised coordinates: y points down.
         xd, yd = x, y = p[..., 0] / z, -p[..., 1] / z
         seen = z > 0
-        if bool(self.dist.any()):  # without distortion the terms below are 0 and 1: (x, y) as they are
+        dist = self.dist.tolist()  # one read of the five numbers
+        if any(dist):  # without distortion the terms below are 0 and 1: (x, y) as they are
             k1, k2, p1, p2, k3 = self.dist.to(p).unbind(0)
             r2 = x * x + y * y
-            seen = seen & (r2 < _fold_r2(*self.dist[[0, 1, 4]].tolist()))
+            seen = seen & (r2 < _fold_r2(dist[0], dist[1], dist[4]))
             radial = 1 + k1 * r2 + k2 * r2 * r2 + k3 * r2 * r2 * r2
             xd = x * radial + 2 * p1 * x * y + p2 * (r2 + 2 * x * x)
             yd = y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y
