@@ -173,3 +173,22 @@ def test_read_json_object_refuses_non_finite_numbers_and_bad_json(tmp_path, text
     path.write_text(text)
     with pytest.raises(InputError, match=rf"^{path}.*{message}"):
         read_json_object(path, "missing")
+
+
+def test_read_text_of_a_small_file_sets_no_limit_sized_buffer_aside(tmp_path):
+    """read(max_bytes + 1) allocated the whole 64 MiB limit for every config, JSON or AGT file read;
+    a file over the limit is still refused."""
+    import tracemalloc
+
+    (tmp_path / "small.yaml").write_text("a: 1\n")
+    tracemalloc.start()
+    try:
+        assert read_text(tmp_path / "small.yaml") == "a: 1\n"
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert peak < 2 ** 20
+    (tmp_path / "big.txt").write_text("x" * 101)
+    with pytest.raises(InputError, match="larger than 100 bytes"):
+        read_text(tmp_path / "big.txt", max_bytes=100)
+    assert read_text(tmp_path / "big.txt", max_bytes=101) == "x" * 101

@@ -239,8 +239,8 @@ def read_text(path: str | os.PathLike, max_bytes: int = MAX_TEXT_BYTES) -> str:
         raise FileNotFoundError(f"File not found: {path}")
     if not path.is_file():
         raise InputError(f"{path}: expected a file; it is a folder or a device")
-    with open(path, "rb") as fh:
-        data = fh.read(max_bytes + 1)
+    with open(path, "rb") as fh:  # read(n) sets n bytes aside first: 64 MiB for every small file
+        data = fh.read(min(os.fstat(fh.fileno()).st_size, max_bytes) + 1)
     if len(data) > max_bytes:
         raise InputError(f"{path}: larger than {max_bytes} bytes; expected a small text file")
     try:
