@@ -72,6 +72,24 @@ def test_numbered_frames_place_the_truth(tmp_path, caplog):
     assert "matching by index" not in caplog.text
 
 
+def test_a_far_frame_number_costs_no_list_of_that_length(tmp_path, caplog):
+    """A 150-byte AGT naming Frame# 16777216 against a 3-frame ARF built a list of 16.8 million
+    entries (134 MB); the truths are kept by frame, the far one warned of and dropped."""
+    import tracemalloc
+
+    write_arf(tmp_path / "s.arf", np.zeros((3, 4, 6), np.uint16))
+    (tmp_path / "s.agt").write_text(AGT_NUMBERED.replace('Keyword "Frame# 4"', 'Keyword "Frame# 16777216"'))
+    tracemalloc.start()
+    try:
+        seq = SensiacSequence(tmp_path / "s.arf")
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert peak < 2 ** 22
+    assert [seq.truth(i) and seq.truth(i).u for i in range(3)] == [None, 10.0, None]
+    assert "the AGT numbers frames up to 16777216, the ARF has 3" in caplog.text
+
+
 def test_a_comment_that_mentions_a_frame_does_not_number_one():
     """Only a Keyword whose whole value is "Frame# N" numbers a TgtUpd: an operator's comment naming a
     frame made an unnumbered file a half-numbered one, refused."""

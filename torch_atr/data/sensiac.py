@@ -406,8 +406,9 @@ def _frame_number(upd: AgtBlock, source: str) -> int | None:
     return None
 
 
-def _agt_truths(agt: AgtBlock, source: str) -> tuple[list[FrameTruth | None], bool]:
-    """:func:`agt_frame_truths`, and whether the ``TgtUpd`` blocks number their frames."""
+def _agt_truths(agt: AgtBlock, source: str) -> tuple[dict[int, FrameTruth | None], bool]:
+    """:func:`agt_frame_truths` as {frame index: truth}, one entry a ``TgtUpd`` (a Frame# far beyond the
+    others costs nothing), and whether the blocks number their frames."""
     updates: list[tuple[AgtBlock, int | None, FrameTruth | None]] = []
     multi = 0
     for sect in agt.find("TgtSect"):
@@ -436,12 +437,12 @@ def _agt_truths(agt: AgtBlock, source: str) -> tuple[list[FrameTruth | None], bo
         logger.warning("%s: %d frames list more than one Tgt; using the first with a TgtType of each", source, multi)
     numbered = [u for u in updates if u[1] is not None]
     if not numbered:
-        return [t for _, _, t in updates], False
+        return dict(enumerate(t for _, _, t in updates)), False
     if len(numbered) < len(updates):
         missing = next(upd for upd, k, _ in updates if k is None)
         raise InputError(f"{source}, line {missing.line}: this TgtUpd has no Frame# line, but the TgtUpd at line "
                          f"{numbered[0][0].line} has one; which frame it holds is unknown")
-    truths: list[FrameTruth | None] = [None] * max(k for _, k, _ in updates)
+    truths: dict[int, FrameTruth | None] = {}
     first: dict[int, AgtBlock] = {}
     for upd, k, t in updates:
         if k in first:
@@ -457,7 +458,8 @@ def agt_frame_truths(agt: AgtBlock, source: str = "<agt>") -> list[FrameTruth | 
     order, one a frame, or, when each names its frame in a ``Keyword "Frame# N"`` line (1-based,
     as the ATR database's files do), each at its frame, None between them. Raises
     ``InputError`` naming the line when only some are numbered or two name the same frame."""
-    return _agt_truths(agt, source)[0]
+    truths = _agt_truths(agt, source)[0]
+    return [truths.get(i) for i in range(max(truths, default=-1) + 1)]
 
 
 def _fmt(x: float) -> str:
@@ -608,14 +610,14 @@ class SensiacSequence(Sequence):
         self.camera = camera
         agt = _companion(arf, agt_path, ".agt", "agt")
         met = _companion(arf, bbox_met_path, ".bbox_met", "metric")
-        agt_truths, numbered = _agt_truths(read_agt(agt), str(agt)) if agt is not None else ([], False)
+        agt_truths, numbered = _agt_truths(read_agt(agt), str(agt)) if agt is not None else ({}, False)
         met_rows = read_bbox_met(met) if met is not None else []
         self._truths = _merge_truth(header.frames, agt_truths, met_rows, str(arf), numbered)
         self.meta = {"arf": str(arf), "agt": None if agt is None else str(agt),
                      "bbox_met": None if met is None else str(met), "arf_layout": layout,
                      "arf_version": header.version, "arf_image_type": header.image_type,
                      "arf_flags": header.flags, "arf_data_offset": header.offset,
-                     "agt_frames": len(agt_truths), "bbox_met_rows": len(met_rows)}
+                     "agt_frames": max(agt_truths, default=-1) + 1, "bbox_met_rows": len(met_rows)}
         stride = header.frame_bytes + (ARF_TRAILER_BYTES if layout == "trailer40" else 0)
         self._mm: np.memmap | None = np.memmap(arf, dtype=">u2", mode="r", offset=header.offset,
                                                shape=(header.frames, stride // 2))
@@ -636,18 +638,18 @@ class SensiacSequence(Sequence):
         self._mm = None
 
 
-def _merge_truth(n: int, agt: list[FrameTruth | None], met: list[BboxMetRow], source: str,
+def _merge_truth(n: int, agt: dict[int, FrameTruth | None], met: list[BboxMetRow], source: str,
                  numbered: bool = False) -> list[FrameTruth | None]:
     """Per frame: the AGT truth, with the bbox_met upper-left corner (and the lower-right one
     mirrored about PixLoc) where the AGT has no PixBox. ``numbered``: the AGT's frames were placed
     by their Frame# lines, so only frames beyond the ARF's are worth a warning."""
     if numbered:
-        if len(agt) > n:
+        if max(agt) >= n:
             logger.warning("%s: the AGT numbers frames up to %d, the ARF has %d; ignoring the truth beyond it",
-                           source, len(agt), n)
+                           source, max(agt) + 1, n)
     elif agt and len(agt) != n:
         logger.warning("%s: the AGT has %d frames, the ARF %d; matching by index", source, len(agt), n)
-    times = [t.time_s for t in agt if t is not None and math.isfinite(t.time_s)]
+    times = [t.time_s for _, t in sorted(agt.items()) if t is not None and math.isfinite(t.time_s)]
     if any(b < a for a, b in zip(times, times[1:])):
         logger.warning("%s: the AGT's times run backwards (frames out of order, or another file's?); the truth keeps "
                        "them, the tracker's clock does not use them", source)
@@ -662,7 +664,7 @@ def _merge_truth(n: int, agt: list[FrameTruth | None], met: list[BboxMetRow], so
         logger.warning("%s: %d bbox_met rows name frames beyond the ARF's %d", source, beyond, n)
     truths: list[FrameTruth | None] = []
     for i in range(n):
-        t = agt[i] if i < len(agt) else None
+        t = agt.get(i)
         if i in corners and (t is None or math.isnan(t.u0)):
             u0, v0 = corners[i]
             base = t if t is not None else FrameTruth()
