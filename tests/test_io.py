@@ -364,3 +364,25 @@ def test_a_failed_rename_names_the_target_keeps_the_old_file_and_no_temp(tmp_pat
     assert target.read_text() == "old"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["frames", "report.json"]
     assert list((tmp_path / "frames").iterdir()) == []
+
+
+def test_a_temp_file_another_write_deleted_before_it_was_locked_is_replaced(tmp_path, monkeypatch):
+    """Two writes of one target: the second's clean-up may find the first's new temporary file before the first
+    locks it, take it for a killed write's and delete it. The first write must still land (it lost its file with
+    'cannot write ...: No such file or directory' at the rename)."""
+    target = tmp_path / "report.json"
+    made = []
+    real_mkstemp = atomic_io.tempfile.mkstemp
+
+    def mkstemp_then_cleaned_away(*args, **kwargs):
+        fd, name = real_mkstemp(*args, **kwargs)
+        made.append(name)
+        if len(made) == 1:
+            os.unlink(name)  # what the other write's _remove_stale_temps does to an unlocked temporary file
+        return fd, name
+
+    monkeypatch.setattr(atomic_io.tempfile, "mkstemp", mkstemp_then_cleaned_away)
+    atomic_write_text("new", target)
+    assert target.read_text() == "new"
+    assert len(made) == 2
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["report.json"]

@@ -95,6 +95,25 @@ def _is_stale_temp(path: Path) -> bool:
         return stale
 
 
+def _locked_temp(target: Path, suffix: str) -> tuple[int, Path]:
+    """A new temporary file ``.STEM.XXXXXXXX.tmp`` + ``suffix`` beside ``target``, open and exclusively
+    locked (until this write ends or its process dies): its descriptor and path.
+
+    Between its creation and the lock, another write of the same target may take it for a killed write's and
+    delete it; a file found unlinked once locked is left and another made."""
+    while True:
+        fd, tmp = tempfile.mkstemp(prefix=f".{hidden_stem(target.name)}.", suffix=".tmp" + suffix, dir=target.parent)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX)
+            if os.fstat(fd).st_nlink:
+                return fd, Path(tmp)
+        except BaseException:
+            Path(tmp).unlink(missing_ok=True)
+            os.close(fd)
+            raise
+        os.close(fd)
+
+
 @contextmanager
 def atomic_path(path: str | os.PathLike, suffix: str = "") -> Iterator[Path]:
     """Yield a temporary path beside ``path`` (ending ``.tmp`` + ``suffix``, e.g. ".mp4" for a
@@ -113,16 +132,14 @@ def atomic_path(path: str | os.PathLike, suffix: str = "") -> Iterator[Path]:
         raise OSError(errno.ELOOP, f"cannot write {path}: {os.strerror(errno.ELOOP)}")
     try:
         target.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(prefix=f".{hidden_stem(target.name)}.", suffix=".tmp" + suffix, dir=target.parent)
+        fd, tmp_path = _locked_temp(target, suffix)
     except OSError as exc:  # name the file the user asked for, not our temporary one
         raise OSError(exc.errno, f"cannot write {path}: {exc.strerror}") from None
-    tmp_path = Path(tmp)
     try:
-        fcntl.flock(fd, fcntl.LOCK_EX)  # held until this write ends (or its process dies)
         _remove_stale_temps(target)
         umask = os.umask(0)
         os.umask(umask)
-        os.chmod(tmp, 0o666 & ~umask)  # mkstemp makes 0600; give the file a plain file's mode
+        os.chmod(tmp_path, 0o666 & ~umask)  # mkstemp makes 0600; give the file a plain file's mode
         yield tmp_path
         try:
             os.replace(tmp_path, target)
