@@ -76,6 +76,27 @@ def test_masks_and_signed_distances_are_not_confused(model):
             function(model, templates, theta[:views], phi[:views])
 
 
+
+@pytest.mark.parametrize("bad", [float("nan"), float("inf")])
+def test_non_finite_signed_distances_are_refused(model, bad):
+    """One NaN (or infinite) pixel made every loss of fit_alpha NaN: it answered α = 0 with a NaN error
+    and no complaint; identity_distances gave NaN rows and rbf_mapping_iou scored the pixel as outside."""
+    from torch_atr.evaluation import fit_alpha, identity_distances
+
+    theta = torch.tensor([0.3, 2.0, 4.0])
+    phi = torch.tensor([0.1, 0.3, 0.0])
+    with torch.no_grad():
+        signed = model(model.alphas[5].expand(3), theta, phi)  # (3, S, S)
+    signed[1, 7, 9] = bad
+    with pytest.raises(ValueError, match=r"Expected signed to be finite signed distances; 1 value\(s\) are NaN"):
+        fit_alpha(model, signed, theta, phi)
+    K = len(model.alphas)
+    with pytest.raises(ValueError, match="Expected signed to be finite signed distances"):
+        identity_distances(model, signed[None].expand(K, -1, -1, -1), theta, phi)
+    rbf = RBFViewMapping(theta, phi, init_width=0.5)
+    with pytest.raises(ValueError, match="Expected signed to be finite signed distances"):
+        rbf_mapping_iou(rbf, signed[None], theta, phi, signed[None] > 0, theta, phi, 1e-3)
+
 def test_tracking_errors_by_hand():
     from torch_atr.evaluation import tracking_errors
 

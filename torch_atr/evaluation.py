@@ -16,7 +16,7 @@ import math
 import numpy as np
 import torch
 
-from torch_atr._checks import check_shape
+from torch_atr._checks import check_finite, check_shape
 from torch_atr.model.rbf import ridge_hat
 from torch_atr.shape import iou
 
@@ -33,7 +33,8 @@ def _views(model, templates: torch.Tensor, theta, phi, view_dim: int) -> tuple[t
 
 def _check_templates(name: str, x: torch.Tensor, model, dims: tuple, masks: bool) -> None:
     """Raise ValueError unless ``x`` is ``dims`` + the model's (S, S) template size, with at least
-    one view (the last of ``dims``), and bool silhouettes (``masks``) or floating signed distances."""
+    one view (the last of ``dims``), and bool silhouettes (``masks``) or finite floating signed
+    distances (a NaN pixel made every loss NaN: fit_alpha answered α = 0 with a NaN error)."""
     size = model.template.size_px
     check_shape(name, x, (*dims, size, size))
     if masks != (x.dtype == torch.bool) or not (masks or x.is_floating_point()):
@@ -41,6 +42,8 @@ def _check_templates(name: str, x: torch.Tensor, model, dims: tuple, masks: bool
         raise ValueError(f"Expected {name} to be {want}; got dtype {x.dtype}")
     if x.shape[len(dims) - 1] == 0:
         raise ValueError(f"Expected {name} to hold at least one view; got shape {tuple(x.shape)}")
+    if not masks:
+        check_finite(name, x, "signed distances")
 
 
 def per_class_mean(values: torch.Tensor, classes, class_names) -> dict[str, float]:
@@ -68,6 +71,7 @@ def rbf_mapping_iou(rbf, signed: torch.Tensor, theta, phi, masks_out: torch.Tens
     """
     check_shape("signed", signed, ("K", "V", None, None))
     check_shape("masks_out", masks_out, (signed.shape[0], "Vo", *signed.shape[2:]))
+    check_finite("signed", signed, "signed distances")  # a NaN pixel scored as outside, lowering the IoU unseen
     like = rbf.log_width
     theta, phi, theta_out, phi_out = (torch.as_tensor(x).to(like) for x in (theta, phi, theta_out, phi_out))
     W = ridge_hat(rbf(theta, phi), ridge)  # (V, P)
