@@ -97,6 +97,24 @@ def test_non_finite_signed_distances_are_refused(model, bad):
     with pytest.raises(ValueError, match="Expected signed to be finite signed distances"):
         rbf_mapping_iou(rbf, signed[None], theta, phi, signed[None] > 0, theta, phi, 1e-3)
 
+
+def test_alpha_grid_must_be_a_whole_number(model):
+    """grid=10.5 gave alpha_grid_iou 11 columns at 2π·a/10.5 (uneven across the wrap), grid=True one column,
+    and fit_alpha searched 361 α for grid=360.5: the docstrings promise (B, grid, V) at 2π·a/grid."""
+    from torch_atr.evaluation import fit_alpha
+
+    theta = torch.tensor([0.3, 2.0])
+    phi = torch.tensor([0.1, 0.3])
+    with torch.no_grad():
+        signed = model(model.alphas[5].expand(2), theta, phi)  # (2, S, S)
+    for grid in (10.5, True, "10", 0):
+        with pytest.raises(ValueError, match=r"grid: expected an integer >= 1; got"):
+            alpha_grid_iou(model, (signed > 0)[None], theta, phi, grid=grid)
+    for grid in (360.5, True, 2):
+        with pytest.raises(ValueError, match=r"grid: expected an integer >= 3; got"):
+            fit_alpha(model, signed, theta, phi, grid=grid)
+    assert alpha_grid_iou(model, (signed > 0)[None], theta, phi, grid=np.int64(4)).shape == (1, 4, 2)
+
 def test_tracking_errors_by_hand():
     from torch_atr.evaluation import tracking_errors
 

@@ -19,6 +19,7 @@ import torch
 from torch_atr._checks import check_finite, check_shape
 from torch_atr.model.rbf import ridge_hat
 from torch_atr.shape import iou
+from torch_atr.validate import integer
 
 log = logging.getLogger(__name__)
 
@@ -123,8 +124,7 @@ def fit_alpha(model, signed: torch.Tensor, theta, phi, grid: int = 360) -> tuple
     from scipy.optimize import minimize_scalar
 
     _check_templates("signed", signed, model, ("V",), masks=False)
-    if grid < 3:
-        raise ValueError(f"Expected grid >= 3; got {grid}")
+    grid = integer("grid", grid, 3)  # 360.5 searched 361 α spaced 2π/360.5, unevenly across the wrap
     theta, phi = _views(model, signed, theta, phi, 0)
     target = signed.to(model.alphas)
     # In pixel-basis coordinates: ‖y − t‖² = ‖c − Uᵀt‖² + (‖t‖² − ‖Uᵀt‖²), the last term fixed.
@@ -158,8 +158,7 @@ def alpha_grid_iou(model, masks: torch.Tensor, theta, phi, grid: int = 720) -> t
     the mean over v.
     """
     _check_templates("masks", masks, model, ("B", "V"), masks=True)
-    if grid < 1:
-        raise ValueError(f"Expected grid >= 1; got {grid}")
+    grid = integer("grid", grid, 1)  # 10.5 gave 11 columns, not grid, and True one
     theta, phi = _views(model, masks, theta, phi, 1)
     alpha = torch.arange(grid, dtype=theta.dtype, device=theta.device) * (2 * math.pi / grid)
     truth = masks.flatten(2).to(theta)  # (B, V, d)
