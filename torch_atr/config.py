@@ -310,8 +310,33 @@ def load_config(cls: type[T], path: str | Path | None = None, overrides: list[st
         if not overrides:
             return built
     base = copy.deepcopy(data)
-    parsed = []  # (item, key, value)
-    for item in overrides or []:
+    parsed = override_leaves(cls, overrides or [], what, unique)
+    for item, leaf, value in parsed:
+        try:
+            _set_dotted(data, leaf, value)
+        except ConfigError as exc:  # a key below one the file gives a value (seed.x=1)
+            raise ConfigError(f"{what} {show(item)}: {exc}") from None
+    try:
+        return _build(cls, data)
+    except ConfigError as exc:
+        # Blame the overrides that fail on their own; else (a clash of several) those whose key the
+        # message names; else all. A message may list every key of a section (a range check's help).
+        alone = [item for item, key, value in parsed if not _builds_with(cls, base, key, value)]
+        named = [item for item, key, _ in parsed if _mentions(str(exc), key)]
+        at_fault = alone or named or [item for item, _, _ in parsed]
+        label = f"{what}{'s' if len(at_fault) > 1 else ''} {', '.join(map(cut, at_fault))}" if at_fault else "config"
+        raise ConfigError(f"{label}: {exc}") from None
+
+
+def override_leaves(cls: type, overrides: list[str], what: str = "override",
+                    unique: bool = False) -> list[tuple[str, str, Any]]:
+    """The ``key=value`` ``overrides`` of ``cls`` as (override, dotted key, value), one per key set, in
+    order: a mapping given for a section stands for each of its keys. With ``unique`` a key set twice
+    to two values is refused. ConfigError names the override (``what``) at fault: one not of the form
+    key=value, a value that is not YAML, a path through a key that is not a section."""
+    parsed: list[tuple[str, str, Any]] = []
+    data: dict = {}  # the overrides laid out, so that a key below a value (seed.x=1) is refused
+    for item in overrides:
         key, sep, raw = item.partition("=")
         if not sep or not key.strip():
             raise ConfigError(f"{what} {show(item)} is not of the form key=value")
@@ -328,16 +353,7 @@ def load_config(cls: type[T], path: str | Path | None = None, overrides: list[st
             if earlier is not None:
                 raise ConfigError(f"{what}s {show(earlier)} and {show(item)} both set {cut(leaf)}; give one")
             parsed.append((item, leaf, value))
-    try:
-        return _build(cls, data)
-    except ConfigError as exc:
-        # Blame the overrides that fail on their own; else (a clash of several) those whose key the
-        # message names; else all. A message may list every key of a section (a range check's help).
-        alone = [item for item, key, value in parsed if not _builds_with(cls, base, key, value)]
-        named = [item for item, key, _ in parsed if _mentions(str(exc), key)]
-        at_fault = alone or named or [item for item, _, _ in parsed]
-        label = f"{what}{'s' if len(at_fault) > 1 else ''} {', '.join(map(cut, at_fault))}" if at_fault else "config"
-        raise ConfigError(f"{label}: {exc}") from None
+    return parsed
 
 
 def check_seed(key: str, seed: int) -> None:

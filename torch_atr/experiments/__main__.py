@@ -16,7 +16,8 @@ DIR/report.md, DIR/results.json (and the figures). Finished sequences are kept i
 and not re-run; ``--ray ADDRESS`` runs them as tasks of a Ray cluster instead of local processes.
 all runs the four, each into DIR/NAME/, and writes one DIR/report.md of them all (it takes
 --quick, --init, --seed, --checkpoint and --workers). ``key=value`` are tracker config overrides
-(``motion.sigma2_alpha=1.0``); ``--scene key=value`` overrides the simulator's scene (day:
+(``motion.sigma2_alpha=1.0``; not filter.particles, filter.method or init.mode, which --particles,
+--methods and --init set); ``--scene key=value`` overrides the simulator's scene (day:
 ``night=false``; an occluder, a turning turret).
 """
 
@@ -29,7 +30,7 @@ import time
 from pathlib import Path
 
 from torch_atr.cli import console_logging, run_main
-from torch_atr.config import ConfigError
+from torch_atr.config import ConfigError, override_leaves
 from torch_atr.experiments.combined import COMBINED_FORMAT, EXPERIMENTS, write_combined_report
 from torch_atr.experiments.report import (REPORT_FORMAT, is_report_folder, mean_recognition, report_format,
                                           write_report)
@@ -37,8 +38,12 @@ from torch_atr.experiments.sensiac_like import FULL, QUICK, SensiacLikeConfig, r
 from torch_atr.experiments.studies import STUDIES_FORMAT, run_studies, study_configs, write_studies_report
 from torch_atr.experiments.unseen import UNSEEN_FORMAT, unseen_fields, write_unseen_report
 from torch_atr.io import OutputExistsError
+from torch_atr.tracking import TrackerConfig
+from torch_atr.validate import show
 
 log = logging.getLogger("experiments")
+# Tracker keys each experiment sets from its own options (and states in its report), laid under the overrides.
+SET_BY_OPTIONS = {"filter.particles": "--particles", "filter.method": "--methods", "init.mode": "--init"}
 
 
 def main(argv: list[str] | None = None) -> dict:
@@ -66,6 +71,7 @@ def main(argv: list[str] | None = None) -> dict:
     args = parser.parse_intermixed_args(argv)  # overrides after options too: plain parse_args gives them to none
     if args.workers < 0:  # else ProcessPoolExecutor's "max_workers must be greater than 0", once OUT/ was made
         raise ConfigError(f"--workers must be 0 (one per core) or more; got {args.workers}")
+    check_tracker_overrides(args.overrides)
     console_logging()
     if args.experiment == "unseen":
         fields = unseen_fields(args.quick) | (dict(FULL) if args.full else {})
@@ -97,6 +103,17 @@ def main(argv: list[str] | None = None) -> dict:
              ", ".join(f"{m} {v:.0f} %" for m, v in mean_recognition(agg).items()))
     log.info("wrote %s: report.md, results.json, figures; config %s", out, dataclasses.asdict(cfg))
     return agg
+
+
+def check_tracker_overrides(overrides: list[str]) -> None:
+    """ConfigError for tracker ``overrides`` (key=value) that set a key twice to two values, as track.py
+    refuses them, or that set a key of ``SET_BY_OPTIONS``: the experiment lays its own values under the
+    overrides, so the override would win while the report stated the option's (every column of Table
+    6.1 run with filter.method=IV; the studies' 250 to 16 000 particles all run with filter.particles)."""
+    for item, key, _ in override_leaves(TrackerConfig, overrides, unique=True):
+        if key in SET_BY_OPTIONS:
+            raise ConfigError(f"override {show(item)}: {key} is set by the experiment from {SET_BY_OPTIONS[key]} "
+                              f"(and stated in its report); not by an override")
 
 
 def _check_out(out: Path, expected: str, parts=("sequences",)) -> None:

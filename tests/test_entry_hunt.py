@@ -1,0 +1,49 @@
+"""The entry points' handling of hostile but realistic input: one line naming what is wrong, an exit
+status of 2, nothing made or replaced that the user did not ask for. Each case stops before any work."""
+
+import pytest
+
+import torch_atr.experiments.__main__ as experiments
+from torch_atr.config import ConfigError
+
+
+class Reached(Exception):
+    """The experiment's work began: everything before it was accepted."""
+
+
+@pytest.fixture
+def no_work(monkeypatch):
+    """The experiments' runners replaced by one that records its config and stops."""
+    import torch_atr.experiments.visible as visible
+
+    seen = []
+
+    def stop(cfg, *args, **kwargs):
+        seen.append(cfg)
+        raise Reached
+
+    for module, name in ((experiments, "run_all"), (experiments, "run_studies"), (visible, "run_visible")):
+        monkeypatch.setattr(module, name, stop)
+    return seen
+
+
+@pytest.mark.parametrize("experiment", ["sensiac-like", "unseen", "studies", "visible"])
+@pytest.mark.parametrize("override, key, flag", [("filter.particles=5", "filter.particles", "--particles"),
+                                                 ("filter={particles: 5}", "filter.particles", "--particles"),
+                                                 ("filter.method=IV", "filter.method", "--methods"),
+                                                 ("init.mode=truth", "init.mode", "--init")])
+def test_a_tracker_override_may_not_set_what_the_experiment_sets_and_reports(tmp_path, no_work, experiment,
+                                                                            override, key, flag):
+    """The experiment lays its particles, method and start under the user's overrides, so
+    filter.method=IV ran every column of Table 6.1 with Method IV (labelled I-IV), and
+    filter.particles=5 ran the studies' 250, 4000 and 16 000 particles with 5, as their rows did not say."""
+    with pytest.raises(ConfigError, match=rf"^override '?{override}'?: .*{key}.*{flag}"):
+        experiments.main([experiment, "--out", str(tmp_path / "out"), "--quick", override])
+    assert not (tmp_path / "out").exists()
+
+
+def test_a_tracker_key_given_twice_with_two_values_is_refused(tmp_path, no_work):
+    """As track.py refuses it: the later won without a word."""
+    with pytest.raises(ConfigError, match=r"^overrides 'filter.sigma=0.1' and 'filter.sigma=0.2' both set "
+                                          r"filter.sigma; give one$"):
+        experiments.main(["sensiac-like", "--out", str(tmp_path / "out"), "filter.sigma=0.1", "filter.sigma=0.2"])
