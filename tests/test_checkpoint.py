@@ -168,6 +168,11 @@ def _edit_state(raw, key, value):
     (lambda r: {**r, "model_args": {**r["model_args"], "vehicle_classes": [0, 0, 2]}},
      r"vehicle_classes'\]\[2\]: expected an integer in \[0, 1\]; got 2"),
     (lambda r: {**r, "model_args": {**r["model_args"], "gpu": True}}, r"model_args: unknown key\(s\) 'gpu'"),
+    # A class named twice was two classes that class_names.index told apart wrongly (recognition, truth starts).
+    (lambda r: {**r, "model_args": {**r["model_args"], "class_names": ["car", "car"]}},
+     r"model_args\['class_names'\]: expected distinct names; \['car'\] repeat\(s\)"),
+    (lambda r: {**r, "model_args": {**r["model_args"], "vehicle_names": ["a", "b", "a"]}},
+     r"model_args\['vehicle_names'\]: expected distinct names; \['a'\] repeat\(s\)"),
     (lambda r: {**r, "format_version": True}, "format_version True is not a version number"),
     (lambda r: {**r, "format_version": 1.0}, "format_version 1.0 is not a version number"),
     (lambda r: {**r, "surprise": 1}, r"unknown checkpoint key\(s\) 'surprise'"),

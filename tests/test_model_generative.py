@@ -396,6 +396,19 @@ def test_fine_tune_widths_rejects_non_finite_inputs(model, data, key):
     assert torch.equal(rbf.log_width.detach(), before)  # refused before any step
 
 
+
+def test_names_must_be_distinct(data):
+    """A class named twice was two classes: recognition_accuracy wanted class_names.index (the first)
+    where classify gave the second, a truth start drew α on the first's arcs only and the tracker's
+    p_<class> columns overwrote each other. A vehicle named twice re-rendered one mesh for both."""
+    with pytest.raises(ValueError, match=r"Expected class_names to be distinct; \['car'\] repeat\(s\) in "
+                                         r"\['car', 'car'\]"):
+        GenerativeShapeModel.fit(data["templates"], data["theta"], data["phi"], NAMES, CLASSES, ["car", "car"],
+                                 TEMPLATE, ModelConfig(pixel_rank=8))
+    with pytest.raises(ValueError, match=r"Expected vehicle_names to be distinct; \['v0'\] repeat"):
+        GenerativeShapeModel.fit(data["templates"], data["theta"], data["phi"], ["v0"] * len(NAMES), CLASSES,
+                                 ["car", "tank"], TEMPLATE, ModelConfig(pixel_rank=8))
+
 def test_model_config_from_yaml_and_overrides(tmp_path):
     path = tmp_path / "model.yaml"
     path.write_text("pixel_rank: null\nridge: 0.001\n", encoding="utf-8")

@@ -11,7 +11,7 @@ import os
 import pickle
 import warnings
 import zipfile
-from collections import OrderedDict
+from collections import Counter, OrderedDict
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -76,6 +76,7 @@ class GenerativeShapeModel(nn.Module):
         labels = identity.labels.tolist()
         if any(not 0 <= c < len(class_names) for c in labels):
             raise ValueError(f"vehicle classes {labels} out of range for {len(class_names)} class names")
+        _check_distinct(vehicle_names, class_names)
         self.rbf = rbf
         self.core = core
         self.identity = identity
@@ -159,6 +160,7 @@ class GenerativeShapeModel(nn.Module):
             raise ValueError(f"vehicle classes {labels.tolist()} out of range for {len(class_names)} class names")
         if len(vehicle_names) != K:
             raise ValueError(f"Expected {K} vehicle names; got {len(vehicle_names)}")
+        _check_distinct(vehicle_names, class_names)  # before the fit, not after it
         wide = templates.to(torch.float64)
 
         def as_wide(name: str, x) -> torch.Tensor:
@@ -408,11 +410,30 @@ def check_model_args(model_args, where: str = "model_args") -> TemplateConfig:
                          f"got {show(class_names)}")
     if not isinstance(names, list) or len(names) != K or not all(isinstance(n, str) for n in names):
         raise InputError(f"{key('vehicle_names')}: expected a list of {K} strings; got {show(names)}")
+    for name, values in (("class_names", class_names), ("vehicle_names", names)):
+        if _repeated(values):
+            raise InputError(f"{key(name)}: expected distinct names; {show(_repeated(values))} repeat(s)")
     if not isinstance(classes, list) or len(classes) != K:
         raise InputError(f"{key('vehicle_classes')}: expected a list of {K} class indices; got {show(classes)}")
     for k, c in enumerate(classes):
         integer(f"{key('vehicle_classes')}[{k}]", c, 0, len(class_names) - 1)
     return template
+
+
+def _repeated(names: Sequence) -> list[str]:
+    """The names (as text) that occur more than once in ``names``, sorted. A class named twice was two
+    classes: ``class_names.index`` (recognition, a truth start's arc) found only the first, and the
+    tracker's per-class columns p_<name> overwrote each other; a vehicle named twice re-rendered one
+    mesh for both (Method IV)."""
+    return sorted(name for name, count in Counter(map(str, names)).items() if count > 1)
+
+
+def _check_distinct(vehicle_names: Sequence[str], class_names: Sequence[str]) -> None:
+    """Raise ValueError naming the list and the names that repeat in it (:func:`_repeated`)."""
+    for what, names in (("vehicle_names", vehicle_names), ("class_names", class_names)):
+        if _repeated(names):
+            raise ValueError(f"Expected {what} to be distinct; {show(_repeated(names))} repeat(s) in "
+                             f"{show(list(names))}")
 
 
 def state_shapes(model_args: dict) -> dict[str, tuple[int, ...]]:
