@@ -47,3 +47,15 @@ def test_a_tracker_key_given_twice_with_two_values_is_refused(tmp_path, no_work)
     with pytest.raises(ConfigError, match=r"^overrides 'filter.sigma=0.1' and 'filter.sigma=0.2' both set "
                                           r"filter.sigma; give one$"):
         experiments.main(["sensiac-like", "--out", str(tmp_path / "out"), "filter.sigma=0.1", "filter.sigma=0.2"])
+
+
+@pytest.mark.parametrize("option, values, key, expected", [
+    ("--vehicles", ("t_72", "bmp_2"), "vehicles", ("t_72", "bmp_2")),
+    ("--ranges", ("1000", "2500"), "ranges_m", (1000.0, 2500.0)),
+    ("--methods", ("I", "IV"), "methods", ("I", "IV")),
+    ("--scene", ("night=false", "occluder_width_m=3"), "scene", ("night=false", "occluder_width_m=3"))])
+def test_a_list_option_given_twice_takes_both(tmp_path, no_work, option, values, key, expected):
+    """``--vehicles t_72 --vehicles bmp_2`` ran bmp_2 alone (argparse keeps the last), without a word."""
+    with pytest.raises(Reached):
+        experiments.main(["sensiac-like", "--out", str(tmp_path / "out"), *(a for v in values for a in (option, v))])
+    assert getattr(no_work[0], key) == expected

@@ -60,12 +60,13 @@ def main(argv: list[str] | None = None) -> dict:
                         "here; needs the [ray] extra)")
     parser.add_argument("--frames", type=int)
     parser.add_argument("--particles", type=int)
-    parser.add_argument("--vehicles", nargs="+")
-    parser.add_argument("--ranges", nargs="+", type=float)
-    parser.add_argument("--methods", nargs="+")
+    # A list option given twice takes both lists (argparse's default, "store", kept the last alone).
+    parser.add_argument("--vehicles", nargs="+", action="extend")
+    parser.add_argument("--ranges", nargs="+", type=float, action="extend")
+    parser.add_argument("--methods", nargs="+", action="extend")
     parser.add_argument("--seed", type=int)
     parser.add_argument("--checkpoint")
-    parser.add_argument("--scene", nargs="+", default=[], metavar="KEY=VALUE",
+    parser.add_argument("--scene", nargs="+", action="extend", default=[], metavar="KEY=VALUE",
                         help="simulator scene overrides: night=false, occluder_width_m=3, turret_sweep_deg=60")
     parser.add_argument("overrides", nargs="*", help="tracker config overrides, key=value")
     args = parser.parse_intermixed_args(argv)  # overrides after options too: plain parse_args gives them to none
