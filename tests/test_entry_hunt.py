@@ -59,3 +59,10 @@ def test_a_list_option_given_twice_takes_both(tmp_path, no_work, option, values,
     with pytest.raises(Reached):
         experiments.main(["sensiac-like", "--out", str(tmp_path / "out"), *(a for v in values for a in (option, v))])
     assert getattr(no_work[0], key) == expected
+
+
+def test_a_scene_key_given_twice_with_two_values_is_refused(tmp_path, no_work):
+    """``--scene night=true ... --scene night=false`` ran the later alone, without a word."""
+    with pytest.raises(ConfigError, match=r"^scene overrides 'night=true' and 'night=false' both set night; give one$"):
+        experiments.main(["sensiac-like", "--out", str(tmp_path / "out"), "--scene", "night=true", "turret_sweep_deg=60",
+                          "--scene", "night=false"])

@@ -73,6 +73,7 @@ def main(argv: list[str] | None = None) -> dict:
     if args.workers < 0:  # else ProcessPoolExecutor's "max_workers must be greater than 0", once OUT/ was made
         raise ConfigError(f"--workers must be 0 (one per core) or more; got {args.workers}")
     check_tracker_overrides(args.overrides)
+    check_scene_overrides(args.scene)
     console_logging()
     if args.experiment == "unseen":
         fields = unseen_fields(args.quick) | (dict(FULL) if args.full else {})
@@ -115,6 +116,13 @@ def check_tracker_overrides(overrides: list[str]) -> None:
         if key in SET_BY_OPTIONS:
             raise ConfigError(f"override {show(item)}: {key} is set by the experiment from {SET_BY_OPTIONS[key]} "
                               f"(and stated in its report); not by an override")
+
+
+def check_scene_overrides(overrides: list[str]) -> None:
+    """ConfigError for ``--scene`` overrides (key=value) that set a key twice to two values (the later won)."""
+    from torch_atr.data.synthetic import SceneConfig
+
+    override_leaves(SceneConfig, overrides, "scene override", unique=True)
 
 
 def _check_out(out: Path, expected: str, parts=("sequences",)) -> None:
