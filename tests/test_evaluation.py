@@ -1,5 +1,6 @@
 """Model and tracking measures against loops and hand-computed cases."""
 
+import copy
 import math
 
 import numpy as np
@@ -114,6 +115,30 @@ def test_alpha_grid_must_be_a_whole_number(model):
         with pytest.raises(ValueError, match=r"grid: expected an integer >= 3; got"):
             fit_alpha(model, signed, theta, phi, grid=grid)
     assert alpha_grid_iou(model, (signed > 0)[None], theta, phi, grid=np.int64(4)).shape == (1, 4, 2)
+
+
+def test_views_given_as_lists_keep_a_float64_models_precision_and_bools_are_refused(model):
+    """Views given as lists were read as float32 before they were widened: a float64 model fitted α to
+    θ off by ~1e-8 (4e-8 rad apart from the same views as float64 tensors). Bools were 0 and 1 radians."""
+    from torch_atr.evaluation import fit_alpha, identity_distances
+
+    wide = copy.deepcopy(model).double()
+    theta, phi = [0.1, 1.3, 2.9], [0.05, 0.3, 0.6]
+    exact = torch.tensor(theta, dtype=torch.float64), torch.tensor(phi, dtype=torch.float64)
+    with torch.no_grad():
+        signed = wide(wide.alphas[2].expand(3) + 0.1, *exact)  # (3, S, S)
+    assert fit_alpha(wide, signed, theta, phi) == fit_alpha(wide, signed, *exact)
+    masks = (signed > 0)[None].expand(len(wide.alphas), -1, -1, -1)
+    torch.testing.assert_close(identity_distances(wide, signed[None].expand_as(masks), np.array(theta), phi),
+                               identity_distances(wide, signed[None].expand_as(masks), *exact), rtol=0, atol=0)
+    flags = np.array([True, False, True])
+    with pytest.raises(ValueError, match="Expected theta to be numeric"):
+        fit_alpha(wide, signed, flags, phi)
+    with pytest.raises(ValueError, match="Expected phi to be numeric"):
+        alpha_grid_iou(wide, masks[:1], theta, torch.tensor(flags), grid=4)
+    rbf = RBFViewMapping(*exact, init_width=0.5)
+    with pytest.raises(ValueError, match="Expected theta_out to be numeric"):
+        rbf_mapping_iou(rbf, signed[None], *exact, masks[:1], flags, phi, 1e-3)
 
 def test_tracking_errors_by_hand():
     from torch_atr.evaluation import tracking_errors

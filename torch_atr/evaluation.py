@@ -16,7 +16,7 @@ import math
 import numpy as np
 import torch
 
-from torch_atr._checks import check_finite, check_shape
+from torch_atr._checks import as_float_tensor, check_finite, check_shape
 from torch_atr.model.rbf import ridge_hat
 from torch_atr.shape import iou
 from torch_atr.validate import integer
@@ -24,9 +24,15 @@ from torch_atr.validate import integer
 log = logging.getLogger(__name__)
 
 
+def _as_views(like: torch.Tensor, **views) -> list[torch.Tensor]:
+    """Each view angle (a tensor, array or list, radians) in ``like``'s dtype and device. A list was
+    read as float32 before it was widened (a float64 model saw θ off by ~1e-8), and bools were taken as
+    0 and 1 radians (:func:`~torch_atr._checks.as_float_tensor` refuses them)."""
+    return [as_float_tensor(name, value, like=like).to(like) for name, value in views.items()]
+
+
 def _views(model, templates: torch.Tensor, theta, phi, view_dim: int) -> tuple[torch.Tensor, torch.Tensor]:
-    like = model.alphas
-    theta, phi = torch.as_tensor(theta).to(like), torch.as_tensor(phi).to(like)
+    theta, phi = _as_views(model.alphas, theta=theta, phi=phi)
     check_shape("theta", theta, (templates.shape[view_dim],))
     check_shape("phi", phi, (templates.shape[view_dim],))
     return theta, phi
@@ -74,7 +80,7 @@ def rbf_mapping_iou(rbf, signed: torch.Tensor, theta, phi, masks_out: torch.Tens
     check_shape("masks_out", masks_out, (signed.shape[0], "Vo", *signed.shape[2:]))
     check_finite("signed", signed, "signed distances")  # a NaN pixel scored as outside, lowering the IoU unseen
     like = rbf.log_width
-    theta, phi, theta_out, phi_out = (torch.as_tensor(x).to(like) for x in (theta, phi, theta_out, phi_out))
+    theta, phi, theta_out, phi_out = _as_views(like, theta=theta, phi=phi, theta_out=theta_out, phi_out=phi_out)
     W = ridge_hat(rbf(theta, phi), ridge)  # (V, P)
     H = rbf(theta_out, phi_out) @ W.T  # (Vo, V)
     pred = torch.einsum("uv,kvhw->kuhw", H.to(signed), signed)
