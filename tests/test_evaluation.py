@@ -140,6 +140,27 @@ def test_views_given_as_lists_keep_a_float64_models_precision_and_bools_are_refu
     with pytest.raises(ValueError, match="Expected theta_out to be numeric"):
         rbf_mapping_iou(rbf, signed[None], *exact, masks[:1], flags, phi, 1e-3)
 
+
+def test_identity_distances_against_a_loop_in_the_models_dtype(model):
+    """identity_distances stored its errors in float32 whatever the model's dtype (a float64 model's
+    were rounded to 7 digits); the reference is the mean squared error of each reconstruction, by hand."""
+    from torch_atr.evaluation import identity_distances
+
+    wide = copy.deepcopy(model).double()
+    K = len(wide.alphas)
+    theta = torch.tensor([0.1, 2.9], dtype=torch.float64)
+    phi = torch.tensor([0.05, 0.6], dtype=torch.float64)
+    g = torch.Generator().manual_seed(0)
+    S = wide.template.size_px
+    signed = torch.rand(K, 2, S, S, generator=g, dtype=torch.float64) * 2 - 1
+    got = identity_distances(wide, signed, theta, phi)
+    assert got.dtype == torch.float64 and got.shape == (K, K)
+    with torch.no_grad():
+        for k in (0, 7, K - 1):
+            recon = wide(wide.alphas[k].expand(2), theta, phi).numpy()  # (2, S, S)
+            for j in (0, 3, K - 1):
+                assert got[k, j].item() == pytest.approx(((signed[j].numpy() - recon) ** 2).mean(), rel=1e-12)
+
 def test_tracking_errors_by_hand():
     from torch_atr.evaluation import tracking_errors
 

@@ -105,17 +105,18 @@ def identity_distances(model, signed: torch.Tensor, theta, phi) -> torch.Tensor:
     """Mean squared error between the reconstruction at αₖ and vehicle j's templates.
 
     signed: (K, V, H, W) signed-distance templates; theta, phi: (V,) radians.
-    Returns (K, K): row k = reconstruction at αₖ, column j = vehicle j. A good model has its
-    row minima on the diagonal.
+    Returns (K, K) on the CPU, in the wider of the model's and the templates' float dtypes: row k =
+    reconstruction at αₖ, column j = vehicle j. A good model has its row minima on the diagonal.
+    The errors are computed on the model's device (templates there were subtracted from a CPU copy
+    of the reconstruction), and were stored in float32 whatever the model's dtype.
     """
     _check_templates("signed", signed, model, (len(model.alphas), "V"), masks=False)
     theta, phi = _views(model, signed, theta, phi, 1)
-    K = signed.shape[0]
-    out = torch.empty(K, K)
-    for k in range(K):
-        recon = model.reconstruct_grid(model.alphas[k:k + 1], theta, phi).cpu()  # (1, V, H, W)
-        out[k] = ((signed - recon) ** 2).mean(dim=(1, 2, 3))
-    return out
+    like = model.alphas
+    target = signed.to(like.device, torch.promote_types(signed.dtype, like.dtype))  # (K, V, H, W)
+    rows = [((target - model.reconstruct_grid(model.alphas[k:k + 1], theta, phi)) ** 2).mean(dim=(1, 2, 3))
+            for k in range(len(like))]  # reconstruction (1, V, H, W) at αₖ against every vehicle
+    return torch.stack(rows).cpu()
 
 
 @torch.no_grad()
