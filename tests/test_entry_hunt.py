@@ -66,3 +66,16 @@ def test_a_scene_key_given_twice_with_two_values_is_refused(tmp_path, no_work):
     with pytest.raises(ConfigError, match=r"^scene overrides 'night=true' and 'night=false' both set night; give one$"):
         experiments.main(["sensiac-like", "--out", str(tmp_path / "out"), "--scene", "night=true", "turret_sweep_deg=60",
                           "--scene", "night=false"])
+
+
+@pytest.mark.parametrize("experiment", ["sensiac-like", "unseen", "studies", "visible"])
+@pytest.mark.parametrize("content", [b"", b"hello\n", b"PK\x03\x04 truncated"])
+def test_a_checkpoint_that_is_not_one_is_named_before_the_report_folder_is_made(tmp_path, no_work, experiment,
+                                                                                content):
+    """A text file given as --checkpoint was read by the first sequence's worker, once OUT/sequences
+    had been made: the line named it, and an empty report folder stayed behind."""
+    (tmp_path / "model.pt").write_bytes(content)
+    with pytest.raises(ValueError, match=r"model.pt: not a readable checkpoint"):
+        experiments.main([experiment, "--out", str(tmp_path / "out"), "--quick", "--checkpoint",
+                          str(tmp_path / "model.pt")])
+    assert not (tmp_path / "out").exists()

@@ -92,6 +92,7 @@ def main(argv: list[str] | None = None) -> dict:
         return _visible(args, given, out)
     cfg = SensiacLikeConfig(**(fields | given), tracker=tuple(args.overrides), scene=tuple(args.scene))
     _check_out(out, UNSEEN_FORMAT if args.experiment == "unseen" else REPORT_FORMAT)
+    _read_checkpoint(cfg.checkpoint)
     start = time.perf_counter()
     results = run_all(cfg, out, args.workers, ray_address=args.ray)
     if args.experiment == "unseen":
@@ -125,6 +126,15 @@ def check_scene_overrides(overrides: list[str]) -> None:
     override_leaves(SceneConfig, overrides, "scene override", unique=True)
 
 
+def _read_checkpoint(checkpoint: str) -> None:
+    """Load ``checkpoint`` here, before the report folder is made: a file that is not a checkpoint
+    is named before any work (the first sequence's worker read it, once OUT/sequences was made, and
+    the empty folders stayed). The model stays loaded for the report."""
+    from torch_atr.experiments.sensiac_like import worker_model
+
+    worker_model(checkpoint)
+
+
 def _check_out(out: Path, expected: str, parts=("sequences",)) -> None:
     """``OutputExistsError`` unless ``out`` is absent, empty or a folder of this experiment: its
     results.json, where there is one, of format ``expected`` (another experiment's would be replaced);
@@ -150,6 +160,8 @@ def _studies(args: argparse.Namespace, given: dict, out: Path) -> list[dict]:
         raise ConfigError(f"studies: {', '.join(fixed)} cannot be given; each study sets them itself")
     configs = study_configs(args.quick, **given, tracker=tuple(args.overrides))
     _check_out(out, STUDIES_FORMAT, configs)
+    for checkpoint in {c.checkpoint for c in configs.values()}:
+        _read_checkpoint(checkpoint)
     start = time.perf_counter()
     results = run_studies(out, configs, args.workers, ray_address=args.ray)
     rows = write_studies_report(out, configs, results, time.perf_counter() - start)
@@ -166,6 +178,7 @@ def _visible(args: argparse.Namespace, given: dict, out: Path) -> dict:
         raise ConfigError(f"visible: {', '.join(fixed)} cannot be given; the experiment sets its vehicles and scenes")
     cfg = VisibleConfig(**((dict(VISIBLE_QUICK) if args.quick else {}) | given), tracker=tuple(args.overrides))
     _check_out(out, VISIBLE_FORMAT)
+    _read_checkpoint(cfg.checkpoint)
     start = time.perf_counter()
     calibration, drawn, results = run_visible(cfg, out, args.workers)
     from torch_atr.experiments.sensiac_like import worker_model
