@@ -2,6 +2,7 @@
 
     python benchmarks/bench_heldout.py [--checkpoint checkpoints/default.pt] [--grid 720] [--json OUT]
         [--figure docs/recognition_failures.png --overwrite] [--catalog-dir DIR] [--min-thickness 0.05]
+        [--running-gear benchmarks/chrono_running_gear.yaml]
 
 Each held-out mesh (``torch_atr/vehicles/heldout.yaml``, files under ``shared/data/meshes``) is
 rendered at 30 azimuths every 12° at 5° elevation, in the model's template window. For 720
@@ -16,6 +17,11 @@ Meshes of class "unknown" (``truck/``, ``military_utility/``) are listed apart w
 training vehicles nearest their best α, and not counted. Manifest entries with the same
 geometry are counted once: two meshes are the same when their 30 silhouettes agree at mean
 IoU >= 0.98 (the manifest lists one Quaternius tank twice, as a GLB and as an OBJ).
+
+``--running-gear FILE`` (off by default) measures the Chrono vehicle bodies of the manifest as
+vehicles rather than bodies: the wheels and tracks ``FILE`` gives (``benchmarks/running_gear.py``;
+``benchmarks/chrono_running_gear.yaml`` holds Chrono's own, cited) are added to the named meshes in
+their file frame, before the manifest's transform; everything else is measured as without it.
 
 ``--figure`` draws the meshes that are wrong in most single views beside the training
 vehicles nearest their best α and nearest their best α within the true class (templates of
@@ -50,11 +56,12 @@ from torch_atr.model import GenerativeShapeModel
 from torch_atr.render import render_templates
 from torch_atr.shape import iou
 from torch_atr.vehicles import CLASS_NAMES, load_heldout_meshes
-from torch_atr.vehicles.catalog import CATALOG_DIR, read_manifest
+from torch_atr.vehicles.catalog import CATALOG_DIR, default_meshes_root, read_manifest
 from torch_atr.vehicles.loader import MIN_THICKNESS_M
 from torch_atr.viz import save_figures
 
 from benchlib import REPO, SHIPPED, check_at_least, json_output, png_output, write_json
+from running_gear import load_with_running_gear, read_running_gear
 
 log = logging.getLogger("bench_heldout")
 NAME = Path(__file__).stem
@@ -185,6 +192,9 @@ def main(argv: list[str] | None = None) -> None:
                         help="the checkpoint's training vehicles, <dir>/<name>/<name>.urdf (for --figure)")
     parser.add_argument("--min-thickness", type=float, default=MIN_THICKNESS_M,
                         help="thinner protrusions are trimmed from the meshes (0: keep them, as before issue 10)")
+    parser.add_argument("--running-gear", type=Path, default=None,
+                        help="YAML of wheels and tracks to add to named bodies in their file frame "
+                             "(e.g. benchmarks/chrono_running_gear.yaml; default: none, the meshes as they are)")
     parser.add_argument("--overwrite", action="store_true",
                         help="replace an earlier --json of this benchmark or a matplotlib --figure")
     args = parser.parse_args(argv)
@@ -198,9 +208,17 @@ def main(argv: list[str] | None = None) -> None:
                               f"vehicles, e.g. {missing[0]}/{missing[0]}.urdf (--figure draws them)")
     json_out = json_output(args.json, args.overwrite, NAME)
     figure = png_output(args.figure, args.overwrite, "figure")
-    logging.basicConfig(level=logging.INFO, format="%(message)s")
     entries = read_manifest()
-    meshes = load_heldout_meshes(args.meshes, entries, args.min_thickness)
+    gear = {} if args.running_gear is None else read_running_gear(args.running_gear, entries)
+    logging.basicConfig(level=logging.INFO, format="%(message)s")
+    meshes = load_heldout_meshes(args.meshes, [e for e in entries if e.path not in gear], args.min_thickness)
+    if gear:
+        root = default_meshes_root() if args.meshes is None else Path(args.meshes)
+        bare = iter(meshes)
+        meshes = [load_with_running_gear(root, e, gear[e.path], args.min_thickness) if e.path in gear else next(bare)
+                  for e in entries]
+        log.info("running gear from %s added to %d bodies: %s\n", args.running_gear, len(gear),
+                 ", ".join(e.path for e in entries if e.path in gear))
     rows = evaluate(model, meshes, [e.path for e in entries], args.grid)
 
     known = sorted((r for r in rows if r["class"] in CLASS_NAMES), key=lambda r: (r["class"], r["path"]))
@@ -229,7 +247,8 @@ def main(argv: list[str] | None = None) -> None:
         save_figures({figure.stem: fig}, figure.parent)
         log.info("wrote %s", figure)
     if json_out is not None:
-        write_json({"checkpoint": str(args.checkpoint), "rows": rows, "summary": table}, json_out, NAME)
+        extra = {} if args.running_gear is None else {"running_gear": str(args.running_gear)}
+        write_json({"checkpoint": str(args.checkpoint), **extra, "rows": rows, "summary": table}, json_out, NAME)
 
 
 if __name__ == "__main__":

@@ -45,6 +45,7 @@ def error_line(capsys, name: str, argv: list[str]) -> str:
     ("bench_segmentation", ["--ranges", "10"], "--ranges 10: scene: bad value(s) range_m"),
     ("bench_heldout", ["--grid", "0"], "--grid: expected a finite number >= 1; got 0"),
     ("bench_heldout", ["--min-thickness", "-1"], "--min-thickness: expected a finite number >= 0"),
+    ("bench_heldout", ["--running-gear", "/nonexistent.yaml"], "--running-gear /nonexistent.yaml: no such file"),
     ("bench_reconstruct", ["--vehicles", "1"], "--vehicles: expected a finite number >= 2"),
     ("bench_reconstruct", ["--rank", "0"], "--rank must be in [1, --size squared = 4096]; got 0"),
     ("bench_track", ["--set", "filter.foo=1"], "override filter.foo=1: unknown config key(s) filter.foo"),
