@@ -296,6 +296,26 @@ def test_fine_tune_widths_lowers_validation_error(data):
         fine_tune_widths(object(), train, data["theta"], data["phi"], val, data["val_theta"], data["val_phi"], 1, 0.1)
 
 
+
+@pytest.mark.parametrize("ridge", [1e-4, 0.0])
+def test_diverged_width_tuning_is_refused_not_fitted(data, ridge):
+    """Adam at lr = 10 (model.width_lr's bound) went NaN at ridge 1e-4, and fit failed in eigh with an
+    ill-conditioning error; at ridge 0 the log widths drifted to about -108, whose exp underflows in
+    float32, and fit returned a model that reconstructed NaN. Both are a ValueError naming the rate."""
+    cfg = ModelConfig(pixel_rank=20, ridge=ridge, width_steps=50, width_lr=10.0)
+    with pytest.raises(ValueError, match=r"kernel-width tuning diverged in step \d+: validation MSE .*, log widths in "
+                                         r"\[.*\] \(expected within \[-20, 20\]\); lower the learning rate lr = 10 "
+                                         r"\(model.width_lr\)"):
+        _fit(data, cfg, val_templates=data["val"], val_theta=data["val_theta"], val_phi=data["val_phi"])
+    K, V = data["templates"].shape[:2]
+    rbf = _fit(data, ModelConfig(pixel_rank=None, ridge=ridge)).double().rbf
+    before = rbf.log_width.detach().clone()
+    with pytest.raises(ValueError, match="kernel-width tuning diverged"):
+        fine_tune_widths(rbf, data["templates"].double().reshape(K, V, -1), data["theta"], data["phi"],
+                         data["val"].double().reshape(K, data["val"].shape[1], -1), data["val_theta"],
+                         data["val_phi"], steps=50, lr=10.0, ridge=ridge)
+    assert torch.equal(rbf.log_width, before)  # left as they were
+
 def test_fine_tune_widths_loss_is_the_mse_of_explicit_mappings(data):
     """The Gram-matrix loss equals the MSE of explicitly solved Bᵏ applied at the held-out views."""
     K, V = data["templates"].shape[:2]

@@ -669,6 +669,7 @@ def fine_tune_widths(rbf: RBFViewMapping, train: torch.Tensor, theta, phi, val: 
             val_energy += Vk.square().sum()
     count = val.numel()
     optimiser = torch.optim.Adam([rbf.log_width], lr=lr)
+    initial = rbf.log_width.detach().clone()
     history = []
     for step in tqdm(range(steps), desc="kernel widths", unit="step", leave=False):
         optimiser.zero_grad()
@@ -679,4 +680,22 @@ def fine_tune_widths(rbf: RBFViewMapping, train: torch.Tensor, theta, phi, val: 
         optimiser.step()
         history.append(loss.item())
         log.debug("width step %d: validation MSE %.6g", step, history[-1])
+        _check_tuning(rbf, initial, step, history[-1], lr)
     return history
+
+
+def _check_tuning(rbf: RBFViewMapping, initial: torch.Tensor, step: int, loss: float, lr: float) -> None:
+    """Raise ValueError, with the widths put back to ``initial``, when width tuning has diverged: a NaN or
+    infinite validation MSE, or log widths outside LOG_WIDTH_RANGE. Adam at lr = 10 (model.width_lr's
+    bound) went NaN on the test templates, and fit then failed in eigh with an ill-conditioning error; at
+    ridge 0 it drifted to log widths of -108, whose exp underflows in float32, and fit returned a model
+    that reconstructed NaN."""
+    lo, hi = LOG_WIDTH_RANGE
+    least, most = rbf.log_width.min().item(), rbf.log_width.max().item()
+    if math.isfinite(loss) and lo <= least and most <= hi:
+        return
+    with torch.no_grad():
+        rbf.log_width.copy_(initial)
+    raise ValueError(f"kernel-width tuning diverged in step {step + 1}: validation MSE {loss:.6g}, log widths "
+                     f"in [{least:.3g}, {most:.3g}] (expected within [{lo:g}, {hi:g}]); lower the learning rate "
+                     f"lr = {lr:g} (model.width_lr) or the steps; the widths are left as they were")
