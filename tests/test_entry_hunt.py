@@ -1,10 +1,21 @@
 """The entry points' handling of hostile but realistic input: one line naming what is wrong, an exit
 status of 2, nothing made or replaced that the user did not ask for. Each case stops before any work."""
 
+import subprocess
+import sys
+from pathlib import Path
+
 import pytest
 
 import torch_atr.experiments.__main__ as experiments
 from torch_atr.config import ConfigError
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def entry_point(*args: str, cwd: Path) -> subprocess.CompletedProcess:
+    """``python args...`` run from ``cwd`` (a script of the repository, or ``-m``), its output as text."""
+    return subprocess.run([sys.executable, *args], capture_output=True, text=True, cwd=cwd, timeout=120)
 
 
 class Reached(Exception):
@@ -79,3 +90,22 @@ def test_a_checkpoint_that_is_not_one_is_named_before_the_report_folder_is_made(
         experiments.main([experiment, "--out", str(tmp_path / "out"), "--quick", "--checkpoint",
                           str(tmp_path / "model.pt")])
     assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.parametrize("key", ["out", "checkpoint", "sequence", "device"])
+def test_a_nul_byte_in_a_text_value_is_named_with_its_key(tmp_path, key):
+    """No path, spec or device holds a NUL byte; Python refused one as "embedded null byte", naming neither
+    file nor key, or the line printed it as nothing: "checkpoint not found: a b"."""
+    (tmp_path / "nul.yaml").write_text(f'{key}: "a\\0b"\n')
+    result = entry_point(str(REPO / "track.py"), "--config", "nul.yaml", cwd=tmp_path)
+    assert result.returncode == 2 and result.stdout == ""
+    assert result.stderr == f"track.py: error: nul.yaml: {key}: expected text without a NUL byte; got 'a\\x00b'\n"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["nul.yaml"]
+
+
+def test_a_nul_byte_in_text_that_may_be_null_says_why(tmp_path):
+    """train.py's checkpoint is text or null: the line says what is wrong with the text."""
+    (tmp_path / "nul.yaml").write_text('checkpoint: "a\\0b"\n')
+    result = entry_point(str(REPO / "train.py"), "--config", "nul.yaml", cwd=tmp_path)
+    assert result.returncode == 2 and result.stdout == ""
+    assert result.stderr == "train.py: error: nul.yaml: checkpoint: expected text without a NUL byte; got 'a\\x00b'\n"

@@ -77,7 +77,9 @@ def check_type(key: str, value: Any, tp: Any) -> Any:
         for arm in typing.get_args(tp):
             try:
                 return check_type(key, value, arm)
-            except ConfigError:
+            except ConfigError as exc:
+                if arm is str and isinstance(value, str):  # text its own arm refuses: that arm says why
+                    raise exc from None
                 continue
         arms = typing.get_args(tp)
         quote = " (quote it for text)" if str in arms and isinstance(value, (int, float)) else ""
@@ -122,6 +124,8 @@ def check_type(key: str, value: Any, tp: Any) -> Any:
             raise ConfigError(f"{key}: expected a finite number; got {show(value)}")
         return number
     if tp is str:
+        if isinstance(value, str) and "\0" in value:  # no path, spec, device or name holds one (open() refuses it)
+            raise ConfigError(f"{key}: expected text without a NUL byte; got {show(value)}")
         if isinstance(value, str):
             return value
         raise ConfigError(f"{key}: expected a string; got {show(value)}")
