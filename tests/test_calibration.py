@@ -265,6 +265,29 @@ def test_a_long_focal_length_camera_with_tilted_boards_is_calibrated():
     assert rms < 0.3 and abs(fitted.fx / f - 1) < 0.05 and abs(fitted.fy / f - 1) < 0.05
 
 
+def _turned_pose(rotvec, shift, distance: float = 0.75):
+    """OpenCV world -> camera (R, t) of a board facing the camera (board X along the image's x, Y up the
+    image, Z towards the camera) turned by ``rotvec`` (radians, camera axes), its centre at (shift, distance)."""
+    R = Rotation.from_rotvec(rotvec).as_matrix() @ np.diag([1.0, -1.0, -1.0])
+    return R, np.array([shift[0], shift[1], distance]) - R @ CENTRE
+
+
+@pytest.mark.parametrize("turn", [(0.52, 0.0, 0.0), (0.37, 0.37, 0.0)])
+def test_boards_in_two_orientations_one_facing_the_camera_are_refused(turn):
+    """Two boards facing the camera (one turned in its plane, shifted) and a third tilted 30°: their normals are
+    30° apart, but two orientations one of which faces the camera leave the focal length undetermined (Sturm and
+    Maybank, 1999), and OpenCV fitted fx = 111 (about x) and 850 px (about a diagonal) for 610 at rms 0.03 px: they
+    were returned as the camera. A fourth board tilted about y determines it."""
+    rng = np.random.default_rng(1)
+    images = [_render(*_turned_pose(rotvec, shift), rng)
+              for rotvec, shift in [((0, 0, 0), (0, 0)), ((0, 0, 0.4), (0.05, 0.03)), (turn, (0, 0))]]
+    with pytest.raises(ValueError, match=r"orientations determine the focal length: the 3 views fit fx = .* but only "
+                                         r"to ±[\d.e+]+ % \(one standard deviation; at most 10 %\)"):
+        calibrate_checkerboard(images, PATTERN, SQUARE)
+    camera, _ = calibrate_checkerboard(images + [_render(*_turned_pose((0, -0.52, 0), (0, 0)), rng)], PATTERN, SQUARE)
+    assert (camera.fx, camera.fy) == pytest.approx((K[0, 0], K[1, 1]), rel=0.01)
+
+
 def test_calibration_poses_hold_an_unmirrored_board_whose_corners_are_found_where_they_project():
     """The poses had det R = +1 in the sensor-like world: a mirrored board, whose corners were found
     170-220 px from where the pose put corners 0, 1, ... (the detector labels a real board)."""

@@ -52,6 +52,11 @@ _EXTRA_TERM_FLAGS = {"CALIB_RATIONAL_MODEL": cv2.CALIB_RATIONAL_MODEL,
 # normals measured (see _orientation_spread_deg) 0.003-0.18 degrees apart; 6 boards tilted 1, 2,
 # 3, 5 degrees either way measured 1.7, 3.3, 4.7, 8.1 and were 18, 33, 13, 3 % off in fx.
 _MIN_ORIENTATION_SPREAD_DEG = 5.0
+# Boards in other degenerate orientations (two boards facing the camera and one tilted 30° about the image's x
+# axis; two orientations, one of them facing the camera) pass the spread test and gave fx 111 and 850 for 610 at
+# rms 0.03 px: their fitted focal lengths had a standard deviation (_focal_uncertainty) of 1600 % and 27 %; the
+# tests' good views 0.04-0.2 %, a 12,000 px telephoto over boards tilted ±25° 2.9 %.
+_MAX_FOCAL_UNCERTAINTY = 0.1
 _MIN_DETECTOR_SIDE = 15  # cv2.findChessboardCorners' adaptive threshold asserts on an image side under 15 px
 
 
@@ -241,6 +246,49 @@ def _orientation_spread_deg(board_xy: np.ndarray, img_points: list[np.ndarray], 
     return float(np.degrees(np.arccos(np.clip(cos.min(), 0.0, 1.0))))
 
 
+def _focal_uncertainty(obj: np.ndarray, img_points: list[np.ndarray], K: np.ndarray, dist: np.ndarray,
+                       rvecs, tvecs, flags: int) -> float:
+    """The larger relative standard deviation of the fitted fx and fy, σ(f) / f, from the fit's Jacobian.
+
+    The reprojection residuals r of all corners, with the Jacobian J of the projections over the
+    parameters the flags leave free (fx and fy, or fy with fx = fy · fx / fy fixed, cx and cy, k1, k2,
+    p1, p2, k3, and each view's rvec and tvec), give the Gauss-Newton covariance σ² (JᵀJ)⁻¹ with
+    σ² = |r|² / (residuals − parameters). Views that leave the focal length undetermined (the
+    degenerate configurations of Sturm and Maybank, 1999) make JᵀJ (nearly) singular along the
+    directions the data cannot fix, whatever the rms; 0 when the focal length is held fixed.
+
+    Args:
+        obj: (P, 3) board corners; img_points: V arrays (P, 2) of pixels; K: (3, 3); dist: OpenCV's
+        coefficients; rvecs, tvecs: V poses from ``cv2.calibrateCamera``; flags: its flags.
+    """
+    if flags & cv2.CALIB_FIX_FOCAL_LENGTH:
+        return 0.0
+    fx, fy = K[0, 0], K[1, 1]
+    n_views = len(img_points)
+    blocks, residuals = [], []
+    for i, (corners, rvec, tvec) in enumerate(zip(img_points, rvecs, tvecs)):
+        projected, jac = cv2.projectPoints(obj, rvec, tvec, K, dist)  # jac: rvec, tvec, fx, fy, cx, cy, dist
+        residuals.append(projected.reshape(-1) - corners.reshape(-1))
+        focal = [jac[:, 6] * (fx / fy) + jac[:, 7]] if flags & cv2.CALIB_FIX_ASPECT_RATIO else [jac[:, 6], jac[:, 7]]
+        centre = [] if flags & cv2.CALIB_FIX_PRINCIPAL_POINT else [jac[:, 8], jac[:, 9]]
+        fixed_tangent = flags & (cv2.CALIB_ZERO_TANGENT_DIST | getattr(cv2, "CALIB_FIX_TANGENT_DIST", 0))
+        terms = [(10, cv2.CALIB_FIX_K1), (11, cv2.CALIB_FIX_K2), (12, fixed_tangent), (13, fixed_tangent),
+                 (14, cv2.CALIB_FIX_K3)]
+        lens = [jac[:, k] for k, fixed in terms if not flags & fixed]
+        pose = np.zeros((jac.shape[0], 6 * n_views))
+        pose[:, 6 * i:6 * i + 6] = jac[:, :6]
+        blocks.append(np.column_stack(focal + centre + lens + [pose]))
+    J, r = np.vstack(blocks), np.concatenate(residuals)
+    scale = np.linalg.norm(J, axis=0)
+    scale[scale == 0] = 1.0
+    _, s, vt = np.linalg.svd(J / scale, full_matrices=False)
+    with np.errstate(divide="ignore", invalid="ignore"):  # diag of (JᵀJ)⁻¹ for the focal lengths
+        variance = ((vt[:, :len(focal)] / s[:, None]) ** 2).sum(axis=0) / scale[:len(focal)] ** 2
+    sigma2 = float(r @ r) / max(J.shape[0] - J.shape[1], 1)
+    relative = np.sqrt(sigma2 * variance) / np.array([fy] if len(focal) == 1 else [fx, fy])
+    return float(np.nan_to_num(relative, nan=np.inf).max())
+
+
 def calibrate_checkerboard(images: Sequence[np.ndarray], pattern: tuple[int, int], square_m: float,
                            flags: int = cv2.CALIB_FIX_K3) -> tuple[Camera, float]:
     """Intrinsics and distortion from views of a checkerboard (thesis 3.3, Fig. 3.5).
@@ -258,16 +306,21 @@ def calibrate_checkerboard(images: Sequence[np.ndarray], pattern: tuple[int, int
     The boards must lie in different orientations (tilt the board between views, by tens of
     degrees about different axes): boards all in one plane or in parallel planes, such as several
     boards on the floor, leave the focal length undetermined, and OpenCV then returns a camera tens
-    of times off at a small rms. Such views are refused; for a fixed camera over a floor, calibrate
-    the intrinsics from a hand-held board and pose the camera with :func:`floor_pose`.
+    of times off at a small rms. So do boards in only two orientations when one of them faces the
+    camera, or when they are turned about an axis along the image's rows or columns (two boards
+    facing the camera and a third tilted 30° about the x axis gave fx 111 px for 610 at rms 0.03 px).
+    Such views are refused; for a fixed camera over a floor, calibrate the intrinsics from a
+    hand-held board and pose the camera with :func:`floor_pose`.
     Returns:
         (camera, rms): the camera posed at the world origin (world = sensor frame), and the RMS
         reprojection error in pixels; the same to the last bit for the same images (OpenCV's
         solver runs on one thread).
     Raises:
         ValueError: fewer than 3 images, an image of another size, an image without the
-            board (naming its index), a flag that adds distortion terms (naming it), or boards
-            whose normals are all within 5° of each other (:func:`_orientation_spread_deg`).
+            board (naming its index), a flag that adds distortion terms (naming it), boards
+            whose normals are all within 5° of each other (:func:`_orientation_spread_deg`), or
+            views that fit the focal length only to more than ±10 % (one standard deviation,
+            :func:`_focal_uncertainty`).
     """
     extra = [name for name, bit in _EXTRA_TERM_FLAGS.items() if flags & bit]
     if extra:
@@ -293,8 +346,8 @@ def calibrate_checkerboard(images: Sequence[np.ndarray], pattern: tuple[int, int
     threads = cv2.getNumThreads()
     cv2.setNumThreads(1)  # on more threads its sums are not reproducible: the same images gave
     try:  # cameras differing in the 12th digit, which a tracker's run then amplified
-        rms, K, dist, _, _ = cv2.calibrateCamera([obj] * len(img_points), img_points, (width, height),
-                                                 None, None, flags=flags)
+        rms, K, dist, rvecs, tvecs = cv2.calibrateCamera([obj] * len(img_points), img_points, (width, height),
+                                                         None, None, flags=flags)
     finally:
         cv2.setNumThreads(threads)
     spread = _orientation_spread_deg(obj[:, :2], img_points, K)
@@ -303,6 +356,14 @@ def calibrate_checkerboard(images: Sequence[np.ndarray], pattern: tuple[int, int
                          f"most {spread:.2f}° apart (need {_MIN_ORIENTATION_SPREAD_DEG:g}°), so the focal length is "
                          f"not determined. Tilt the board between views; for a fixed camera over a floor, calibrate "
                          f"with a hand-held board and pose the camera with floor_pose")
+    uncertainty = _focal_uncertainty(obj, img_points, K, dist, rvecs, tvecs, flags)
+    if not uncertainty <= _MAX_FOCAL_UNCERTAINTY:
+        raise ValueError(f"Expected boards whose orientations determine the focal length: the {len(img_points)} views "
+                         f"fit fx = {K[0, 0]:.1f}, fy = {K[1, 1]:.1f} px at rms {rms:.3f} px, but only to ±"
+                         f"{100 * uncertainty:.3g} % (one standard deviation; at most {100 * _MAX_FOCAL_UNCERTAINTY:g} "
+                         f"%). Boards in two orientations, one of them facing the camera, or turned about one axis "
+                         f"along the image's rows or columns, leave it undetermined: tilt the board by tens of degrees "
+                         f"about different axes")
     logger.info("checkerboard calibration from %d images: rms %.3f px", len(img_points), rms)
     camera = Camera(K[0, 0], K[1, 1], K[0, 2], K[1, 2], width, height, dist=dist.ravel()[:5])
     return camera, float(rms)
