@@ -1,6 +1,7 @@
 """Calibration against known cameras: IR focal length from targets, checkerboards rendered with a
 known K, R, t (cv2.warpPerspective of a board texture, supersampled, blurred, noisy)."""
 
+import json
 import math
 
 import cv2
@@ -10,9 +11,10 @@ from scipy.spatial.transform import Rotation
 import torch
 
 from torch_atr.calibration import (_canonical_order, calibrate_checkerboard, camera_from_focal, draw_cubes,
-                                   find_checkerboard, floor_pose, focal_from_target)
+                                   find_checkerboard, floor_pose, focal_from_target, levelled_camera)
 from torch_atr.camera import Camera
 from torch_atr.data.checkerboard import calibration_poses, render_checkerboard
+from torch_atr.data.sequence import load_camera_json
 
 # ---------------------------------------------------------------- IR: focal length from targets
 
@@ -288,6 +290,62 @@ def test_boards_in_two_orientations_one_facing_the_camera_are_refused(turn):
     assert (camera.fx, camera.fy) == pytest.approx((K[0, 0], K[1, 1]), rel=0.01)
 
 
+DIST = np.array([-0.28, 0.09, 0.0012, -0.0008, 0.0])  # a wide-angle lens's barrel distortion (k1, k2, p1, p2, k3)
+
+
+@pytest.fixture(scope="module")
+def distorted_views():
+    """The calibration views through K with DIST: each fine (3 x 3) pixel takes the board's texture where
+    cv2.undistortPoints sends it (the pinhole pixel of its ray), area-averaged, blurred, noisy as ``_render``'s."""
+    ss = 3
+    Ks = K * [[ss], [ss], [1]]
+    Ks[:2, 2] += (ss - 1) / 2
+    u, v = np.meshgrid(np.arange(W * ss, dtype=np.float64), np.arange(H * ss, dtype=np.float64))
+    criteria = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-10)
+    pinhole = cv2.undistortPoints(np.stack([u, v], -1).reshape(-1, 1, 2), Ks, DIST, R=None, P=Ks, criteria=criteria)
+    pad = W * ss  # the pinhole image reaches beyond the distorted one's edges
+    map_u, map_v = (pinhole.reshape(H * ss, W * ss, 2)[..., k].astype(np.float32) + pad for k in (0, 1))
+    ppm, x0 = 2000.0, -2 * SQUARE  # texture pixels per metre; the white margin's corner
+    size = int(round((COLS + 3) * SQUARE * ppm)), int(round((ROWS + 3) * SQUARE * ppm))
+    i = np.floor(((np.arange(size[0]) + 0.5) / ppm + x0) / SQUARE)[None, :] + 1
+    j = np.floor(((np.arange(size[1]) + 0.5) / ppm + x0) / SQUARE)[:, None] + 1
+    texture = np.where((i >= 0) & (i <= COLS) & (j >= 0) & (j <= ROWS) & ((i + j) % 2 == 0), 25, 230).astype(np.uint8)
+    tex_to_board = np.array([[1 / ppm, 0, 0.5 / ppm + x0], [0, 1 / ppm, 0.5 / ppm + x0], [0, 0, 1]])
+    Kp = Ks + [[0, 0, pad], [0, 0, pad], [0, 0, 0]]
+    rng = np.random.default_rng(0)
+    out = []
+    for view in VIEWS:
+        R, t = _pose(*view, aim=rng.uniform(-0.04, 0.04, 3))
+        sharp = cv2.warpPerspective(texture, Kp @ np.column_stack([R[:, 0], R[:, 1], t]) @ tex_to_board,
+                                    (W * ss + 2 * pad, H * ss + 2 * pad), flags=cv2.INTER_LINEAR, borderValue=128)
+        fine = cv2.remap(sharp, map_u, map_v, cv2.INTER_LINEAR, borderValue=128)
+        img = cv2.GaussianBlur(cv2.resize(fine, (W, H), interpolation=cv2.INTER_AREA), (0, 0), 0.7)
+        corners, _ = cv2.projectPoints(CORNERS, cv2.Rodrigues(R)[0], t, K, DIST)
+        out.append((np.clip(img + rng.normal(0, 2.0, img.shape), 0, 255).astype(np.uint8), corners.reshape(-1, 2)))
+    return out
+
+
+def test_a_distorting_lens_is_recovered_as_opencv_recovers_it_from_exact_corners(distorted_views):
+    """Corners where cv2.projectPoints puts them through the distorted lens; the calibration against the true
+    camera and against cv2.calibrateCamera given those exact corners."""
+    for image, truth in distorted_views:
+        assert np.abs(find_checkerboard(image, PATTERN) - truth).max() < 0.15
+    camera, rms = calibrate_checkerboard([image for image, _ in distorted_views], PATTERN, SQUARE)
+    exact = [truth.astype(np.float32) for _, truth in distorted_views]
+    _, K_ref, dist_ref, _, _ = cv2.calibrateCamera([CORNERS.astype(np.float32)] * len(exact), exact, (W, H), None,
+                                                   None, flags=cv2.CALIB_FIX_K3)
+    assert rms < 0.1
+    for reference, dist in ((K, DIST), (K_ref, dist_ref.ravel())):
+        assert (camera.fx, camera.fy) == pytest.approx((reference[0, 0], reference[1, 1]), rel=2e-3)
+        assert (camera.cx, camera.cy) == pytest.approx((reference[0, 2], reference[1, 2]), abs=1.0)
+        assert camera.dist[0].item() == pytest.approx(dist[0], abs=0.01)
+    # The fitted lens takes the corner pixels to the rays the true lens does, within a pixel at the focal length.
+    pixels = np.concatenate([truth for _, truth in distorted_views])
+    rays = camera.pixel_rays(camera.undistort(torch.tensor(pixels))).numpy()[:, :2] * [1.0, -1.0]  # OpenCV's y down
+    np.testing.assert_allclose(rays, cv2.undistortPoints(pixels.reshape(-1, 1, 2), K, DIST).reshape(-1, 2),
+                               atol=1.0 / K[0, 0])
+
+
 def test_calibration_poses_hold_an_unmirrored_board_whose_corners_are_found_where_they_project():
     """The poses had det R = +1 in the sensor-like world: a mirrored board, whose corners were found
     170-220 px from where the pose put corners 0, 1, ... (the detector labels a real board)."""
@@ -368,3 +426,34 @@ def test_a_sign_mix_up_or_no_frame_is_named_not_returned():
     assert focal_from_target(right, 1000.0, principal_point=PP, position_xy=[[2.0, 0.0]]) == pytest.approx(1e4, 1e-3)
     with pytest.raises(ValueError, match="pixel_uv to hold at least one frame"):
         focal_from_target(np.zeros((0, 2)), np.zeros(0), principal_point=PP, position_xy=np.zeros((0, 2)))
+
+
+@pytest.mark.parametrize("yaw_deg", [0.0, 40.0, -130.0])
+def test_levelled_camera_of_a_hand_worked_floor_pose(yaw_deg, tmp_path):
+    """A camera 2 m above the floor at (0.3, -1, 2), tilted 30° down along the floor direction turned yaw_deg from +Y
+    towards +X, built as OpenCV's pose: levelled, it is the simulator's tilt matrix (scene_camera's) at height 2 m,
+    sees floor points where the posed camera does, and round-trips through a camera.json bit for bit."""
+    tilt, yaw = math.radians(30.0), math.radians(yaw_deg)
+    forward = np.array([math.sin(yaw), math.cos(yaw), 0.0])  # floor frame: X, Y on the floor, Z up
+    right = np.array([math.cos(yaw), -math.sin(yaw), 0.0])
+    axis = math.cos(tilt) * forward - math.sin(tilt) * np.array([0.0, 0.0, 1.0])
+    R_cv = np.stack([right, np.cross(axis, right), axis])  # rows: OpenCV camera x (right), y (down), z (optical axis)
+    assert np.cross(axis, right)[2] < 0  # y points down
+    centre = np.array([0.3, -1.0, 2.0])
+    dist = np.array([-0.1, 0.02, 0.0, 0.0, 0.0])
+    posed = Camera.from_opencv(K, dist, cv2.Rodrigues(R_cv)[0], -R_cv @ centre, W, H)
+    levelled, height = levelled_camera(posed)
+    assert height == pytest.approx(2.0, abs=1e-12)
+    c, s = math.cos(tilt), math.sin(tilt)
+    np.testing.assert_allclose(levelled.R.numpy(), [[1, 0, 0], [0, c, s], [0, -s, c]], atol=1e-12)
+    np.testing.assert_allclose(levelled.t.numpy(), 0.0, atol=1e-12)
+    # A floor point 6 m ahead and 1.5 m right: world (1.5, -2, 6) in the levelled frame.
+    floor_point = centre + 6.0 * forward + 1.5 * right - 2.0 * np.array([0.0, 0.0, 1.0])
+    uv_posed, _ = posed.project(torch.tensor(floor_point))
+    uv_levelled, _ = levelled.project(torch.tensor([1.5, -2.0, 6.0], dtype=torch.float64))
+    expected, _ = cv2.projectPoints(floor_point[None], cv2.Rodrigues(R_cv)[0], -R_cv @ centre, K, dist)
+    np.testing.assert_allclose(uv_posed.numpy(), expected.reshape(2), atol=1e-9)
+    np.testing.assert_allclose(uv_levelled.numpy(), expected.reshape(2), atol=1e-9)
+    path = tmp_path / "camera.json"
+    path.write_text(json.dumps(levelled.to_dict()), encoding="utf-8")
+    assert load_camera_json(path).to_dict() == levelled.to_dict()
