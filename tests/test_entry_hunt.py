@@ -109,3 +109,13 @@ def test_a_nul_byte_in_text_that_may_be_null_says_why(tmp_path):
     result = entry_point(str(REPO / "train.py"), "--config", "nul.yaml", cwd=tmp_path)
     assert result.returncode == 2 and result.stdout == ""
     assert result.stderr == "train.py: error: nul.yaml: checkpoint: expected text without a NUL byte; got 'a\\x00b'\n"
+
+
+@pytest.mark.parametrize("args, key", [(["--out", ""], "out"), (["out= "], "out"), (["--checkpoint", ""], "checkpoint")])
+def test_an_empty_path_is_refused_not_read_as_the_current_folder(tmp_path, args, key):
+    """``--out ''`` wrote the run's files straight into the current folder when it was empty (Path('')
+    is '.'), and named '.' when it was not; ``--checkpoint ''`` read '.: expected a checkpoint file'."""
+    result = entry_point(str(REPO / "track.py"), *args, "--frames", "1", "--particles", "5", cwd=tmp_path)
+    assert result.returncode == 2 and result.stdout == ""
+    assert result.stderr.endswith(f"track.py: error: {key} must be a path; got '{' ' if args == ['out= '] else ''}'\n")
+    assert list(tmp_path.iterdir()) == []
