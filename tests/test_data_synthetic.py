@@ -342,6 +342,20 @@ def test_config_errors_name_the_field():
         SyntheticSequence("t_72", {"frames": 3})
 
 
+def test_python_values_of_the_wrong_kind_are_named():
+    """SceneConfig(night="false") ran a night scene and clockwise="false" a clockwise one (a non-empty string is
+    truthy); frames=2.5, seed=1.5 and width=160.0 failed later in len(), the noise generator or torch.randn with a
+    TypeError naming none of them. (Specs and files are typed by load_config before SceneConfig sees them.)"""
+    for key, value, kind in (("night", "false", "true or false"), ("clockwise", "false", "true or false"),
+                             ("frames", 2.5, "an integer"), ("seed", 1.5, "an integer"), ("width", 160.0, "an integer"),
+                             ("frames", True, "an integer"), ("range_m", "1000", "a number"),
+                             ("tilt_deg", True, "a number or null"), ("band", None, "text")):
+        with pytest.raises(ConfigError, match=re.escape(f"{key}={value!r} (expected {kind})")):
+            SceneConfig(**{key: value})
+    numpy_typed = SceneConfig(frames=np.int64(3), fps=np.float64(30.0), night=np.False_, **SMALL)
+    assert len(SyntheticSequence("isuzu_rodeo", numpy_typed)) == 3 and not numpy_typed.night
+
+
 @pytest.mark.parametrize("option, words", [
     ("width=100000", r"width=100000 \(expected in \[1, 4096\]\)"),
     ("height=4096,width=4096", r"width x height at most 4194304"),

@@ -108,6 +108,7 @@ from __future__ import annotations
 import dataclasses
 import logging
 import math
+import numbers
 import os
 from dataclasses import dataclass
 from pathlib import Path
@@ -236,6 +237,7 @@ class SceneConfig:
     seed: int = 0
 
     def __post_init__(self) -> None:
+        self._check_types()
         r = self.circle_diameter_m / 2
         visible = self.band == "visible"
         gap = _VISIBLE_GAP_M if visible else 2 * _OCCLUDER_GAP_M  # the IR's leaves room for the occluder
@@ -289,6 +291,30 @@ class SceneConfig:
                            f"null or in [-{_MAX_K:g}, {_MAX_K:g}] K" if key == "top_delta_k"
                            else f"null or in ({ZERO_COUNT_K:g}, {_MAX_K:g}] K")
         bad = [f"{k}={show(getattr(self, k))} (expected {why})" for k, (ok, why) in checks.items() if not ok]
+        if bad:
+            raise ConfigError("scene: bad value(s) " + "; ".join(bad))
+
+    def _check_types(self) -> None:
+        """ConfigError naming every field whose value is not of its kind: true or false for night and
+        clockwise (the string 'false' is truthy: night='false' ran a night scene), an integer for frames,
+        width, height and seed, text for band, a real number (or None where the field allows it) for the
+        rest. Files and specs are typed by :func:`~torch_atr.config.load_config`; this catches the
+        SceneConfig(...) of Python code."""
+        bad = []
+        for f in dataclasses.fields(self):
+            value = getattr(self, f.name)
+            if f.name in ("night", "clockwise"):
+                ok, kind = isinstance(value, (bool, np.bool_)), "true or false"
+            elif f.name in ("frames", "width", "height", "seed"):
+                ok, kind = isinstance(value, numbers.Integral) and not isinstance(value, bool), "an integer"
+            elif f.name == "band":
+                ok, kind = isinstance(value, str), "text"
+            else:
+                optional = "None" in str(f.type)
+                ok = (value is None and optional) or (isinstance(value, numbers.Real) and not isinstance(value, bool))
+                kind = "a number or null" if optional else "a number"
+            if not ok:
+                bad.append(f"{f.name}={show(value)} (expected {kind})")
         if bad:
             raise ConfigError("scene: bad value(s) " + "; ".join(bad))
 
