@@ -119,3 +119,17 @@ def test_an_empty_path_is_refused_not_read_as_the_current_folder(tmp_path, args,
     assert result.returncode == 2 and result.stdout == ""
     assert result.stderr.endswith(f"track.py: error: {key} must be a path; got '{' ' if args == ['out= '] else ''}'\n")
     assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("written, read", [("yes", "True"), ("off", "False"), ("2024", "2024"), ("1.5", "1.5"),
+                                           ("2024-01-01", r"datetime.date\(2024, 1, 1\)"), ("1e3", "1000.0")])
+@pytest.mark.parametrize("key", ["name", "checkpoint"])  # text; text or null
+def test_a_text_key_given_what_yaml_reads_as_another_type_says_to_quote_it(tmp_path, written, read, key):
+    """YAML 1.1 reads ``name: yes`` as true and ``name: 2024-01-01`` as a date: the line read
+    "name: expected a string; got True" for what the user wrote as text."""
+    from torch_atr.config import load_config
+    from torch_atr.training import TrainConfig
+
+    (tmp_path / "c.yaml").write_text(f"{key}: {written}\n")
+    with pytest.raises(ConfigError, match=rf"c.yaml: {key}: expected .*; got {read} \(quote it for text\)$"):
+        load_config(TrainConfig, tmp_path / "c.yaml")

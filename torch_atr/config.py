@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import copy
 import dataclasses
+import datetime
 import difflib
 import math
 import re
@@ -60,6 +61,8 @@ class TemplateConfig:
         return self.window_m / self.size_px
 
 
+# What YAML 1.1 reads from unquoted text that looks like another type: a number, yes/no/on/off, a date.
+_UNQUOTED_TEXT = (int, float, datetime.date)
 _KINDS = {bool: "true/false", int: "an integer", float: "a number", str: "text", type(None): "null"}
 
 
@@ -82,7 +85,7 @@ def check_type(key: str, value: Any, tp: Any) -> Any:
                     raise exc from None
                 continue
         arms = typing.get_args(tp)
-        quote = " (quote it for text)" if str in arms and isinstance(value, (int, float)) else ""
+        quote = " (quote it for text)" if str in arms and isinstance(value, _UNQUOTED_TEXT) else ""
         raise ConfigError(f"{key}: expected {' or '.join(_describe(arm) for arm in arms)}; got {show(value)}{quote}")
     if tp is type(None):
         if value is None:
@@ -128,7 +131,8 @@ def check_type(key: str, value: Any, tp: Any) -> Any:
             raise ConfigError(f"{key}: expected text without a NUL byte; got {show(value)}")
         if isinstance(value, str):
             return value
-        raise ConfigError(f"{key}: expected a string; got {show(value)}")
+        quote = " (quote it for text)" if isinstance(value, _UNQUOTED_TEXT) else ""
+        raise ConfigError(f"{key}: expected a string; got {show(value)}{quote}")
     raise ConfigError(f"{key}: unsupported config type {tp}")
 
 
