@@ -368,6 +368,11 @@ def test_python_values_of_the_wrong_kind_are_named():
     ("range=1e400", "option range_m=1e400: range_m: expected a finite number; got inf"),
     ("seed=true", "seed: expected an integer; got True"),
     ("night=1", "night: expected true/false; got 1"),
+    # The circle's angle and the turret's phase overflowed: NaN poses reported as 'the vehicle reaches behind the
+    # camera' (fps, circle_diameter_m), and 'math domain error' (turret_period_s).
+    ("fps=5e-324", r"fps=5e-324 \(expected in \[0.001, 10000\]\)"),
+    ("circle_diameter_m=1e-300,fps=1e-10", r"circle_diameter_m=1e-300 \(expected in \[0.001, 10000\]\)"),
+    ("turret_sweep_deg=30,turret_period_s=1e-300,fps=1e-3", r"turret_period_s=1e-300 \(expected >= 0.001\)"),
 ])
 def test_spec_values_are_bounded(option, words):
     spec = f"vehicle=t_72,{option}"

@@ -153,6 +153,10 @@ _OCCLUDER_BUMPS_M = 1.5  # spacing of the occluder's top profile samples
 _PSF_TRUNCATE = 4.0  # Gaussian kernels reach 4 σ
 _SUPERSAMPLE = 3  # the target's radiance is averaged over 3 x 3 sub-samples per pixel
 _MAX_BLUR_PX = 100.0  # Gaussian σ of the PSF and the clutter: kernels of at most 801 taps
+# Least fps, circle_diameter_m and turret_period_s: the circle's angle (speed_mps / radius / fps per frame) and the
+# turret's phase then stay finite over 10**7 frames (fps=5e-324 made it inf · 0 = NaN at frame 0, which was
+# reported as 'the vehicle reaches behind the camera'; turret_period_s=1e-300 gave sin(inf), 'math domain error').
+_MIN_TIME_OR_SIZE = 1e-3
 # Memory bounds of one rendered frame (measured: a 512 px target in a 2048 x 2048 frame peaks ~0.6 GB above the
 # process's baseline, a 1024 px one in a 2048 x 2048 frame 2 GB).
 MAX_TARGET_PX = 512  # the vehicle's 3D diagonal at the circle's nearest point, in pixels (rendered x 3 x 3)
@@ -245,9 +249,9 @@ class SceneConfig:
             "band": (self.band in BANDS, f"one of {BANDS}"),
             "range_m": (self.range_m - r > gap and self.range_m <= 1e5,
                         f"at most 100 km, more than circle_diameter_m / 2 + {gap:g} m"),
-            "circle_diameter_m": (0 < self.circle_diameter_m <= 1e4, "in (0, 10000]"),
+            "circle_diameter_m": (_MIN_TIME_OR_SIZE <= self.circle_diameter_m <= 1e4, "in [0.001, 10000]"),
             "frames": (1 <= self.frames <= 10 ** 7, "in [1, 10**7]"),
-            "fps": (0 < self.fps <= 1e4, "in (0, 10000]"),
+            "fps": (_MIN_TIME_OR_SIZE <= self.fps <= 1e4, "in [0.001, 10000]"),
             "speed_mps": (0 <= self.speed_mps <= 1e3, "in [0, 1000]"),
             "start_deg": (self.start_deg is None or math.isfinite(self.start_deg), "finite or null"),
             "width": (1 <= self.width <= MAX_FRAME_SIDE, f"in [1, {MAX_FRAME_SIDE}]"),
@@ -275,7 +279,7 @@ class SceneConfig:
                                  or 0 < self.occluder_range_m <= self.range_m - r - _OCCLUDER_GAP_M,
                                  f"null or in (0, range_m - circle_diameter_m / 2 - {_OCCLUDER_GAP_M:g}]"),
             "turret_sweep_deg": (math.isfinite(self.turret_sweep_deg), "finite"),
-            "turret_period_s": (0 < self.turret_period_s < math.inf, "positive"),
+            "turret_period_s": (_MIN_TIME_OR_SIZE <= self.turret_period_s < math.inf, ">= 0.001"),
             "light_azimuth_deg": (math.isfinite(self.light_azimuth_deg), "finite"),
             "light_elevation_deg": (0 < self.light_elevation_deg <= 90, "in (0, 90]"),
             "ambient": (0 <= self.ambient <= 1, "in [0, 1]"),
