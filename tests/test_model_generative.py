@@ -403,6 +403,24 @@ def test_fit_rejects_non_finite_views_and_validation_templates(data, key, messag
                                  val_theta=inputs["val_theta"], val_phi=inputs["val_phi"])
 
 
+
+@pytest.mark.parametrize("key", ["phi", "centres_phi", "val_phi"])
+def test_fit_refuses_elevations_in_degrees(data, key):
+    """Elevations given in degrees (0, 20, 40) fitted, without a word, a model of meaningless views (cos 40 < 0
+    put the top row on the far side); an elevation is in [-π/2, π/2] radians, the zenith included."""
+    views = {name: data[name] for name in ("phi", "val_phi")}
+    views["centres_phi"] = data["phi"]
+    views[key] = views[key].rad2deg()
+    with pytest.raises(ValueError, match=rf"Expected {key} to be elevations in \[-π/2, π/2\] radians; got values "
+                                         r"up to [34]0 \(degrees\?\)"):
+        GenerativeShapeModel.fit(data["templates"], data["theta"], views["phi"], NAMES, CLASSES, ["car", "tank"],
+                                 TEMPLATE, ModelConfig(pixel_rank=8, width_steps=1),
+                                 centres=(data["theta"], views["centres_phi"]), val_templates=data["val"],
+                                 val_theta=data["val_theta"], val_phi=views["val_phi"])
+    zenith = torch.full_like(data["phi"], math.pi / 2).where(data["phi"] > 0.6, data["phi"])  # the top row at 90°
+    GenerativeShapeModel.fit(data["templates"], data["theta"], zenith, NAMES, CLASSES, ["car", "tank"], TEMPLATE,
+                             ModelConfig(pixel_rank=8))
+
 @pytest.mark.parametrize("key", ["theta", "val_theta", "train", "val"])
 def test_fine_tune_widths_rejects_non_finite_inputs(model, data, key):
     inputs = {"theta": data["theta"].clone(), "val_theta": data["val_theta"].clone(),

@@ -42,6 +42,7 @@ _MODEL_ARG_KEYS = ("num_centres", "num_vehicles", "pixel_rank", "vehicle_names",
 _CHECKPOINT_KEYS = {"format", "format_version", "torch_atr_version", "model_args", "state_dict", "extra", "sha256"}
 _FLOAT_DTYPES = (torch.float32, torch.float64)
 MAX_ABS_VALUE = 1e6  # |x| of any stored float (the shipped model's largest is 262): reconstructions stay finite
+MAX_ELEVATION = math.pi / 2 + 1e-6  # |φ| of a view (radians) that fit takes (float32 rounds π/2 up)
 LOG_WIDTH_RANGE = (-20.0, 20.0)  # kernel widths exp(log_width) stay positive and finite in float32
 _INDEX_KEYS = ("identity.order", "identity.labels")  # int64; every other tensor is floating
 
@@ -164,7 +165,12 @@ class GenerativeShapeModel(nn.Module):
         wide = templates.to(torch.float64)
 
         def as_wide(name: str, x) -> torch.Tensor:
-            return check_finite(name, as_float_tensor(name, x, like=wide).to(wide), "radians")
+            angles = check_finite(name, as_float_tensor(name, x, like=wide).to(wide), "radians")
+            # Elevations in degrees (0-40) fitted a model of meaningless views (cos 40 < 0: the far side).
+            if name.endswith("phi") and angles.numel() and angles.abs().max().item() > MAX_ELEVATION:
+                raise ValueError(f"Expected {name} to be elevations in [-π/2, π/2] radians; got values up to "
+                                 f"{angles.abs().max().item():.6g} (degrees?)")
+            return angles
 
         theta, phi = as_wide("theta", theta), as_wide("phi", phi)
         check_shape("theta", theta, (V,))
