@@ -75,8 +75,8 @@ def test_a_list_option_given_twice_takes_both(tmp_path, no_work, option, values,
 def test_a_scene_key_given_twice_with_two_values_is_refused(tmp_path, no_work):
     """``--scene night=true ... --scene night=false`` ran the later alone, without a word."""
     with pytest.raises(ConfigError, match=r"^scene overrides 'night=true' and 'night=false' both set night; give one$"):
-        experiments.main(["sensiac-like", "--out", str(tmp_path / "out"), "--scene", "night=true", "turret_sweep_deg=60",
-                          "--scene", "night=false"])
+        experiments.main(["sensiac-like", "--out", str(tmp_path / "out"), "--scene", "night=true",
+                          "turret_sweep_deg=60", "--scene", "night=false"])
 
 
 @pytest.mark.parametrize("experiment", ["sensiac-like", "unseen", "studies", "visible"])
@@ -111,7 +111,8 @@ def test_a_nul_byte_in_text_that_may_be_null_says_why(tmp_path):
     assert result.stderr == "train.py: error: nul.yaml: checkpoint: expected text without a NUL byte; got 'a\\x00b'\n"
 
 
-@pytest.mark.parametrize("args, key", [(["--out", ""], "out"), (["out= "], "out"), (["--checkpoint", ""], "checkpoint")])
+@pytest.mark.parametrize("args, key", [(["--out", ""], "out"), (["out= "], "out"),
+                                       (["--checkpoint", ""], "checkpoint")])
 def test_an_empty_path_is_refused_not_read_as_the_current_folder(tmp_path, args, key):
     """``--out ''`` wrote the run's files straight into the current folder when it was empty (Path('')
     is '.'), and named '.' when it was not; ``--checkpoint ''`` read '.: expected a checkpoint file'."""
@@ -133,3 +134,16 @@ def test_a_text_key_given_what_yaml_reads_as_another_type_says_to_quote_it(tmp_p
     (tmp_path / "c.yaml").write_text(f"{key}: {written}\n")
     with pytest.raises(ConfigError, match=rf"c.yaml: {key}: expected .*; got {read} \(quote it for text\)$"):
         load_config(TrainConfig, tmp_path / "c.yaml")
+
+
+@pytest.mark.parametrize("override, meant", [("partciles=10", "tracker.filter.particles"),
+                                             ("tracker.partciles=10", "tracker.filter.particles"),
+                                             ("sigam=0.03", "tracker.filter.sigma"),
+                                             ("resample_es=0.5", "tracker.filter.resample_ess")])
+def test_a_misspelt_key_of_a_section_below_is_suggested(override, meant):
+    """``particles=10`` was suggested tracker.filter.particles, but ``partciles=10`` nothing."""
+    from torch_atr.config import load_config
+    from torch_atr.tracking.job import TrackConfig
+
+    with pytest.raises(ConfigError, match=rf"unknown config key.*\(did you mean {meant}\?\)$"):
+        load_config(TrackConfig, None, [override])

@@ -157,6 +157,15 @@ def _homes(cls: type, key: Any, prefix: str = "") -> list[str]:
     return homes
 
 
+def _names_below(tp: Any) -> set[str]:
+    """The names of the fields of the section ``tp`` and of the sections below it; none for a key that
+    is not a section."""
+    if not dataclasses.is_dataclass(tp):
+        return set()
+    hints = typing.get_type_hints(tp)
+    return {name for f in dataclasses.fields(tp) for name in (f.name, *_names_below(hints[f.name]))}
+
+
 def _nearest(key: str, names: list[str]) -> list[str]:
     """The names ``key`` most likely meant: those it begins (speed -> speed_frames, speed_mps, ...),
     else the closest spelling (partciles -> particles); [] when none is close."""
@@ -171,8 +180,11 @@ def _build(cls: type[T], data: dict, prefix: str = "", base: Any = None) -> T:
     fields = {f.name: f for f in dataclasses.fields(cls)}
     unknown = sorted(set(data) - set(fields), key=str)
     if unknown:
-        homes = [home for key in unknown for home in _homes(cls, key, prefix)] or [
-            prefix + near for key in unknown for near in _nearest(str(key), sorted(fields))]
+        below = sorted({name for key in fields for name in _names_below(hints[key])})
+        homes = ([home for key in unknown for home in _homes(cls, key, prefix)]
+                 or [prefix + near for key in unknown for near in _nearest(str(key), sorted(fields))]
+                 or [home for key in unknown for near in difflib.get_close_matches(str(key), below, n=1)
+                     for home in _homes(cls, near, prefix)])
         raise ConfigError(f"unknown config key(s) {', '.join(cut(prefix + str(k)) for k in unknown)}; "
                           f"known: {', '.join(prefix + k for k in sorted(fields))}"
                           + (f" (did you mean {' or '.join(homes)}?)" if homes else ""))
