@@ -139,6 +139,39 @@ def test_determinism_and_random_access():
     assert not np.array_equal(sequential[3], sequential[4])
 
 
+def test_frames_neither_read_nor_advance_the_global_random_generators():
+    """The scene's seed and a tracker's (which seeds torch's generators) are independent: the frames are the
+    same whatever torch's and NumPy's global state, and reading them leaves that state as it was."""
+    cfg = SceneConfig(frames=3, seed=2, **SMALL)
+    frames = []
+    for global_seed in (0, 1):
+        torch.manual_seed(global_seed)
+        np.random.seed(global_seed)
+        before = torch.get_rng_state(), np.random.get_state()[1].copy()
+        seq = SyntheticSequence("brdm_2", cfg)
+        frames.append([seq.frame(i) for i in range(3)] + list(seq.warmup_frames(2)))
+        assert torch.equal(torch.get_rng_state(), before[0]) and np.array_equal(np.random.get_state()[1], before[1])
+    for a, b in zip(*frames):
+        np.testing.assert_array_equal(a, b)
+
+
+@pytest.mark.parametrize("clockwise", [True, False])
+def test_runs_of_one_and_two_frames_are_centred_on_the_near_point(clockwise):
+    """start_deg=None: one frame at the near point, side-on; two frames straddling it, one frame's step apart."""
+    sign = 1.0 if clockwise else -1.0
+    one = SyntheticSequence("isuzu_rodeo", SceneConfig(frames=1, clockwise=clockwise, **SMALL)).truth(0)
+    assert (one.x, one.z) == pytest.approx((0.0, 950.0), abs=1e-9)
+    assert one.heading == pytest.approx(math.pi + sign * math.pi / 2)  # moving left (clockwise) or right
+    assert one.theta == pytest.approx(math.pi / 2 if clockwise else 3 * math.pi / 2)  # left or right side seen
+    seq = SyntheticSequence("isuzu_rodeo", SceneConfig(frames=2, clockwise=clockwise, **SMALL))
+    a, b = seq.truth(0), seq.truth(1)
+    half = 5.0 / 50.0 / 30.0 / 2  # half a frame's angle on the circle: speed / radius / fps / 2
+    assert (a.x, b.x) == pytest.approx((sign * 50 * math.sin(half), -sign * 50 * math.sin(half)), abs=1e-12)
+    assert a.z == pytest.approx(b.z) and a.z == pytest.approx(1000.0 - 50 * math.cos(half))
+    assert math.hypot(b.x - a.x, b.z - a.z) == pytest.approx(2 * 50 * math.sin(half))  # the chord of one step
+    assert (b.time_s - a.time_s) == pytest.approx(1 / 30)
+
+
 def test_background_is_static_and_noise_is_white():
     seq = SyntheticSequence("zsu_23_4", SceneConfig(frames=2))
     warm = [w.astype(np.float64) for w in seq.warmup_frames(2)]
