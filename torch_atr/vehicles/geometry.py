@@ -9,6 +9,7 @@ the side profiles the builder sweeps.
 
 from __future__ import annotations
 
+import math
 from typing import Sequence
 
 import numpy as np
@@ -73,6 +74,8 @@ def loft(ring0: np.ndarray, ring1: np.ndarray, cap: np.ndarray) -> Part:
 
     Returns:
         (vertices (2n, 3), faces (4n - 4, 3)) oriented with outward normals (positive volume).
+
+    Raises ValueError for a solid without volume (coinciding rings).
     """
     ring0, ring1, cap = (np.asarray(a, dtype=np.float64) for a in (ring0, ring1, cap))
     n = len(cap)
@@ -86,15 +89,23 @@ def loft(ring0: np.ndarray, ring1: np.ndarray, cap: np.ndarray) -> Part:
     sides = np.concatenate([np.stack([i, j, n + j], 1), np.stack([i, n + j, n + i], 1)])
     faces = np.concatenate([tri[:, ::-1], sides, tri + n])
     verts = np.concatenate([ring0, ring1])
-    if volume(verts, faces) < 0:
-        faces = faces[:, ::-1]
-    return verts, np.ascontiguousarray(faces)
+    return _outwards(verts, faces, "loft")
 
 
 def volume(verts: np.ndarray, faces: np.ndarray) -> float:
     """Signed volume of a closed triangle mesh (divergence theorem); verts (M, 3), faces (F, 3)."""
     a, b, c = verts[faces[:, 0]], verts[faces[:, 1]], verts[faces[:, 2]]
     return float(np.einsum("ij,ij->i", a, np.cross(b, c)).sum() / 6.0)
+
+
+def _outwards(verts: np.ndarray, faces: np.ndarray, what: str) -> Part:
+    """Flip ``faces`` if needed so that the closed mesh has a positive volume; a mesh that encloses
+    no volume (rings that coincide, a zero width, non-finite vertices) is a ValueError naming ``what``."""
+    v = volume(verts, faces)
+    if not (math.isfinite(v) and abs(v) > _EPS):
+        raise ValueError(f"{what}: the solid encloses no volume ({v} m^3): coinciding rings, a zero width "
+                         f"or a non-finite vertex")
+    return verts, np.ascontiguousarray(faces if v > 0 else faces[:, ::-1])
 
 
 def prism_xz(profile: Sequence[tuple[float, float]], half_width: float | Sequence[float], y0: float = 0.0) -> Part:
@@ -106,9 +117,16 @@ def prism_xz(profile: Sequence[tuple[float, float]], half_width: float | Sequenc
             line narrower than those on a belt line keep every face planar when each edge
             joins vertices of equal half-width or is parallel to another edge).
         y0: y of the symmetry plane.
+
+    Raises ValueError for a half-width that is not positive or a count of them other than 1 or n.
     """
     p = np.asarray(profile, dtype=np.float64)
-    w = np.broadcast_to(np.asarray(half_width, dtype=np.float64), (len(p),))
+    w = np.asarray(half_width, dtype=np.float64)
+    if w.ndim > 1 or w.size not in (1, len(p)):
+        raise ValueError(f"Expected one half_width or {len(p)} (one per profile point); got shape {w.shape}")
+    if not np.all(w > 0):
+        raise ValueError(f"Expected positive half_width(s); got {w.tolist()}")
+    w = np.broadcast_to(w, (len(p),))
     left = np.stack([p[:, 0], y0 + w, p[:, 1]], 1)
     right = np.stack([p[:, 0], y0 - w, p[:, 1]], 1)
     return loft(right, left, p)
@@ -140,6 +158,8 @@ def sweep(rings: Sequence[Sequence[Sequence[float]]] | np.ndarray) -> Part:
 
     Returns:
         (vertices (S·n + 2, 3), faces (2·n·S, 3)) oriented with outward normals (positive volume).
+
+    Raises ValueError for a solid without volume (all rings in one place: a zero-length sweep).
     """
     rings = np.asarray(rings, dtype=np.float64)
     if rings.ndim != 3 or rings.shape[0] < 2 or rings.shape[1] < 3 or rings.shape[2] != 3:
@@ -154,9 +174,7 @@ def sweep(rings: Sequence[Sequence[Sequence[float]]] | np.ndarray) -> Part:
     faces = np.concatenate([sides.reshape(-1, 3), *caps])
     verts = np.concatenate([rings.reshape(-1, 3), rings[0].mean(axis=0, keepdims=True),
                             rings[-1].mean(axis=0, keepdims=True)])
-    if volume(verts, faces) < 0:
-        faces = faces[:, ::-1]
-    return verts, np.ascontiguousarray(faces)
+    return _outwards(verts, faces, "sweep")
 
 
 def fillet(points: Sequence[tuple[float, float]], radius: float | Sequence[float], arc: int = 3
