@@ -147,3 +147,10 @@ def test_a_misspelt_key_of_a_section_below_is_suggested(override, meant):
 
     with pytest.raises(ConfigError, match=rf"unknown config key.*\(did you mean {meant}\?\)$"):
         load_config(TrackConfig, None, [override])
+
+
+def test_a_tracker_override_written_as_track_py_takes_it_says_how_to_write_it(tmp_path, no_work):
+    """track.py's keys start with tracker.; the experiments' are the tracker's own. The line read
+    "unknown config key(s) tracker; known: adapt, filter, ..." and suggested nothing."""
+    with pytest.raises(ConfigError, match=r"^override 'tracker.filter.sigma=0.1': .*; give 'filter.sigma=0.1'$"):
+        experiments.main(["sensiac-like", "--out", str(tmp_path / "out"), "tracker.filter.sigma=0.1"])

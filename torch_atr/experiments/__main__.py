@@ -113,6 +113,10 @@ def check_tracker_overrides(overrides: list[str]) -> None:
     refuses them, or that set a key of ``SET_BY_OPTIONS``: the experiment lays its own values under the
     overrides, so the override would win while the report stated the option's (every column of Table
     6.1 run with filter.method=IV; the studies' 250 to 16 000 particles all run with filter.particles)."""
+    for item in overrides:
+        if item.startswith("tracker."):  # track.py's form: its config holds the tracker's under tracker
+            raise ConfigError(f"override {show(item)}: the experiments take the tracker's own keys; give "
+                              f"{show(item.removeprefix('tracker.'))}")
     for item, key, _ in override_leaves(TrackerConfig, overrides, unique=True):
         if key in SET_BY_OPTIONS:
             raise ConfigError(f"override {show(item)}: {key} is set by the experiment from {SET_BY_OPTIONS[key]} "
