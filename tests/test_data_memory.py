@@ -9,6 +9,7 @@ import pytest
 
 from torch_atr.camera import Camera
 from torch_atr.data import ArraySequence, open_sequence, save_sequence
+from torch_atr.data.sequence import FrameTruth
 from torch_atr.data.synthetic import SceneConfig, SyntheticSequence
 from torch_atr.validate import InputError
 
@@ -77,3 +78,18 @@ def test_bad_arrays_are_named():
             ArraySequence(*args, **kwargs)
     seq = ArraySequence([grey], camera=camera)
     assert math.isnan(seq.fps) and math.isnan(seq.camera_height_m) and seq.truth(0) is None
+
+
+def test_the_callers_lists_changed_later_do_not_change_the_sequence():
+    """Frames and truths were checked when the sequence was made but the caller's lists were kept: a frame of
+    another shape appended later was read as frame 2 (length 3, while truth(2) raised a bare IndexError), and a
+    truth replaced later was returned. The frame arrays themselves are still not copied."""
+    frames = [np.zeros((4, 6), np.uint8), np.ones((4, 6), np.uint8)]
+    truths = [FrameTruth(x=0.0), FrameTruth(x=1.0)]
+    seq = ArraySequence(frames, truths=truths)
+    frames.append(np.zeros((9, 9), np.uint16))
+    truths[1] = FrameTruth(x=5.0)
+    assert len(seq) == 2 and seq.truth(1) == FrameTruth(x=1.0) and seq.truth(-1).x == 1.0
+    with pytest.raises(IndexError, match="frame index 2 out of range for a sequence of 2 frames"):
+        seq.frame(2)
+    np.testing.assert_array_equal(seq.frame(-1), np.ones((4, 6), np.uint8))

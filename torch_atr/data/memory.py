@@ -26,8 +26,8 @@ class ArraySequence(Sequence):
 
     Args:
         frames: (T, H, W) or (T, H, W, 3) array, or a list of T frames of one shape and dtype
-            (uint8, uint16, float32 or float64; colour in RGB order), T >= 1. Kept as given, not
-            copied; :meth:`frame` returns a copy.
+            (uint8, uint16, float32 or float64; colour in RGB order), T >= 1. The frames are kept as
+            given, not copied (the list is); :meth:`frame` returns a copy.
         camera: the frames' calibrated camera (of their size, world frame sensor-like as the
             tracker's: ``pose.check_sensor_like``), or None: uncalibrated.
         fps: frames per second; None: unknown (the tracker then takes ``tracker.filter.fps``).
@@ -82,7 +82,8 @@ class ArraySequence(Sequence):
                                    lo_open=True)
         if not isinstance(name, str) or not name.strip():
             raise InputError(f"name: expected a non-empty string; got {show(name)}")
-        self._frames, self._truths = frames, truths
+        # The lists are copied (not the frames): a frame or truth the caller changes later is not one checked here.
+        self._frames, self._truths = tuple(frames), None if truths is None else tuple(truths)
         self.camera, self.name = camera, name
         self.fps = math.nan if fps is None else check_fps(fps, "ArraySequence")
         self.camera_height_m = math.nan if camera_height_m is None else float(camera_height_m)
