@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from torch_atr.vehicles.geometry import prism_xz, sweep
+from torch_atr.vehicles.geometry import fillet, prism_xz, sweep
 
 
 # ------------------------------------------------------------------------------------------
@@ -49,3 +49,35 @@ def test_solids_without_volume_are_refused():
             prism_xz(square, width)
     with pytest.raises(ValueError, match=r"one half_width or 4 \(one per profile point\); got shape \(2,\)"):
         prism_xz(square, [0.5, 0.6])
+
+
+def test_fillet_arc_points_lie_on_the_tangent_circle():
+    """A 90-degree corner at (2, 0) between (0, 0) and (2, 2), radius 0.5: the fillet centre is (1.5, 0.5)
+    (hand-worked), every arc point is 0.5 from it and the arc runs between the tangent points (1.5, 0) and
+    (2, 0.5); a 60-degree corner's centre lies r / sin(30 deg) = 2 r along the bisector."""
+    out = np.array(fillet([(0.0, 0.0), (2.0, 0.0), (2.0, 2.0)], 0.5, arc=7))
+    np.testing.assert_allclose(np.linalg.norm(out[1:-1] - [1.5, 0.5], axis=1), 0.5, atol=1e-12)
+    np.testing.assert_allclose(out[[1, -2]], [[1.5, 0.0], [2.0, 0.5]], atol=1e-12)
+    corner = np.array([3.0, 0.0])
+    far = corner + 3.0 * np.array([math.cos(math.radians(120)), math.sin(math.radians(120))])
+    out = np.array(fillet([(0.0, 0.0), tuple(corner), tuple(far)], 0.4, arc=4))
+    centre = corner + 2 * 0.4 * np.array([math.cos(math.radians(150)), math.sin(math.radians(150))])
+    np.testing.assert_allclose(np.linalg.norm(out[1:-1] - centre, axis=1), 0.4, atol=1e-12)
+
+
+@pytest.mark.parametrize("points, radius, arc, message", [
+    ([(0.0, 0.0), (0.0, 0.0), (1.0, 1.0)], 0.3, 3, r"points 0 and 1 coincide at \(0.0, 0.0\)"),
+    ([(0.0, 0.0), (1.0, 0.0), (0.0, 0.0)], 0.3, 3, r"corner 1 at \(1.0, 0.0\) turns straight back"),
+    ([(0.0, 0.0), (1.0, 0.0), (1.0, 1.0), (2.0, 1.0)], [0.1, 0.2, 0.3], 3, r"one radius or 2 \(one per interior"),
+    ([(0.0, 0.0), (1.0, 0.0), (1.0, 1.0)], -0.2, 3, "radii >= 0; got -0.2"),
+    ([(0.0, 0.0), (1.0, 0.0), (1.0, 1.0)], 0.2, 1, "arc >= 2 points per arc; got 1"),
+    ([(0.0, 0.0)], 0.2, 3, r"shape \(m>=2, 2\)"),
+    ([], 0.2, 3, r"shape \(m>=2, 2\)"),
+])
+def test_fillet_refuses_degenerate_input(points, radius, arc, message):
+    """A repeated point or a corner turning straight back returned NaN points (0 / 0) that went on into the
+    OBJ as 'nan'; a wrong radius count raised numpy's broadcast error; a negative radius was read as 0,
+    arc = 1 kept only the first tangent point (a cut corner, not an arc), one point came back twice and
+    none raised an IndexError. Each is now a ValueError saying what is wrong."""
+    with pytest.raises(ValueError, match=message):
+        fillet(points, radius, arc=arc)

@@ -181,24 +181,46 @@ def fillet(points: Sequence[tuple[float, float]], radius: float | Sequence[float
            ) -> list[tuple[float, float]]:
     """Round the interior corners of an open polyline by circular arcs.
 
-    Each interior corner becomes ``arc`` points on the arc tangent to both of its segments; the
-    radius shrinks where a segment is too short for it (to 0.45 of the shorter one). End
-    points and straight corners are kept.
+    Each interior corner becomes ``arc`` points on the arc tangent to both of its segments, from
+    the tangent point on the incoming segment to the one on the outgoing segment. Where a
+    segment is too short for the radius, the radius shrinks until each tangent point is 0.45 of
+    the shorter segment from the corner (so two arcs on one segment never overlap). End points
+    and straight corners are kept.
 
     Args:
-        points: m >= 2 points (x, y) of the polyline.
-        radius: one radius for every corner, or m - 2 radii (0 keeps a corner sharp).
+        points: (m, 2) points (x, y) of the polyline, m >= 2, consecutive points distinct.
+        radius: one radius for every corner, or m - 2 radii (0 keeps a corner sharp), each >= 0.
+        arc: points per arc, >= 2.
     Returns:
         the rounded polyline's points.
+
+    Raises ValueError for the wrong number of radii, a negative radius, ``arc`` < 2, a repeated
+    point or a corner that turns straight back (no tangent circle).
     """
     p = np.asarray(points, dtype=np.float64)
-    radii = np.broadcast_to(np.asarray(radius, dtype=np.float64), (max(len(p) - 2, 0),))
+    if p.ndim != 2 or p.shape[1] != 2 or len(p) < 2 or not np.all(np.isfinite(p)):
+        raise ValueError(f"Expected points of shape (m>=2, 2), finite; got shape {p.shape}")
+    r_in = np.asarray(radius, dtype=np.float64)
+    if r_in.ndim > 1 or r_in.size not in (1, len(p) - 2):
+        raise ValueError(f"Expected one radius or {len(p) - 2} (one per interior corner); got shape {r_in.shape}")
+    if not np.all(r_in >= 0):  # NaN fails too
+        raise ValueError(f"Expected radii >= 0; got {r_in.tolist()}")
+    if int(arc) != arc or arc < 2:
+        raise ValueError(f"Expected arc >= 2 points per arc; got {arc!r}")
+    lengths = np.linalg.norm(np.diff(p, axis=0), axis=1)  # (m - 1,)
+    if not np.all(lengths > 0):
+        k = int(np.argmin(lengths))
+        raise ValueError(f"points {k} and {k + 1} coincide at {tuple(p[k].tolist())}: a segment of length 0")
+    radii = np.broadcast_to(r_in, (len(p) - 2,))
     out = [tuple(p[0])]
     for k, radius in enumerate(radii, start=1):
         d0, d1 = p[k - 1] - p[k], p[k + 1] - p[k]
-        l0, l1 = np.linalg.norm(d0), np.linalg.norm(d1)
+        l0, l1 = lengths[k - 1], lengths[k]
         u0, u1 = d0 / l0, d1 / l1
         half = 0.5 * np.arccos(np.clip(u0 @ u1, -1.0, 1.0))  # half the corner's interior angle
+        if half < 1e-6 and radius > 0:
+            raise ValueError(f"corner {k} at {tuple(p[k].tolist())} turns straight back: no arc is tangent to both "
+                             f"of its segments")
         if abs(np.pi / 2 - half) < 1e-6 or radius <= 0:  # a straight or a sharp corner
             out.append(tuple(p[k]))
             continue
