@@ -339,6 +339,19 @@ def test_every_test_split_vehicle_can_be_simulated():
         assert t.vehicle == spec.name and t.vehicle_class == spec.cls and seq.visible_mask(0).sum() > 100
 
 
+@pytest.mark.parametrize("range_m", [1000.0, 2500.0])
+def test_the_truth_position_projects_onto_the_box_centre_side_on(range_m):
+    """The truth's x, y, z (metres, the scene camera's world frame) is the 3D box's centre: seen side-on at the
+    near point its projection is the centre of the silhouette's box, to the half pixel the box's whole-pixel
+    edges allow, for every test-split vehicle (their meshes are centred on their boxes, guns included)."""
+    for spec in SPLITS["test"]:
+        seq = SyntheticSequence(spec.name, SceneConfig(frames=1, range_m=range_m))
+        t = seq.truth(0)
+        assert abs(_wrap(t.theta - math.pi / 2)) < 1e-9  # the left side, clockwise
+        uv, _ = seq.camera.project(torch.tensor([t.x, t.y, t.z], dtype=torch.float64))
+        np.testing.assert_allclose(uv.numpy(), [(t.u0 + t.u1) / 2, (t.v0 + t.v1) / 2], atol=0.51, err_msg=spec.name)
+
+
 def test_open_sequence_spec(tmp_path):
     seq = open_sequence("synthetic:vehicle=T-72,range=2000,frames=5,seed=3,night=false,tilt_deg=0.5")
     assert isinstance(seq, SyntheticSequence) and len(seq) == 5 and seq.vehicle.name == "t_72"
