@@ -643,7 +643,8 @@ def fine_tune_widths(rbf: RBFViewMapping, train: torch.Tensor, theta, phi, val: 
 
     train: (K, V, d) templates at the training views theta, phi: (V,); val: (K, Vv, d) templates
     at the held-out views val_theta, val_phi: (Vv,); steps: Adam steps at learning rate lr on
-    log(width); ridge: λ. Returns the validation MSE before each step (length ``steps``).
+    log(width); ridge: λ. Returns the validation MSE before each step (length ``steps``); raises
+    ValueError, with the widths put back, when the tuning diverges (:func:`_check_tuning`).
 
     Every step re-solves all Bᵏ in closed form, Bᵏ = Yᵏᵀ W with W = Ψ (ΨᵀΨ + λI)⁻¹ (eq. 4.13),
     so the gradient flows through the solve. The held-out prediction is Hₖ = M Yᵏ with the small
