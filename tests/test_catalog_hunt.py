@@ -81,3 +81,54 @@ def test_fillet_refuses_degenerate_input(points, radius, arc, message):
     none raised an IndexError. Each is now a ValueError saying what is wrong."""
     with pytest.raises(ValueError, match=message):
         fillet(points, radius, arc=arc)
+
+
+# ------------------------------------------------------------------------------------------
+# The build
+# ------------------------------------------------------------------------------------------
+def _tree(root):
+    return {str(p.relative_to(root)): p.read_bytes() for p in sorted(root.rglob("*")) if p.is_file()}
+
+
+def test_a_failing_build_leaves_the_old_catalog(tmp_path, monkeypatch):
+    """build_catalog emptied each split folder first and then generated vehicle by vehicle, so a spec that
+    failed to build (or a write that failed) half way left a catalog with vehicles missing. Now
+    everything is generated first and each split folder is replaced only once it is complete."""
+    from torch_atr.vehicles import build
+    from torch_atr.vehicles.specs import SPLITS
+
+    first = build.build_catalog(tmp_path)
+    before = _tree(tmp_path)
+    assert len(first) == len(before) and set(before) == {str(p.relative_to(tmp_path)) for p in first}
+    late = SPLITS["train"][20].name  # generated after earlier vehicles of the split were written
+    real = build.vehicle_files
+
+    def failing(spec):
+        if spec.name == late:
+            raise ValueError(f"{late}: broken")
+        return real(spec)
+
+    monkeypatch.setattr(build, "vehicle_files", failing)
+    with pytest.raises(ValueError, match="broken"):
+        build.build_catalog(tmp_path)
+    assert _tree(tmp_path) == before
+    monkeypatch.setattr(build, "vehicle_files", real)
+    real_write = build.atomic_write_text
+    count = {"n": 0}
+
+    def failing_write(text, path):
+        count["n"] += 1
+        if count["n"] == 50:  # a full disk in the middle of the train split
+            raise OSError(28, "No space left on device")
+        real_write(text, path)
+
+    monkeypatch.setattr(build, "atomic_write_text", failing_write)
+    with pytest.raises(OSError, match="No space"):
+        build.build_catalog(tmp_path)
+    assert _tree(tmp_path) == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["test", "train"]  # no staging folder left
+    monkeypatch.setattr(build, "atomic_write_text", real_write)
+    (tmp_path / "train" / "gone_vehicle").mkdir()
+    (tmp_path / "train" / "gone_vehicle" / "gone_vehicle.urdf").write_text("<robot/>")
+    build.build_catalog(tmp_path)  # a vehicle no longer in the specs disappears
+    assert _tree(tmp_path) == before

@@ -377,17 +377,32 @@ def vehicle_files(spec: Spec) -> dict[str, str]:
 def build_catalog(out_dir: str | Path = CATALOG_DIR) -> list[Path]:
     """Write every split's vehicles under ``out_dir/<split>/<name>/``; returns the files written.
 
-    The split folders are emptied first, so vehicles removed from the specs disappear.
+    Every vehicle is generated before anything is written, and each split is written into a
+    staging folder beside it that then replaces the old split folder, so vehicles removed from
+    the specs disappear and a spec that fails to build, or a write that fails, leaves the old
+    catalog as it was.
     """
     out_dir = Path(out_dir)
+    texts = {split: {spec.name: vehicle_files(spec) for spec in specs} for split, specs in SPLITS.items()}
     written = []
-    for split, specs in SPLITS.items():
-        shutil.rmtree(out_dir / split, ignore_errors=True)
-        for spec in specs:
-            for fname, text in vehicle_files(spec).items():
-                path = out_dir / split / spec.name / fname
-                atomic_write_text(text, path)
-                written.append(path)
+    for split, vehicles in texts.items():
+        final, staging, old = out_dir / split, out_dir / f".{split}.building", out_dir / f".{split}.old"
+        shutil.rmtree(staging, ignore_errors=True)  # left by a killed build
+        try:
+            for name, files in vehicles.items():
+                for fname, text in files.items():
+                    atomic_write_text(text, staging / name / fname)
+            shutil.rmtree(old, ignore_errors=True)
+            if final.exists():
+                final.rename(old)
+            staging.rename(final)
+        except BaseException:
+            if old.exists() and not final.exists():
+                old.rename(final)
+            shutil.rmtree(staging, ignore_errors=True)
+            raise
+        shutil.rmtree(old, ignore_errors=True)
+        written += [final / name / fname for name, files in vehicles.items() for fname in files]
     return written
 
 
