@@ -184,7 +184,7 @@ _TEXTURE_WAVELENGTH_M = (0.15, 1.5)  # their wavelengths' range
 _FLOOR_BAND_ROWS = 32  # visible band: the floor is rendered in bands of this many pixel rows
 
 # The visible band's indoor-like scene (thesis 6.3, the toy cars, at full size): a camera 6.5 m up,
-# tilted down 32°, wide-angle (68° x 52° field of view), 13 m from the centre of a 10 m circle
+# tilted down 32°, wide-angle (67° x 53° field of view), 13 m from the centre of a 10 m circle
 # driven at 1.5 m/s. See :func:`visible_scene`.
 VISIBLE_SCENE = {"band": "visible", "range_m": 13.0, "circle_diameter_m": 10.0, "camera_height_m": 6.5,
                  "tilt_deg": 32.0, "focal_px": 480.0, "width": 640, "height": 480, "fps": 10.0,
@@ -263,7 +263,8 @@ class SceneConfig:
             "ground_gradient_k": (abs(self.ground_gradient_k) <= _MAX_K, f"in [-{_MAX_K:g}, {_MAX_K:g}]"),
             "clutter_k": (0 <= self.clutter_k <= _MAX_K, f"in [0, {_MAX_K:g}]"),
             "clutter_scale_px": (0 < self.clutter_scale_px <= _MAX_BLUR_PX, f"in (0, {_MAX_BLUR_PX:g}]"),
-            "clutter_stretch": (0 < self.clutter_stretch and self.clutter_scale_px * self.clutter_stretch <= _MAX_BLUR_PX,
+            "clutter_stretch": (0 < self.clutter_stretch
+                                and self.clutter_scale_px * self.clutter_stretch <= _MAX_BLUR_PX,
                                 f"positive, clutter_scale_px x clutter_stretch at most {_MAX_BLUR_PX:g} px"),
             "noise_k": (0 <= self.noise_k <= _MAX_K, f"in [0, {_MAX_K:g}]"),
             "extinction_per_km": (0 <= self.extinction_per_km < math.inf, ">= 0"),
@@ -581,8 +582,8 @@ class SyntheticSequence(Sequence):
         vehicle: a Vehicle, a catalog name (train or test split) or a URDF / mesh path.
         cfg: the scene; ``SceneConfig()`` if None.
 
-    Frames are (height, width) uint16 counts (IR) or uint8 grey levels (visible), generated on demand. ``camera`` is the scene's
-    camera, ``truth(i)`` exact ground truth, and :meth:`true_mask`, :meth:`visible_mask` and
+    Frames are (height, width) uint16 counts (IR) or uint8 grey levels (visible), generated on demand.
+    ``camera`` is the scene's camera, ``truth(i)`` exact ground truth, and :meth:`true_mask`, :meth:`visible_mask` and
     :meth:`part_map` the rendered target of frame i.
     """
 
