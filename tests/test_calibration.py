@@ -10,8 +10,8 @@ import pytest
 from scipy.spatial.transform import Rotation
 import torch
 
-from torch_atr.calibration import (_canonical_order, calibrate_checkerboard, camera_from_focal, draw_cubes,
-                                   find_checkerboard, floor_pose, focal_from_target, levelled_camera)
+from torch_atr.calibration import (_canonical_order, _focal_uncertainty, calibrate_checkerboard, camera_from_focal,
+                                   draw_cubes, find_checkerboard, floor_pose, focal_from_target, levelled_camera)
 from torch_atr.camera import Camera
 from torch_atr.data.checkerboard import calibration_poses, render_checkerboard
 from torch_atr.data.sequence import load_camera_json
@@ -288,6 +288,19 @@ def test_boards_in_two_orientations_one_facing_the_camera_are_refused(turn):
         calibrate_checkerboard(images, PATTERN, SQUARE)
     camera, _ = calibrate_checkerboard(images + [_render(*_turned_pose((0, -0.52, 0), (0, 0)), rng)], PATTERN, SQUARE)
     assert (camera.fx, camera.fy) == pytest.approx((K[0, 0], K[1, 1]), rel=0.01)
+
+
+@pytest.mark.parametrize("flags", [cv2.CALIB_FIX_K3, cv2.CALIB_FIX_K3 | cv2.CALIB_FIX_PRINCIPAL_POINT,
+                                   cv2.CALIB_FIX_K3 | cv2.CALIB_ZERO_TANGENT_DIST, cv2.CALIB_FIX_ASPECT_RATIO])
+def test_focal_uncertainty_is_opencvs_standard_deviation_on_good_views(views, flags):
+    """Reference: cv2.calibrateCameraExtended's stdDeviationsIntrinsics (on views that determine the camera; on
+    degenerate ones its pseudo-inverse drops the undetermined direction and reported 0.01 px for fx = 111 px)."""
+    corners = [find_checkerboard(image, PATTERN) for image, _, _ in views]
+    obj = CORNERS.astype(np.float32)
+    _, K_fit, dist, rvecs, tvecs, std, _, _ = cv2.calibrateCameraExtended([obj] * len(corners), corners, (W, H), None,
+                                                                          None, flags=flags)
+    expected = max(std[0, 0] / K_fit[0, 0], std[1, 0] / K_fit[1, 1])
+    assert _focal_uncertainty(obj, corners, K_fit, dist, rvecs, tvecs, flags) == pytest.approx(expected, rel=1e-3)
 
 
 DIST = np.array([-0.28, 0.09, 0.0012, -0.0008, 0.0])  # a wide-angle lens's barrel distortion (k1, k2, p1, p2, k3)
