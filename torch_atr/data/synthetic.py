@@ -17,7 +17,8 @@ y = −camera_height_m. The camera's rotation world -> sensor is the proper rota
 
 with τ the downward tilt (the optical axis is Rᵀ(0, 0, 1) = (0, −sin τ, cos τ)); with τ = 0
 the world frame is the sensor frame. Ground truth positions and headings are given in this world
-frame, where the motion model of METHOD.md (x += v sin h Δt, z += v cos h Δt) holds exactly.
+frame, the motion model's of METHOD.md (x += v sin h Δt, z += v cos h Δt): a frame's step along
+the heading lands off the circle by its curvature only, v² Δt² / (2 r) (0.28 mm at the defaults).
 
 Circle. The position at frame i is c + r (sin a, 0, cos a) with c = (0, −camera_height_m,
 range_m), r the radius and a = a₀ ± (speed / r) · i / fps (+ clockwise seen from above, i.e.
