@@ -3,7 +3,9 @@ and the build's atomicity (torch_atr/vehicles/{geometry,build,specs,catalog}.py)
 
 from __future__ import annotations
 
+import dataclasses
 import math
+import re
 
 import numpy as np
 import pytest
@@ -132,3 +134,66 @@ def test_a_failing_build_leaves_the_old_catalog(tmp_path, monkeypatch):
     (tmp_path / "train" / "gone_vehicle" / "gone_vehicle.urdf").write_text("<robot/>")
     build.build_catalog(tmp_path)  # a vehicle no longer in the specs disappears
     assert _tree(tmp_path) == before
+
+
+# ------------------------------------------------------------------------------------------
+# Spec validation
+# ------------------------------------------------------------------------------------------
+def _spec(name):
+    from torch_atr.vehicles.specs import TEST, TRAIN
+
+    return next(s for s in TRAIN + TEST if s.name == name)
+
+
+@pytest.mark.parametrize("name, field, value, kind", [
+    ("toyota_camry", "length", 0.0, "positive"),
+    ("toyota_camry", "width", -1.0, "positive"),
+    ("toyota_camry", "height", float("nan"), "positive"),
+    ("toyota_camry", "wheel_d", 0.0, "positive"),
+    ("toyota_camry", "wheelbase", -1.0, "positive"),
+    ("toyota_camry", "clearance", -0.1, "positive"),
+    ("toyota_camry", "tyre_w", 0.0, "positive"),
+    ("toyota_camry", "mirror", -0.1, "non-negative"),
+    ("toyota_camry", "rails", -0.1, "non-negative"),
+    ("t_72", "wheel_d", 0.0, "positive"),
+    ("t_72", "track_w", 0.0, "positive"),
+    ("t_72", "belly", -0.1, "positive"),
+    ("t_72", "contact", "4.28", "positive"),
+    ("btr_80", "tyre_w", 0.0, "positive"),
+    ("btr_80", "side_slope", -0.1, "non-negative"),
+])
+def test_a_bad_dimension_names_the_vehicle_and_the_field(name, field, value, kind):
+    """Only length, width and height were checked (one message for the three); a zero wheel, a negative
+    clearance or mirror, a text number were accepted and built into a broken or flat mesh."""
+    with pytest.raises(ValueError, match=rf"^{name}: {field} must be a {kind} number \(metres\); got {value!r}$"):
+        dataclasses.replace(_spec(name), **{field: value})
+
+
+@pytest.mark.parametrize("path, value", [("width", 0.0), ("height", -1.0), ("slope", -0.1), ("gun.diameter", 0.0),
+                                         ("gun.length", -1.0)])
+def test_a_bad_turret_dimension_names_the_vehicle_and_the_field(path, value):
+    bmp = _spec("bmp_2")
+    turret = bmp.turret
+    if path.startswith("gun."):
+        turret = dataclasses.replace(turret, gun=dataclasses.replace(turret.gun, **{path[4:]: value}))
+    else:
+        turret = dataclasses.replace(turret, **{path: value})
+    message = rf"^bmp_2: turret\.{re.escape(path)} must be a (non-negative|positive) number"
+    with pytest.raises(ValueError, match=message):
+        dataclasses.replace(bmp, turret=turret)
+
+
+def test_an_unknown_option_or_a_bad_name_names_the_vehicle():
+    """An unknown keyword raised the dataclass's TypeError ("Road.__init__() got an unexpected keyword
+    argument"), which names neither the vehicle nor the options; a name with spaces or capitals gave a
+    catalog folder that load_catalog_vehicle's normalised key can never find."""
+    from torch_atr.vehicles.specs import Road
+
+    camry = _spec("toyota_camry")
+    kw = {f.name: getattr(camry, f.name) for f in dataclasses.fields(Road)}
+    with pytest.raises(ValueError, match=r"^toyota_camry: unknown Road option\(s\) \['colour'\]; the options are "
+                                         r"\['name', 'title'"):
+        Road(**kw, colour="red")
+    for bad in ("my camry", "Camry", "camry-2", ""):
+        with pytest.raises(ValueError, match="a vehicle name must be lower-case letters, digits and underscores"):
+            dataclasses.replace(camry, name=bad)

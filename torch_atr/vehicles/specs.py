@@ -30,9 +30,33 @@ Rodeo) is held out from TRAIN: no name appears in both.
 from __future__ import annotations
 
 import dataclasses
+import functools
+import math
+import re
 from dataclasses import dataclass
 
 from torch_atr.vehicles.loader import CLASS_NAMES
+
+
+_NAME = re.compile(r"[a-z0-9_]+")  # a folder and file name that load_catalog_vehicle's normalised key can match
+
+
+def _named_options(cls):
+    """Make an unknown keyword of a vehicle spec a ValueError naming the vehicle and the option (the
+    dataclass's own TypeError names neither the vehicle nor the options there are)."""
+    init = cls.__init__
+    names = [f.name for f in dataclasses.fields(cls)]
+
+    @functools.wraps(init)
+    def __init__(self, *args, **kwargs):
+        unknown = sorted(set(kwargs) - set(names))
+        if unknown:
+            vehicle = kwargs.get("name", args[0] if args else "?")
+            raise ValueError(f"{vehicle}: unknown {cls.__name__} option(s) {unknown}; the options are {names}")
+        init(self, *args, **kwargs)
+
+    cls.__init__ = __init__
+    return cls
 
 
 @dataclass(frozen=True)
@@ -88,6 +112,7 @@ class Turret:
     offset: float = 0.0  # y of the turret axis
 
 
+@_named_options
 @dataclass(frozen=True)
 class Tracked:
     """Tank, tracked APC / IFV / SPG: hull between and over two track runs, optional turret."""
@@ -124,6 +149,7 @@ class Tracked:
             raise ValueError(f"{self.name}: give exactly one of gun_length and turret.gun.length")
 
 
+@_named_options
 @dataclass(frozen=True)
 class Wheeled:
     """Wheeled APC / scout car: narrow lower hull between the wheels, wide upper hull over them."""
@@ -199,6 +225,7 @@ EXT_CAB = Shape(nose=0.58, belt=0.66, windshield=0.46, roof=(0.62, 0.97), tail=1
 REG_CAB = Shape(nose=0.58, belt=0.66, windshield=0.52, roof=(0.71, 0.97), tail=1.0, deck=0.66, roof_w=0.86, round=0.4)
 
 
+@_named_options
 @dataclass(frozen=True)
 class Road:
     """Pickup, SUV, car or minivan: a lower body, a greenhouse, four wheels (and a bed)."""
@@ -240,17 +267,58 @@ class Road:
 Spec = Tracked | Wheeled | Road
 
 
+# Fields in metres that must be positive, and those that may also be 0, per spec type.
+_POSITIVE = {
+    "Tracked": ("length", "width", "height", "deck", "nose", "wheel_d", "track_w", "contact", "belly"),
+    "Wheeled": ("length", "width", "height", "wheel_d", "tyre_w", "track", "deck", "nose", "belly"),
+    "Road": ("length", "width", "height", "wheelbase", "front", "wheel_d", "track", "clearance", "tyre_w"),
+}
+_NON_NEGATIVE = {
+    "Tracked": ("glacis", "lower_glacis", "rear_slope"),
+    "Wheeled": ("glacis", "lower_glacis", "rear_slope", "side_slope"),
+    "Road": ("bed", "mirror", "rails", "box"),
+}
+_TURRET_POSITIVE = ("ring", "front", "rear", "width", "height")
+_TURRET_NON_NEGATIVE = ("slope", "taper")
+
+
+def _number(value) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+
+
+def _check_numbers(name: str, obj, positive: tuple[str, ...], non_negative: tuple[str, ...], prefix: str = "") -> None:
+    """ValueError naming the vehicle and the field for a field of ``obj`` that is not a finite number > 0
+    (``positive``) or >= 0 (``non_negative``)."""
+    for f in (*positive, *non_negative):
+        value, zero_ok = getattr(obj, f), f in non_negative
+        if not (_number(value) and (value >= 0 if zero_ok else value > 0)):
+            what = "a non-negative" if zero_ok else "a positive"
+            raise ValueError(f"{name}: {prefix}{f} must be {what} number (metres); got {value!r}")
+
+
 def _check_common(spec) -> None:
+    if not (isinstance(spec.name, str) and _NAME.fullmatch(spec.name)):
+        raise ValueError(f"{spec.name!r}: a vehicle name must be lower-case letters, digits and underscores (it "
+                         f"names the catalog folder and files)")
     if spec.cls not in CLASS_NAMES:
         raise ValueError(f"{spec.name}: class {spec.cls!r} is not one of {CLASS_NAMES}")
-    if not (spec.length > 0 and spec.width > 0 and spec.height > 0):
-        raise ValueError(f"{spec.name}: length, width and height must be positive")
+    kind = type(spec).__name__
+    _check_numbers(spec.name, spec, _POSITIVE[kind], _NON_NEGATIVE[kind])
     if isinstance(spec, (Wheeled, Road)) and spec.track / 2 + spec.tyre_w / 2 > spec.width / 2 + 1e-9:
         raise ValueError(f"{spec.name}: wheels (track {spec.track}, tyre {spec.tyre_w}) "
                          f"stick out of width {spec.width}")
     turret = getattr(spec, "turret", None)
-    if turret is not None and not 0 < turret.nose <= 0.9:
-        raise ValueError(f"{spec.name}: turret.nose must be in (0, 0.9]; got {turret.nose}")
+    if turret is not None:
+        _check_numbers(spec.name, turret, _TURRET_POSITIVE, _TURRET_NON_NEGATIVE, "turret.")
+        if not 0 < turret.nose <= 0.9:
+            raise ValueError(f"{spec.name}: turret.nose must be in (0, 0.9]; got {turret.nose}")
+        gun = turret.gun
+        if not (_number(gun.diameter) and gun.diameter > 0):
+            raise ValueError(f"{spec.name}: turret.gun.diameter must be a positive number (metres); "
+                             f"got {gun.diameter!r}")
+        if gun.length is not None and not (_number(gun.length) and gun.length > 0):
+            raise ValueError(f"{spec.name}: turret.gun.length must be a positive number (metres) or None; "
+                             f"got {gun.length!r}")
 
 
 def _cupola(x: float, y: float, d: float, z_top: float, h: float) -> Extra:
