@@ -195,6 +195,21 @@ def _contrast(seq: SyntheticSequence, i: int) -> float:
     return frame[mask].mean() - frame[ring].mean()
 
 
+def test_read_out_saturates_at_the_ends_of_its_range_without_wrapping():
+    """Counts above 16383 (a 10,000 K body) and below 0 (a 231 K sky with 3 K of noise) are clipped, as a sensor
+    saturates, never wrapped (a uint16 cast of -5 is 65531); visible grey levels above 255 (albedo 1 textured up to
+    1.99, all ambient light) stay 255. The scene before read-out is finite."""
+    hot = SyntheticSequence("isuzu_rodeo", SceneConfig(frames=1, body_k=1e4, sky_k=231.0, noise_k=3.0, **SMALL))
+    frame, mask = hot.frame(0), hot.true_mask(0)
+    assert frame.dtype == np.uint16 and frame.max() == 2 ** 14 - 1 and frame.min() == 0
+    assert (frame[mask] > 14000).mean() > 0.9 and np.isfinite(hot.scene(0)).all()
+    bright = SyntheticSequence("ford_f150", visible_scene(frames=1, width=160, height=120, focal_px=120.0,
+                                                          body_albedo=1.0, ambient=1.0, texture_contrast=0.99))
+    grey, scene = bright.frame(0), bright.scene(0)
+    assert grey.dtype == np.uint8 and scene.max() > 300 and grey.max() == 255
+    np.testing.assert_array_equal(grey[scene > 270], 255)  # 270: beyond any noise draw (σ 2)
+
+
 def test_night_target_is_warmer_and_day_has_less_contrast():
     night = SyntheticSequence("t_72", SceneConfig(frames=1))
     day = SyntheticSequence("t_72", SceneConfig(frames=1, night=False))
