@@ -197,3 +197,81 @@ def test_an_unknown_option_or_a_bad_name_names_the_vehicle():
     for bad in ("my camry", "Camry", "camry-2", ""):
         with pytest.raises(ValueError, match="a vehicle name must be lower-case letters, digits and underscores"):
             dataclasses.replace(camry, name=bad)
+
+
+def _turret(spec, **kw):
+    return dataclasses.replace(spec, turret=dataclasses.replace(spec.turret, **kw))
+
+
+def _gun(spec, **kw):
+    return _turret(spec, gun=dataclasses.replace(spec.turret.gun, **kw))
+
+
+@pytest.mark.parametrize("name, change, message", [
+    ("toyota_camry", {"front": 0.1}, r"the wheels \(wheel_d 0.67, front 0.1, wheelbase 2.825\) stick out of the "
+                                     r"length 4.88"),
+    ("toyota_camry", {"wheel_d": 1.5}, r"wheel_d 1.5 reaches above the belt line"),
+    ("toyota_camry", {"clearance": 0.9}, r"clearance 0.9 must be below the axles \(wheel_d / 2 = 0.335\)"),
+    ("toyota_camry", {"rails": 2.0}, r"rails 2.0 are taller than the glasshouse"),
+    ("toyota_hilux", {"bed": 6.0}, r"bed 6.0 leaves no cab behind the front wheels"),
+    ("t_72", {"deck": 3.0}, r"heights must satisfy belly < nose < deck <= height; got belly 0.45, nose 0.95, deck 3.0"),
+    ("t_72", {"road_wheels": 1}, r"road_wheels must be an integer >= 2; got 1"),
+    ("t_72", {"contact": 8.0}, r"contact 8.0 must be shorter than the length 6.95"),
+    ("t_72", {"wheel_d": 2.0}, r"wheel_d 2.0 puts the track's top run \(wheel_d \+ 0.18 m\) above the deck 1.4"),
+    ("t_72", {"track_w": 2.0}, r"two tracks of track_w 2.0 leave no hull between them in width 3.59"),
+    ("t_72", {"glacis": 8.0}, r"glacis 8.0, lower_glacis 0.55 and rear_slope 0.15 do not fit in the length 6.95"),
+    ("t_72", {"gun_length": float("nan")}, r"gun_length nan must exceed the hull length"),
+    ("btr_80", {"axles": (-1.0, 9.0)}, r"axles \(-1.0, 9.0\) must be one or more positions"),
+    ("btr_80", {"axles": ()}, r"axles \(\) must be one or more positions"),
+    ("btr_80", {"wheel_d": 3.0}, r"wheel_d 3.0 reaches the deck 2.0"),
+    ("btr_80", {"side_slope": 2.0}, r"side_slope 2.0 or the wheels .* leave no hull in width 2.95"),
+])
+def test_a_spec_that_does_not_fit_together_names_the_vehicle_and_the_fields(name, change, message):
+    """Each of these was accepted and built a wrong vehicle (wheels outside the body, a contact patch longer
+    than the hull, a deck above the height) or failed inside the builder without naming the vehicle
+    (ZeroDivisionError for one road wheel, IndexError for a wheel above the deck or a bed longer than
+    the pickup, the triangulator's 'degenerate triangle' for a glacis longer than the hull)."""
+    with pytest.raises(ValueError, match=rf"^{name}: {message}"):
+        dataclasses.replace(_spec(name), **change)
+
+
+def test_a_turret_gun_or_extra_that_does_not_fit_names_the_vehicle():
+    from torch_atr.vehicles.specs import Extra
+
+    t72, camry = _spec("t_72"), _spec("toyota_camry")
+    cases = [
+        (lambda: _turret(t72, slope=2.0), r"turret.slope 2.0 must be below turret.front 1.3"),
+        (lambda: _turret(t72, taper=1.5), r"turret.taper 1.5 must be below turret.rear 1.2"),
+        (lambda: _turret(t72, ring=9.0), r"the turret \(ring 9.0, .*\) is not on the hull"),
+        (lambda: _turret(t72, width=5.0), r"the turret \(.*width 5.0.*\) is not on the hull"),
+        (lambda: _turret(t72, height=1.5), r"the turret \(.*height 1.5 above the deck 1.4\) is not on the hull"),
+        (lambda: _gun(t72, elevation=(14.0, -6.0)), r"turret.gun.elevation \(14.0, -6.0\) must be"),
+        (lambda: _gun(t72, elevation=(5.0, 14.0)), r"turret.gun.elevation \(5.0, 14.0\) must be"),
+        (lambda: _gun(t72, barrels=()), r"turret.gun needs barrels"),
+        (lambda: dataclasses.replace(t72, extras=(Extra("hull", "box", (0.0, 1.0, 1.0), (1.0, 0.0, 1.0)),)),
+         r"extras\[0\].size must be positive numbers; got \(0.0, 1.0, 1.0\)"),
+        (lambda: dataclasses.replace(camry, extras=(Extra("turret", "box", (1.0, 1.0, 1.0), (1.0, 0.0, 1.0)),)),
+         r"extras\[0\] is on the turret, which the vehicle does not have"),
+    ]
+    for make, message in cases:
+        vehicle = "toyota_camry" if "turret, which" in message else "t_72"
+        with pytest.raises(ValueError, match=rf"^{vehicle}: {message}"):
+            make()
+
+
+@pytest.mark.parametrize("change, message", [
+    ({"roof": (0.7, 0.4)}, r"0 < windshield < roof\[0\] < roof\[1\] <= tail <= 1; got windshield 0.34, "
+                           r"roof \(0.7, 0.4\)"),
+    ({"windshield": 0.6}, r"0 < windshield < roof\[0\]"),
+    ({"tail": 0.5}, r"roof\[1\] <= tail"),
+    ({"nose": 0.9}, r"0 < nose <= belt < 1 and 0 < deck < 1; got nose 0.9"),
+    ({"roof_w": 0.0}, r"Shape.roof_w must be in \(0, 1\]; got 0.0"),
+    ({"deck": float("nan")}, r"Shape: expected numbers"),
+])
+def test_a_shape_out_of_order_is_refused(change, message):
+    """A roof that ends before it starts, a windshield behind the roof or a bonnet above the belt line built
+    a self-crossing side profile without a word."""
+    from torch_atr.vehicles.specs import SEDAN
+
+    with pytest.raises(ValueError, match=message):
+        dataclasses.replace(SEDAN, **change)

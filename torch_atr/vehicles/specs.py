@@ -41,6 +41,10 @@ from torch_atr.vehicles.loader import CLASS_NAMES
 _NAME = re.compile(r"[a-z0-9_]+")  # a folder and file name that load_catalog_vehicle's normalised key can match
 
 
+def _number(value) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+
+
 def _named_options(cls):
     """Make an unknown keyword of a vehicle spec a ValueError naming the vehicle and the option (the
     dataclass's own TypeError names neither the vehicle nor the options there are)."""
@@ -143,10 +147,11 @@ class Tracked:
         _check_common(self)
         if self.turret is None and self.gun_length is not None:
             raise ValueError(f"{self.name}: gun_length {self.gun_length} needs a turret with a gun; there is none")
-        if self.gun_length is not None and self.gun_length <= self.length:
+        if self.gun_length is not None and not (_number(self.gun_length) and self.gun_length > self.length):
             raise ValueError(f"{self.name}: gun_length {self.gun_length} must exceed the hull length")
         if (self.gun_length is None) == (self.turret is not None and self.turret.gun.length is None):
             raise ValueError(f"{self.name}: give exactly one of gun_length and turret.gun.length")
+        _check_layout(self)
 
 
 @_named_options
@@ -179,6 +184,7 @@ class Wheeled:
         _check_common(self)
         if self.turret is not None and self.turret.gun.length is None:
             raise ValueError(f"{self.name}: a wheeled vehicle has no gun_length to reach; give turret.gun.length")
+        _check_layout(self)
 
 
 @dataclass(frozen=True)
@@ -200,9 +206,21 @@ class Shape:
     drop: float = 0.0  # the roof falls by this fraction of the height from its start to its end
 
     def __post_init__(self) -> None:
+        values = (self.nose, self.belt, self.windshield, *self.roof, self.tail, self.deck, self.roof_w, self.round,
+                  self.drop)
+        if len(self.roof) != 2 or not all(_number(v) for v in values):
+            raise ValueError(f"Shape: expected numbers and a (start, end) roof; got {self}")
         if not (0.0 <= self.round <= 1.0 and 0.0 <= self.drop < 1.0 - self.belt):
             raise ValueError(f"Shape.round must be in [0, 1] and Shape.drop in [0, 1 - belt); got {self.round}, "
                              f"{self.drop}")
+        if not 0.0 < self.nose <= self.belt < 1.0 or not 0.0 < self.deck < 1.0:
+            raise ValueError(f"Shape: heights must satisfy 0 < nose <= belt < 1 and 0 < deck < 1; got nose "
+                             f"{self.nose}, belt {self.belt}, deck {self.deck}")
+        if not 0.0 < self.windshield < self.roof[0] < self.roof[1] <= self.tail <= 1.0:
+            raise ValueError(f"Shape: positions must satisfy 0 < windshield < roof[0] < roof[1] <= tail <= 1; got "
+                             f"windshield {self.windshield}, roof {self.roof}, tail {self.tail}")
+        if not 0.0 < self.roof_w <= 1.0:
+            raise ValueError(f"Shape.roof_w must be in (0, 1]; got {self.roof_w}")
 
 
 # Body styles (adjusted per vehicle with dataclasses.replace where it differs).
@@ -256,12 +274,16 @@ class Road:
         _check_common(self)
         if self.front + self.wheelbase >= self.length:
             raise ValueError(f"{self.name}: front overhang + wheelbase must be shorter than the length")
+        if not self.front >= self.wheel_d / 2 or not self.front + self.wheelbase + self.wheel_d / 2 <= self.length:
+            raise ValueError(f"{self.name}: the wheels (wheel_d {self.wheel_d}, front {self.front}, wheelbase "
+                             f"{self.wheelbase}) stick out of the length {self.length}")
         if (self.bed > 0) != (self.cls == "pickup"):
             raise ValueError(f"{self.name}: exactly the pickups have a bed")
         if (self.box > 0) != (self.cab is not None) or (self.box > 0 and self.cls != "minivan"):
             raise ValueError(f"{self.name}: a box body (box > 0) needs a cab size, and only vans have one")
         if self.cab is not None and not (0 < self.cab[0] <= self.width and 0 < self.cab[1] < self.height):
             raise ValueError(f"{self.name}: the cab {self.cab} must be no wider and lower than the box")
+        _check_layout(self)
 
 
 Spec = Tracked | Wheeled | Road
@@ -280,10 +302,6 @@ _NON_NEGATIVE = {
 }
 _TURRET_POSITIVE = ("ring", "front", "rear", "width", "height")
 _TURRET_NON_NEGATIVE = ("slope", "taper")
-
-
-def _number(value) -> bool:
-    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
 
 
 def _check_numbers(name: str, obj, positive: tuple[str, ...], non_negative: tuple[str, ...], prefix: str = "") -> None:
@@ -319,6 +337,82 @@ def _check_common(spec) -> None:
         if gun.length is not None and not (_number(gun.length) and gun.length > 0):
             raise ValueError(f"{spec.name}: turret.gun.length must be a positive number (metres) or None; "
                              f"got {gun.length!r}")
+
+
+def _check_layout(spec) -> None:
+    """Relations between a vehicle's numbers that the builder needs (ValueError naming the vehicle and
+    the fields): wheels, tracks and turret inside the body, heights in order, extras on links it has."""
+    n = spec.name
+    if isinstance(spec, Road):
+        if not spec.rails < (1.0 - spec.shape.belt) * spec.height:
+            raise ValueError(f"{n}: rails {spec.rails} are taller than the glasshouse ((1 - shape.belt) x height = "
+                             f"{(1.0 - spec.shape.belt) * spec.height:.3f} m)")
+        H = (spec.cab[1] if spec.cab is not None else spec.height) - spec.rails
+        if not spec.wheel_d < spec.shape.belt * H:
+            raise ValueError(f"{n}: wheel_d {spec.wheel_d} reaches above the belt line (shape.belt x height = "
+                             f"{spec.shape.belt * H:.3f} m)")
+        if not spec.clearance < spec.wheel_d / 2:
+            raise ValueError(f"{n}: clearance {spec.clearance} must be below the axles (wheel_d / 2 = "
+                             f"{spec.wheel_d / 2})")
+        rear = spec.bed or spec.box
+        if rear and not spec.length - rear - 0.03 > spec.front + spec.wheel_d / 2:
+            raise ValueError(f"{n}: {'bed' if spec.bed else 'box'} {rear} leaves no cab behind the front wheels "
+                             f"(length {spec.length}, front {spec.front})")
+    else:
+        if not spec.belly < spec.nose < spec.deck <= spec.height:
+            raise ValueError(f"{n}: heights must satisfy belly < nose < deck <= height; got belly {spec.belly}, "
+                             f"nose {spec.nose}, deck {spec.deck}, height {spec.height}")
+        if not (spec.lower_glacis < spec.length - 0.35 and spec.glacis + spec.rear_slope < spec.length):
+            raise ValueError(f"{n}: glacis {spec.glacis}, lower_glacis {spec.lower_glacis} and rear_slope "
+                             f"{spec.rear_slope} do not fit in the length {spec.length}")
+    if isinstance(spec, Tracked):
+        if not (isinstance(spec.road_wheels, int) and spec.road_wheels >= 2):
+            raise ValueError(f"{n}: road_wheels must be an integer >= 2; got {spec.road_wheels!r}")
+        if not spec.contact < spec.length:
+            raise ValueError(f"{n}: contact {spec.contact} must be shorter than the length {spec.length}")
+        if not spec.wheel_d + 0.18 < spec.deck:
+            raise ValueError(f"{n}: wheel_d {spec.wheel_d} puts the track's top run (wheel_d + 0.18 m) above the "
+                             f"deck {spec.deck}")
+        if not spec.track_w < spec.width / 2 - 0.09:
+            raise ValueError(f"{n}: two tracks of track_w {spec.track_w} leave no hull between them in width "
+                             f"{spec.width}")
+    if isinstance(spec, Wheeled):
+        if not spec.axles or not all(_number(s) and spec.wheel_d / 2 <= s <= spec.length - spec.wheel_d / 2
+                                     for s in spec.axles):
+            raise ValueError(f"{n}: axles {spec.axles} must be one or more positions that keep the wheels "
+                             f"(wheel_d {spec.wheel_d}) inside the length {spec.length}")
+        if not spec.wheel_d + 0.1 < spec.deck:
+            raise ValueError(f"{n}: wheel_d {spec.wheel_d} reaches the deck {spec.deck}")
+        if not (spec.side_slope < spec.width / 2 and spec.track / 2 - spec.tyre_w / 2 > 0.05):
+            raise ValueError(f"{n}: side_slope {spec.side_slope} or the wheels (track {spec.track}, tyre_w "
+                             f"{spec.tyre_w}) leave no hull in width {spec.width}")
+    turret = getattr(spec, "turret", None)
+    if turret is not None:
+        t, g = turret, turret.gun
+        if not t.slope < t.front:
+            raise ValueError(f"{n}: turret.slope {t.slope} must be below turret.front {t.front}")
+        if not (t.taper < t.rear and t.taper < t.width / 2):
+            raise ValueError(f"{n}: turret.taper {t.taper} must be below turret.rear {t.rear} and half turret.width "
+                             f"{t.width}")
+        if not (t.ring - t.front >= 0 and t.ring + t.rear <= spec.length
+                and abs(t.offset) + t.width / 2 <= spec.width / 2 and spec.deck + t.height <= spec.height + 1e-9):
+            raise ValueError(f"{n}: the turret (ring {t.ring}, front {t.front}, rear {t.rear}, width {t.width}, "
+                             f"offset {t.offset}, height {t.height} above the deck {spec.deck}) is not on the hull "
+                             f"(length {spec.length}, width {spec.width}, height {spec.height})")
+        lo, hi = g.elevation
+        if not lo <= 0.0 <= hi or lo == hi:
+            raise ValueError(f"{n}: turret.gun.elevation {g.elevation} must be (lowest <= 0 <= highest), not equal")
+        if not g.barrels or not all(m > 0 for m in g.mantlet) or not 0.0 <= g.evacuator < 1.0:
+            raise ValueError(f"{n}: turret.gun needs barrels, a positive mantlet and evacuator in [0, 1); got "
+                             f"{g.barrels}, {g.mantlet}, {g.evacuator}")
+        if g.length is None and not t.ring - g.trunnion[0] + spec.gun_length - spec.length > 0:
+            raise ValueError(f"{n}: gun_length {spec.gun_length} leaves the muzzle behind the trunnion")
+    links = ("hull",) if turret is None else ("hull", "turret", "gun")
+    for i, e in enumerate(spec.extras):
+        if e.link not in links:
+            raise ValueError(f"{n}: extras[{i}] is on the {e.link}, which the vehicle does not have")
+        if not all(_number(v) and v > 0 for v in e.size):
+            raise ValueError(f"{n}: extras[{i}].size must be positive numbers; got {e.size}")
 
 
 def _cupola(x: float, y: float, d: float, z_top: float, h: float) -> Extra:
