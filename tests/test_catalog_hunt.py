@@ -223,7 +223,9 @@ def _gun(spec, **kw):
     ("t_72", {"gun_length": float("nan")}, r"gun_length nan must exceed the hull length"),
     ("btr_80", {"axles": (-1.0, 9.0)}, r"axles \(-1.0, 9.0\) must be one or more positions"),
     ("btr_80", {"axles": ()}, r"axles \(\) must be one or more positions"),
-    ("btr_80", {"wheel_d": 3.0}, r"wheel_d 3.0 reaches the deck 2.0"),
+    ("btr_80", {"wheel_d": 3.0}, r"wheel_d 3.0 must be above the belly 0.475 and reach no higher than 0.1 m below "
+                                 r"the deck 2.0"),
+    ("brdm_2", {"wheel_d": 0.321}, r"wheel_d 0.321 must be above the belly 0.43"),
     ("btr_80", {"side_slope": 2.0}, r"side_slope 2.0 or the wheels .* leave no hull in width 2.95"),
 ])
 def test_a_spec_that_does_not_fit_together_names_the_vehicle_and_the_fields(name, change, message):

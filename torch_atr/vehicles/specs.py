@@ -381,8 +381,9 @@ def _check_layout(spec) -> None:
                                      for s in spec.axles):
             raise ValueError(f"{n}: axles {spec.axles} must be one or more positions that keep the wheels "
                              f"(wheel_d {spec.wheel_d}) inside the length {spec.length}")
-        if not spec.wheel_d + 0.1 < spec.deck:
-            raise ValueError(f"{n}: wheel_d {spec.wheel_d} reaches the deck {spec.deck}")
+        if not spec.belly < spec.wheel_d < spec.deck - 0.1:
+            raise ValueError(f"{n}: wheel_d {spec.wheel_d} must be above the belly {spec.belly} and reach no higher "
+                             f"than 0.1 m below the deck {spec.deck}")
         if not (spec.side_slope < spec.width / 2 and spec.track / 2 - spec.tyre_w / 2 > 0.05):
             raise ValueError(f"{n}: side_slope {spec.side_slope} or the wheels (track {spec.track}, tyre_w "
                              f"{spec.tyre_w}) leave no hull in width {spec.width}")
