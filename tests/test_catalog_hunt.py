@@ -277,3 +277,14 @@ def test_a_shape_out_of_order_is_refused(change, message):
 
     with pytest.raises(ValueError, match=message):
         dataclasses.replace(SEDAN, **change)
+
+
+def test_a_spec_the_builder_cannot_build_is_named():
+    """What validation lets through but the builder cannot build (a LAV-25 whose belly is so high that the
+    rear plate folds back on itself) failed with the triangulator's 'polygon is not simple', naming
+    neither the vehicle nor its spec."""
+    from torch_atr.vehicles.build import vehicle_files
+
+    lav = dataclasses.replace(_spec("lav_25"), belly=0.75)
+    with pytest.raises(ValueError, match=r"^lav_25: cannot build the Wheeled from its spec: polygon is not simple"):
+        vehicle_files(lav)
