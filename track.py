@@ -32,7 +32,7 @@ from torch_atr.tracking.filter import Tracker
 from torch_atr.tracking.job import (CONVERGED_FRAMES, TrackConfig, absolute_spec, is_track_run, run_summary,
                                     write_metrics, write_run)
 from torch_atr.training import trained_catalog, training_templates
-from torch_atr.validate import show
+from torch_atr.validate import cut, show
 
 log = logging.getLogger("track")
 SETTLE_FRAMES = 60  # metrics.json's "settled" block: the frames after a blind start's first 2 s
@@ -68,9 +68,11 @@ def main(argv: list[str] | None = None) -> dict:
     parser.add_argument("overrides", nargs="*", help="key=value overrides (tracker.filter.sigma=0.03)")
     args = parser.parse_intermixed_args(argv)  # flags may sit between the key=value overrides
     console_logging()
-    flags = [f"{key}={getattr(args, flag)}" for flag, (key, *_) in FLAGS.items() if getattr(args, flag) is not None]
-    flags += [f"{name}=true" for name in ("tensorboard", "video") if getattr(args, name)]
-    cfg = load_config(TrackConfig, args.config, flags + args.overrides, unique=True)
+    # Each flag as the override it stands for; messages name it as given (--particles 0).
+    given = {flag: getattr(args, flag) for flag in FLAGS if getattr(args, flag) is not None}
+    flags = {f"{FLAGS[flag][0]}={value}": cut(f"--{flag} {shlex.quote(value)}") for flag, value in given.items()}
+    flags |= {f"{name}=true": f"--{name}" for name in ("tensorboard", "video") if getattr(args, name)}
+    cfg = load_config(TrackConfig, args.config, [*flags, *args.overrides], unique=True, labels=flags)
     for key in ("out", "checkpoint"):  # Path('') is '.': the run's files went into the current folder
         if not getattr(cfg, key).strip():
             raise ConfigError(f"{key} must be a path; got {show(getattr(cfg, key))}")

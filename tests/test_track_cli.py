@@ -197,7 +197,16 @@ def test_the_summary_names_what_the_truth_allows():
     (["--checkpoint", "missing.pt"], "missing.pt"),
     (["--device", "tpu"], "device 'tpu' is not available"),
     (["tracker.filter.sigma=0.03", "--overwrite", "tracker.filter.method=V"], "method='V'"),  # a flag between
-    (["--frames", "3", "frames=5"], "overrides 'frames=3' and 'frames=5' both set frames; give one"),
+    (["--frames", "3", "frames=5"], "--frames 3 and override 'frames=5' both set frames; give one"),
+    (["--particles", "10", "tracker.filter.particles=20"],
+     "--particles 10 and override 'tracker.filter.particles=20' both set tracker.filter.particles; give one"),
+    # A flag's value is named as the flag was given, not as the override it stands for.
+    (["--frames", "0"], "track.py: error: --frames 0: frames must be null or in [1, 1e7]; got 0"),
+    (["--particles", "1e9"], "track.py: error: --particles 1e9: tracker.filter.particles: expected an integer"),
+    (["--particles", "[1"], "track.py: error: --particles '[1': not a YAML value"),
+    (["--tensorboard", "tensorboard=false"], "--tensorboard and override 'tensorboard=false' both set tensorboard"),
+    (["--frames", "9" * 300], f"track.py: error: --frames {'9' * 31}… (309 characters): frames must be null or "
+                              "in [1, 1e7]; got 9999"),
 ])
 def test_user_errors_are_one_line(tmp_path, args, message):
     proc = subprocess.run([sys.executable, str(REPO / "track.py"), "--out", str(tmp_path / "x"), *args],

@@ -17,7 +17,7 @@ import types
 import typing
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, TypeVar
+from typing import Any, Callable, TypeVar
 
 import yaml
 
@@ -304,14 +304,15 @@ def _set_dotted(data: dict, dotted: str, value: Any) -> None:
 
 
 def load_config(cls: type[T], path: str | Path | None = None, overrides: list[str] | None = None,
-                what: str = "override", unique: bool = False) -> T:
+                what: str = "override", unique: bool = False, labels: dict[str, str] | None = None) -> T:
     """Build ``cls`` from its defaults, a YAML file and ``key=value`` overrides.
 
     ``overrides`` use dotted keys for nested sections (``template.size_px=32``); values are
     parsed as YAML scalars; a later one wins, so code can lay its own over defaults. With
     ``unique`` (the entry points' user input) a key set twice to two values is refused instead,
     since the later would win without a word. Raises :class:`ConfigError` naming the file (for a
-    file that is bad on its own) or the override (``what`` names them in messages) and the key at
+    file that is bad on its own) or the override (``what`` names them in messages; ``labels``, an
+    override a command-line flag stands for, as the user wrote it: ``--particles 0``) and the key at
     fault.
     """
     data: dict = {}
@@ -330,12 +331,13 @@ def load_config(cls: type[T], path: str | Path | None = None, overrides: list[st
         if not overrides:
             return built
     base = copy.deepcopy(data)
-    parsed = override_leaves(cls, overrides or [], what, unique)
+    labels = labels or {}
+    parsed = override_leaves(cls, overrides or [], what, unique, labels)
     for item, leaf, value in parsed:
         try:
             _set_dotted(data, leaf, value)
         except ConfigError as exc:  # a key below one the file gives a value (seed.x=1)
-            raise ConfigError(f"{what} {show(item)}: {exc}") from None
+            raise ConfigError(f"{_named([item], what, labels, show)}: {exc}") from None
     try:
         return _build(cls, data)
     except ConfigError as exc:
@@ -344,34 +346,46 @@ def load_config(cls: type[T], path: str | Path | None = None, overrides: list[st
         alone = [item for item, key, value in parsed if not _builds_with(cls, base, key, value)]
         named = [item for item, key, _ in parsed if _mentions(str(exc), key)]
         at_fault = alone or named or [item for item, _, _ in parsed]
-        label = f"{what}{'s' if len(at_fault) > 1 else ''} {', '.join(map(cut, at_fault))}" if at_fault else "config"
-        raise ConfigError(f"{label}: {exc}") from None
+        raise ConfigError(f"{_named(at_fault, what, labels, cut) if at_fault else 'config'}: {exc}") from None
 
 
-def override_leaves(cls: type, overrides: list[str], what: str = "override",
-                    unique: bool = False) -> list[tuple[str, str, Any]]:
+def _named(items: list[str], what: str, labels: dict[str, str], quote: Callable[[str], str]) -> str:
+    """The overrides ``items`` as a message names them, each quoted by ``quote``: ``override 'a=1'``,
+    ``overrides a=1, b=2``; one a flag stands for (``labels``) as the user wrote it (``--particles 0``)."""
+    if not any(item in labels for item in items):
+        return f"{what}{'s' if len(items) > 1 else ''} {', '.join(map(quote, items))}"
+    return ", ".join(labels.get(item) or f"{what} {quote(item)}" for item in items)
+
+
+def override_leaves(cls: type, overrides: list[str], what: str = "override", unique: bool = False,
+                    labels: dict[str, str] | None = None) -> list[tuple[str, str, Any]]:
     """The ``key=value`` ``overrides`` of ``cls`` as (override, dotted key, value), one per key set, in
     order: a mapping given for a section stands for each of its keys. With ``unique`` a key set twice
-    to two values is refused. ConfigError names the override (``what``) at fault: one not of the form
-    key=value, a value that is not YAML, a path through a key that is not a section."""
+    to two values is refused. ConfigError names the override (``what``, or its ``labels`` entry) at
+    fault: one not of the form key=value, a value that is not YAML, a path through a key that is not a
+    section."""
+    labels = labels or {}
     parsed: list[tuple[str, str, Any]] = []
     data: dict = {}  # the overrides laid out, so that a key below a value (seed.x=1) is refused
     for item in overrides:
         key, sep, raw = item.partition("=")
         if not sep or not key.strip():
-            raise ConfigError(f"{what} {show(item)} is not of the form key=value")
+            raise ConfigError(f"{_named([item], what, labels, show)} is not of the form key=value")
         try:
             leaves = _leaves(cls, key.strip(), _override_value(cls, key.strip(), raw))
             for leaf, value in leaves:
                 _set_dotted(data, leaf, value)
         except yaml.YAMLError as exc:
-            raise ConfigError(f"{what} {show(item)}: not a YAML value: {' '.join(str(exc).split())}") from None
+            raise ConfigError(f"{_named([item], what, labels, show)}: not a YAML value: "
+                              f"{' '.join(str(exc).split())}") from None
         except ConfigError as exc:
-            raise ConfigError(f"{what} {show(item)}: {exc}") from None
+            raise ConfigError(f"{_named([item], what, labels, show)}: {exc}") from None
         for leaf, value in leaves:
             earlier = next((other for other, k, v in parsed if unique and k == leaf and v != value), None)
             if earlier is not None:
-                raise ConfigError(f"{what}s {show(earlier)} and {show(item)} both set {cut(leaf)}; give one")
+                both = (f"{what}s {show(earlier)} and {show(item)}" if earlier not in labels and item not in labels
+                        else f"{_named([earlier], what, labels, show)} and {_named([item], what, labels, show)}")
+                raise ConfigError(f"{both} both set {cut(leaf)}; give one")
             parsed.append((item, leaf, value))
     return parsed
 
