@@ -288,3 +288,36 @@ def test_a_spec_the_builder_cannot_build_is_named():
     lav = dataclasses.replace(_spec("lav_25"), belly=0.75)
     with pytest.raises(ValueError, match=r"^lav_25: cannot build the Wheeled from its spec: polygon is not simple"):
         vehicle_files(lav)
+
+
+# ------------------------------------------------------------------------------------------
+# The held-out manifest
+# ------------------------------------------------------------------------------------------
+@pytest.mark.parametrize("field, value, message", [
+    ("scale", "0", r"scale must be a positive number \(file units -> metres\); got 0"),
+    ("scale", "-1.0", r"scale must be a positive number .*; got -1.0"),
+    ("scale", ".nan", r"scale must be a positive number .*; got nan"),
+    ("scale", ".inf", r"scale must be a positive number .*; got inf"),
+    ("scale", "true", r"scale must be a positive number .*; got True"),
+    ("cls", "truck", r"cls 'truck' is not one of \('tank', .*'unknown'\)"),
+    ("up", "q", r"the up axis must be one of .*; got 'q'"),
+    ("forward", "z", r"the up axis 'z' and the forward axis 'z' must be perpendicular"),
+    ("path", "null", r"path must be non-empty text; got None"),
+    ("note", "12", r"note must be text; got 12"),
+])
+def test_a_bad_heldout_manifest_entry_names_the_entry_and_the_key(tmp_path, field, value, message):
+    """read_manifest took a scale of 0, -1, NaN, infinity or true (read as 1.0), a class such as 'truck',
+    axes such as 'q' or up = forward, a null path (as the text 'None'); the bad value surfaced only when
+    the mesh was loaded, naming the mesh file rather than the manifest entry, or never (a scale of true).
+    Now the manifest, the entry and the key are named when the manifest is read."""
+    from torch_atr.vehicles.catalog import read_manifest
+
+    good = {"path": "car/a.obj", "cls": "car", "up": "z", "forward": "x", "scale": "1.0", "note": "why"}
+
+    def manifest(entry):
+        (tmp_path / "m.yaml").write_text("meshes:\n  - {" + ", ".join(f"{k}: {v}" for k, v in entry.items()) + "}\n")
+        return tmp_path / "m.yaml"
+
+    with pytest.raises(ValueError, match=rf"m.yaml: meshes\[0\] \((car/a.obj|None)\): ({message})"):
+        read_manifest(manifest({**good, field: value}))
+    assert read_manifest(manifest(good))[0].cls == "car"

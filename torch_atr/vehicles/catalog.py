@@ -10,14 +10,15 @@ scale to metres, class) are in ``heldout.yaml`` beside this file.
 
 from __future__ import annotations
 
+import math
 import os
 import typing
 from dataclasses import dataclass, fields
 from pathlib import Path
 
 from torch_atr.config import ConfigError, check_type, read_yaml
-from torch_atr.vehicles.loader import (CLASS_NAMES, MIN_THICKNESS_M, Vehicle, body_rotation, forward_extent,
-                                      load_vehicle)
+from torch_atr.vehicles.loader import (CLASS_NAMES, MIN_THICKNESS_M, UNKNOWN, Vehicle, body_rotation,
+                                      forward_extent, load_vehicle)
 from torch_atr.vehicles.specs import SPLITS
 
 PACKAGE_DIR = Path(__file__).resolve().parent
@@ -182,7 +183,12 @@ class HeldoutEntry:
 
 
 def read_manifest(path: str | Path = MANIFEST) -> list[HeldoutEntry]:
-    """Entries of a held-out manifest (YAML: ``meshes:`` list of mappings with HeldoutEntry's keys)."""
+    """Entries of a held-out manifest (YAML: ``meshes:`` list of mappings with HeldoutEntry's keys).
+
+    Raises ValueError naming the manifest, the entry and the key for a missing or unknown key, a path
+    or note that is not text, a class outside CLASS_NAMES and "unknown", bad axes, or a scale that is
+    not a positive finite number.
+    """
     path = Path(path)
     data = read_yaml(path)
     if not isinstance(data, dict) or set(data) != {"meshes"} or not isinstance(data["meshes"], list):
@@ -193,11 +199,21 @@ def read_manifest(path: str | Path = MANIFEST) -> list[HeldoutEntry]:
         if not isinstance(item, dict) or set(item) != keys:
             got = sorted(item) if isinstance(item, dict) else item
             raise ValueError(f"{path}: meshes[{i}] must have exactly the keys {sorted(keys)}; got {got}")
+        where = f"{path}: meshes[{i}] ({item.get('path')})"
+        for key in ("path", "cls", "up", "forward", "note"):
+            if not isinstance(item[key], str) or (key != "note" and not item[key].strip()):
+                raise ValueError(f"{where}: {key} must be {'text' if key == 'note' else 'non-empty text'}; "
+                                 f"got {item[key]!r}")
+        scale = item["scale"]
+        if isinstance(scale, bool) or not isinstance(scale, (int, float)) or not (math.isfinite(scale) and scale > 0):
+            raise ValueError(f"{where}: scale must be a positive number (file units -> metres); got {scale!r}")
+        if item["cls"] not in (*CLASS_NAMES, UNKNOWN):
+            raise ValueError(f"{where}: cls {item['cls']!r} is not one of {(*CLASS_NAMES, UNKNOWN)}")
         try:
-            entries.append(HeldoutEntry(str(item["path"]), str(item["cls"]), str(item["up"]), str(item["forward"]),
-                                        float(item["scale"]), str(item["note"])))
-        except (TypeError, ValueError) as exc:
-            raise ValueError(f"{path}: meshes[{i}] ({item.get('path')}): {exc}") from exc
+            body_rotation(item["up"], item["forward"])
+        except ValueError as exc:
+            raise ValueError(f"{where}: {exc}") from exc
+        entries.append(HeldoutEntry(item["path"], item["cls"], item["up"], item["forward"], float(scale), item["note"]))
     return entries
 
 
