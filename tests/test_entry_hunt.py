@@ -154,3 +154,14 @@ def test_a_tracker_override_written_as_track_py_takes_it_says_how_to_write_it(tm
     "unknown config key(s) tracker; known: adapt, filter, ..." and suggested nothing."""
     with pytest.raises(ConfigError, match=r"^override 'tracker.filter.sigma=0.1': .*; give 'filter.sigma=0.1'$"):
         experiments.main(["sensiac-like", "--out", str(tmp_path / "out"), "tracker.filter.sigma=0.1"])
+
+
+@pytest.mark.parametrize("experiment", ["sensiac-like", "unseen", "studies", "visible", "all"])
+@pytest.mark.parametrize("seed", [2 ** 64, 10 ** 40, -1])
+def test_a_seed_torch_cannot_take_is_named_before_any_work(tmp_path, no_work, experiment, seed):
+    """torch's generators take seeds in [0, 2**64 - 1]: --seed 18446744073709551616 was accepted, and the
+    visible experiment stopped in its calibration, once OUT/sequences was made, on PyTorch's "Overflow
+    when unpacking long long" (no option named); the others in their workers."""
+    with pytest.raises(ConfigError, match=rf"^--seed must be in \[0, 2\*\*64 - 1\]; got {seed}$"):
+        experiments.main([experiment, "--out", str(tmp_path / "out"), "--quick", "--seed", str(seed)])
+    assert not (tmp_path / "out").exists()

@@ -30,7 +30,7 @@ import time
 from pathlib import Path
 
 from torch_atr.cli import console_logging, run_main
-from torch_atr.config import ConfigError, override_leaves
+from torch_atr.config import ConfigError, check_seed, override_leaves
 from torch_atr.experiments.combined import COMBINED_FORMAT, EXPERIMENTS, write_combined_report
 from torch_atr.experiments.report import (REPORT_FORMAT, is_report_folder, mean_recognition, report_format,
                                           write_report)
@@ -72,6 +72,8 @@ def main(argv: list[str] | None = None) -> dict:
     args = parser.parse_intermixed_args(argv)  # overrides after options too: plain parse_args gives them to none
     if args.workers < 0:  # else ProcessPoolExecutor's "max_workers must be greater than 0", once OUT/ was made
         raise ConfigError(f"--workers must be 0 (one per core) or more; got {args.workers}")
+    if args.seed is not None:  # else torch's "Overflow when unpacking long long", in a worker or the calibration
+        check_seed("--seed", args.seed)
     check_tracker_overrides(args.overrides)
     check_scene_overrides(args.scene)
     console_logging()
