@@ -4,6 +4,7 @@ rendered templates, robustness, determinism and seeded end-to-end runs on the si
 import copy
 import dataclasses
 import json
+import logging
 import math
 import re
 from pathlib import Path
@@ -709,3 +710,46 @@ def test_a_second_run_is_a_new_trackers_run(model):
     json.dumps(again)  # plain Python values (a NumPy count was not)
     for got, want in zip(again, fresh):
         assert {k: v for k, v in got.items() if k != "step_ms"} == {k: v for k, v in want.items() if k != "step_ms"}
+
+
+def test_adaptation_steps_that_make_a_width_non_finite_are_undone(btr, caplog):
+    """One Adam step towards an observation of NaN cells makes every log width NaN; they go back to what they
+    were, with a warning naming the frame, and the optimiser starts afresh (its moments are NaN too)."""
+    model = GenerativeShapeModel.from_checkpoint(CKPT)  # its own copy: adaptation changes the widths
+    tracker = Tracker(model, btr.camera, _config("filter.particles=200", "init.mode=truth", "adapt.every=1000",
+                                                 "adapt.steps=1"), seed=0)
+    tracker.warm_up(btr.warmup_frames(20))
+    tracker.initialise(btr.truth(0))
+    row = tracker.step(btr.frame(0))  # adapts once, as every frame 0 mod 1000 does
+    before = model.rbf.log_width.detach().clone()
+    signed = torch.full_like(signed_distance_px(tracker.last_mask), math.nan)
+    with caplog.at_level(logging.WARNING, logger="torch_atr.tracking.filter"):
+        tracker._adapt(FrameDistance(signed, (0, 0), cut_edges(tracker.last_mask)), row)
+    assert torch.equal(model.rbf.log_width.detach(), before)
+    assert "frame 0: kernel-width adaptation diverged" in caplog.text
+    assert not tracker._optimiser.state  # a fresh optimiser: no NaN moments carried to the next frame
+
+
+@pytest.mark.slow
+def test_a_diverged_kernel_width_adaptation_is_undone(btr, caplog):
+    """adapt.lr=1 with 1000 steps (both within the config's bounds) drove the log widths to NaN at frame 3:
+    every later shape was NaN and every later frame lost. A frame whose steps diverge leaves the widths as the
+    frame before left them, with a warning; the widths stay within LOG_WIDTH_RANGE and no frame is lost."""
+    model = GenerativeShapeModel.from_checkpoint(CKPT)  # its own copy: adaptation changes the widths
+    tracker = Tracker(model, btr.camera, _config("filter.particles=200", "init.mode=truth", "adapt.every=1",
+                                                 "adapt.steps=1000", "adapt.lr=1"), seed=0)
+    tracker.warm_up(btr.warmup_frames(20))
+    tracker.initialise(btr.truth(0))
+    undone = []
+    for i in range(5):
+        before = model.rbf.log_width.detach().clone()
+        caplog.clear()
+        with caplog.at_level(logging.DEBUG, logger="torch_atr.tracking.filter"):
+            row = tracker.step(btr.frame(i))
+        widths = model.rbf.log_width.detach()
+        assert row["lost"] == 0 and abs(row["x"] - btr.truth(i).x) < 1.0
+        assert bool(((widths >= -20) & (widths <= 20)).all())
+        if f"frame {i}: kernel-width adaptation diverged" in caplog.text:
+            undone.append(i)
+            assert torch.equal(widths, before)
+    assert undone  # the scenario: some frame's steps diverged

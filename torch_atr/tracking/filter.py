@@ -61,6 +61,7 @@ from torch_atr.camera import Camera
 from torch_atr.config import ConfigError
 from torch_atr.data.sequence import FrameTruth, Sequence
 from torch_atr.model import GenerativeShapeModel
+from torch_atr.model.generative import LOG_WIDTH_RANGE
 from torch_atr.pose import VehiclePose, camera_centre, check_sensor_like, view_of_pose
 from torch_atr.segmentation import ForegroundSegmenter, SegmentationConfig, static_background_frames
 from torch_atr.tracking.appearance import METHODS, ShapeAppearance
@@ -375,6 +376,7 @@ class Tracker:
         self._begin()
         self._optimiser = (torch.optim.Adam([self.model.rbf.log_width], lr=self.cfg.adapt.lr)
                            if self.cfg.adapt.every else None)
+        self._adapt_undone = 0  # adaptations undone as diverged (_adapt)
         self._grid = HypothesisGrid(self.model, self.cfg.init, _GRID_TOLERANCE)  # blind start, re-detection
 
     def _begin(self) -> None:
@@ -867,15 +869,29 @@ class Tracker:
         return 2.0 * int((placed & mask[r0:r1, c0:c1]).sum()) / total if total else 1.0
 
     def _adapt(self, distance: FrameDistance, row: dict) -> None:
-        """A few Adam steps on the kernel widths towards the observation at the estimate."""
+        """A few Adam steps on the kernel widths towards the observation at the estimate. Steps that leave a
+        log width non-finite or outside ``LOG_WIDTH_RANGE`` (a diverged Adam: a large ``adapt.lr`` times many
+        ``adapt.steps``) are undone, with a warning, as ``fine_tune_widths`` refuses them: a NaN width made
+        every later shape NaN and lost every later frame."""
         alpha, theta, phi, uv, side = self._estimate_window(row)
         z = observe_windows(distance.signed, uv, side, self.model.template, self.appearance.size, distance.origin)
+        log_width = self.model.rbf.log_width
+        before = log_width.detach().clone()
         with torch.enable_grad():
             for _ in range(self.cfg.adapt.steps):
                 self._optimiser.zero_grad()
                 loss = (self.appearance(alpha, theta, phi) - z).square().mean()
                 loss.backward()
                 self._optimiser.step()
+        lo, hi = LOG_WIDTH_RANGE
+        if not bool(((log_width >= lo) & (log_width <= hi)).all()):  # NaN fails both
+            with torch.no_grad():
+                log_width.copy_(before)
+            self._optimiser = torch.optim.Adam([log_width], lr=self.cfg.adapt.lr)  # its moments diverged too
+            self._adapt_undone += 1
+            (log.warning if self._adapt_undone == 1 else log.debug)(
+                "frame %s: kernel-width adaptation diverged (log widths left [%g, %g]) and was undone; a smaller "
+                "adapt.lr or fewer adapt.steps keeps it (later ones are logged at debug level)", row["frame"], lo, hi)
         self._grid.forget()  # the widths changed the silhouettes
 
     # --- a whole sequence -------------------------------------------------------------------
