@@ -85,3 +85,39 @@ def test_console_log_lines_stay_clear_of_progress_bars():
     err = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stderr
     lines = [segment.split("\r")[-1] for segment in err.split("\n") if "halfway" in segment]
     assert len(lines) == 1 and re.fullmatch(r"\d\d:\d\d:\d\d track: halfway", lines[0]), err
+
+
+@pytest.mark.parametrize("error, line", [("KeyboardInterrupt", "demo.py: interrupted"),
+                                         ("ValueError('bad vehicle')", "demo.py: error: bad vehicle")])
+def test_the_last_line_is_the_message_not_a_progress_bar_closed_after_it(error, line):
+    """A bar iterated in a list comprehension (train.py's rendering) lives in a frame of the
+    traceback: it was closed, and drawn again, once run_main had printed its line, so a Ctrl-C
+    while rendering ended with the bar ('views:  30%|███ | 3/10'), as if the run went on."""
+    code = ("from tqdm import tqdm\n"
+            "from torch_atr.cli import run_main\n"
+            "def render(i):\n"
+            f"    if i == 3: raise {error}\n"
+            "def main(argv):\n"
+            "    return [render(i) for i in tqdm(range(10), desc='views', mininterval=0)]\n"
+            "run_main(main, [], prog='demo.py')\n")
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert result.returncode in (2, 130)
+    assert result.stderr.endswith(f"\n{line}\n") and "views:  30%" in result.stderr, result.stderr
+
+
+def test_a_bar_in_the_frames_of_the_error_a_user_error_arose_from_closes_before_the_line():
+    """A user error raised ``from None`` over the one a bar's frame raised: that frame is in the
+    first error's traceback alone."""
+    code = ("from tqdm import tqdm\n"
+            "from torch_atr.cli import run_main\n"
+            "def render(i):\n"
+            "    if i == 3: raise KeyError(i)\n"
+            "def main(argv):\n"
+            "    try:\n"
+            "        return [render(i) for i in tqdm(range(10), desc='views', mininterval=0)]\n"
+            "    except KeyError:\n"
+            "        raise ValueError('vehicle 3 has no mesh') from None\n"
+            "run_main(main, [], prog='demo.py')\n")
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert result.returncode == 2
+    assert result.stderr.endswith("\ndemo.py: error: vehicle 3 has no mesh\n") and "30%" in result.stderr, result.stderr

@@ -56,11 +56,23 @@ def run_main(main: Callable[[list[str] | None], object], argv: list[str] | None 
     try:
         main(argv)
     except USER_ERRORS as exc:
+        _release_frames(exc)
         print(f"{prog}: error: {error_text(exc)}", file=sys.stderr)
         raise SystemExit(2) from None
-    except KeyboardInterrupt:
+    except KeyboardInterrupt as exc:
+        _release_frames(exc)
         print(f"\n{prog}: interrupted", file=sys.stderr)
         raise SystemExit(130) from None
+
+
+def _release_frames(exc: BaseException | None) -> None:
+    """Drop the frames the tracebacks of ``exc`` and the exceptions it arose from hold, and what they
+    held: a progress bar iterated in a list comprehension lives in one and closes, drawing itself once
+    more, as it goes. Dropped before the error line is printed, it is drawn above the line, not below
+    it as if the run went on."""
+    while exc is not None:  # Python keeps the chain free of cycles
+        exc.__traceback__ = None
+        exc = exc.__context__
 
 
 class _ConsoleHandler(logging.StreamHandler):
