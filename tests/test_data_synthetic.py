@@ -530,3 +530,24 @@ def test_a_focal_length_the_camera_refuses_is_named_as_the_scenes():
     """Camera refuses fx below 1e-3 px; the scene said focal_px=1e-4 was fine and the error then named fx."""
     with pytest.raises(ConfigError, match=r"^scene: bad value\(s\) focal_px=0.0001 \(expected in \[0.001, 1e6\]\)"):
         SceneConfig(focal_px=1e-4)
+
+
+def test_a_vehicle_at_the_frames_edge_is_blurred_as_the_whole_frame_is():
+    """The frame is the whole composed scene blurred, mirrored at the frame's edges (scipy's 'mirror', OpenCV's
+    REFLECT_101; a sampled Gaussian reaching 4 σ). The vehicle's part was blurred with zeros beyond the edge,
+    so a T-72 touching the right edge (frame 0 of this run) was up to 2.5 K too dark in its last columns."""
+    seq = SyntheticSequence("t_72", SceneConfig(frames=400, seed=1))
+    target = seq._target(0)
+    assert target.u0 + target.cover.shape[1] == seq.cfg.width  # the scenario: it touches the edge
+    sharp, _, occluder = seq._static_scene()
+    window = (slice(target.v0, target.v0 + target.cover.shape[0]), slice(target.u0, target.u0 + target.cover.shape[1]))
+    cover = np.where(occluder[window], 0.0, target.cover)
+    composed = sharp.astype(np.float64)
+    composed[window] += np.where(cover > 0, target.radiance - cover * sharp[window], 0.0)
+    sigma = seq.cfg.psf_sigma
+    x = np.arange(-math.ceil(4 * sigma), math.ceil(4 * sigma) + 1)
+    kernel = np.exp(-x ** 2 / (2 * sigma ** 2))
+    reference = composed
+    for axis in (0, 1):
+        reference = ndimage.correlate1d(reference, kernel / kernel.sum(), axis=axis, mode="mirror")
+    assert np.abs(seq.scene(0) - reference).max() < 1e-3
