@@ -321,3 +321,54 @@ def test_a_bad_heldout_manifest_entry_names_the_entry_and_the_key(tmp_path, fiel
     with pytest.raises(ValueError, match=rf"m.yaml: meshes\[0\] \((car/a.obj|None)\): ({message})"):
         read_manifest(manifest({**good, field: value}))
     assert read_manifest(manifest(good))[0].cls == "car"
+
+
+# ------------------------------------------------------------------------------------------
+# References for what was found right
+# ------------------------------------------------------------------------------------------
+def test_section_cap_is_the_superellipse_between_its_limits():
+    """_section's cap half-width at height fraction v is w (1 - v^e)^(1/e) for a constant tumblehome:
+    e = 2 is the quarter ellipse sqrt(1 - v^2) (closed form), a large e tends to the box (w at every v)."""
+    from torch_atr.vehicles.build import _CAP_V, _section
+
+    v = np.array(_CAP_V)
+    for e, expected in ((2.0, np.sqrt(1 - v ** 2)), (400.0, np.ones_like(v))):
+        sec = np.array(_section(0.0, 1.0, 2.0, 1.0, 1.0, e, 0.05))  # belt at z = 1, top at z = 2, half-width 1
+        cap = sec[2:2 + len(v)]
+        np.testing.assert_allclose(cap[:, 1], 1.0 + v, atol=1e-12)
+        np.testing.assert_allclose(cap[:, 0], expected, atol=1e-6)
+    sec = np.array(_section(0.0, 1.0, 2.0, 1.0, 1.0, 2.0, 0.05))
+    assert len(sec) == 13 and tuple(sec[6]) == (0.0, 2.0)
+    np.testing.assert_allclose(sec[::-1] * [-1, 1], sec, atol=1e-12)  # mirror-symmetric about y = 0
+
+
+def test_catalog_hulls_are_mirror_symmetric_and_wheels_share_the_ground():
+    """Every hull.obj is symmetric under y -> -y (vertex sets equal to 0.1 mm); its lowest point is the
+    tracks' ground line, a wheeled hull's belly or a road body's sill (1.6 x clearance, docs/recognition.md);
+    every wheel (a y-axis cylinder of wheel_d on the hull link) touches z = 0, or for a tracked vehicle
+    stands 7 cm up inside its track."""
+    import xml.etree.ElementTree as ET
+
+    from scipy.spatial import cKDTree
+
+    from torch_atr.vehicles.catalog import CATALOG_DIR
+    from torch_atr.vehicles.specs import SPLITS, Tracked, Wheeled
+
+    for split, specs in SPLITS.items():
+        for spec in specs:
+            folder = CATALOG_DIR / split / spec.name
+            hull = trimesh.load(folder / "hull.obj", force="mesh", process=False)
+            d, _ = cKDTree(hull.vertices).query(hull.vertices * [1, -1, 1])
+            assert d.max() < 1e-4, spec.name
+            lowest = (0.0 if isinstance(spec, Tracked) else spec.belly if isinstance(spec, Wheeled)
+                      else 1.6 * spec.clearance)
+            assert hull.bounds[0, 2] == pytest.approx(lowest, abs=1e-4), spec.name
+            link = next(k for k in ET.parse(folder / f"{spec.name}.urdf").getroot().iter("link")
+                        if k.get("name") == "hull")
+            bottoms = []
+            for vis in link.iter("visual"):
+                cyl, origin = vis.find("geometry/cylinder"), vis.find("origin")
+                if cyl is not None and origin.get("rpy").startswith("1.5708") \
+                        and float(cyl.get("radius")) == pytest.approx(spec.wheel_d / 2):
+                    bottoms.append(float(origin.get("xyz").split()[2]) - float(cyl.get("radius")))
+            assert bottoms and np.allclose(bottoms, 0.07 if isinstance(spec, Tracked) else 0.0, atol=1e-4), spec.name
