@@ -165,3 +165,11 @@ def test_a_seed_torch_cannot_take_is_named_before_any_work(tmp_path, no_work, ex
     with pytest.raises(ConfigError, match=rf"^--seed must be in \[0, 2\*\*64 - 1\]; got {seed}$"):
         experiments.main([experiment, "--out", str(tmp_path / "out"), "--quick", "--seed", str(seed)])
     assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.parametrize("script", ["track.py", "train.py"])
+def test_an_empty_config_path_is_named_as_such(tmp_path, script):
+    """``--config ''`` read ".: expected a file; it is a folder or a device" (Path('') is '.')."""
+    result = entry_point(str(REPO / script), "--config", "", cwd=tmp_path)
+    assert (result.returncode, result.stdout) == (2, "")
+    assert result.stderr == f"{script}: error: the config file must be a path; got ''\n"

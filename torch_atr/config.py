@@ -317,6 +317,8 @@ def load_config(cls: type[T], path: str | Path | None = None, overrides: list[st
     """
     data: dict = {}
     if path is not None:
+        if not str(path).strip():  # Path('') is '.', the current folder
+            raise ConfigError(f"the config file must be a path; got {show(str(path))}")
         path = Path(path)
         if not path.exists():
             raise ConfigError(f"config file not found: {path}")
