@@ -12,6 +12,7 @@ import pytest
 import trimesh
 
 from torch_atr.vehicles.geometry import fillet, prism_xz, sweep
+from torch_atr.vehicles.specs import TEST, TRAIN
 
 
 # ------------------------------------------------------------------------------------------
@@ -140,8 +141,6 @@ def test_a_failing_build_leaves_the_old_catalog(tmp_path, monkeypatch):
 # Spec validation
 # ------------------------------------------------------------------------------------------
 def _spec(name):
-    from torch_atr.vehicles.specs import TEST, TRAIN
-
     return next(s for s in TRAIN + TEST if s.name == name)
 
 
@@ -372,3 +371,27 @@ def test_catalog_hulls_are_mirror_symmetric_and_wheels_share_the_ground():
                         and float(cyl.get("radius")) == pytest.approx(spec.wheel_d / 2):
                     bottoms.append(float(origin.get("xyz").split()[2]) - float(cyl.get("radius")))
             assert bottoms and np.allclose(bottoms, 0.07 if isinstance(spec, Tracked) else 0.0, atol=1e-4), spec.name
+
+
+KNOWN_OFF = {"cv90": "the 40 mm gun (ring 3.2 - trunnion 0.9 - barrel 2.4) reaches 0.10 m past the hull front although "
+                     "gun_length None means 'gun within the hull': 6.57 m for the published 6.47 m; fixing it changes "
+                     "the catalog the shipped checkpoint was trained on"}
+
+
+@pytest.mark.parametrize("name", [pytest.param(n, marks=pytest.mark.xfail(reason=KNOWN_OFF[n], strict=True))
+                                  if n in KNOWN_OFF else n for n in sorted(s.name for s in TRAIN + TEST)])
+def test_built_extents_match_the_published_figures_to_half_a_percent(name):
+    """The loaded rest pose's length (a tank's with its gun forward), width (a road vehicle's with its door
+    mirrors, which published widths leave out) and height match the spec's published figures to 0.5 %
+    (test_vehicles allows 5 %). The largest accepted deviation is the Qashqai's roof, 6 mm (0.4 %) under
+    1.59 m where the fillet rounds the highest corner of a falling roof."""
+    from torch_atr.vehicles import load_catalog_vehicle
+    from torch_atr.vehicles.specs import Road
+
+    spec = _spec(name)
+    lo, hi = load_catalog_vehicle(name).mesh.bounds
+    length = getattr(spec, "gun_length", None) or spec.length
+    width = spec.width
+    if isinstance(spec, Road):
+        width = max(width, (spec.cab[0] if spec.cab else width) + 2 * spec.mirror)
+    np.testing.assert_allclose(hi - lo, [length, width, spec.height], rtol=0.005, err_msg=name)
