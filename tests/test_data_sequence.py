@@ -574,8 +574,9 @@ def test_index_errors_name_index_and_length(saved):
         seq.frame(4)
     with pytest.raises(IndexError, match="frame index -5 out of range for a sequence of 4 frames"):
         seq.truth(-5)
-    with pytest.raises(TypeError, match="frame index must be an integer"):
-        seq.frame(1.0)
+    for index in (1.0, True, np.bool_(True)):  # True was frame 1
+        with pytest.raises(TypeError, match="frame index must be an integer"):
+            seq.frame(index)
     assert seq.frame(np.int64(3))[0, 0] == 3 and seq.frame(-4)[0, 0] == 0
 
 

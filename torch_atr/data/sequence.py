@@ -62,7 +62,8 @@ class FrameTruth:
         range_m: sensor-to-target range as SENSIAC gives it, metres.
         aspect: the target's clockwise rotation seen from above away from facing the sensor
             (0 = front towards the sensor), radians; equal to θ of METHOD.md's view.
-        time_s: time stamp, POSIX seconds (UTC).
+        time_s: time stamp, seconds: POSIX (UTC) in SENSIAC's AGT files; from the first frame in the
+            simulator (i / fps).
 
     Numbers must be real numbers (int, float or numpy scalars; not bool, not str) and are stored
     as float. Equality treats NaN as equal to NaN, so a truth read back from disk equals the one
@@ -157,6 +158,8 @@ class Sequence(abc.ABC):
     def _index(self, i) -> int:
         n = len(self)
         try:
+            if isinstance(i, bool):  # an int to operator.index: frame(True) read frame 1
+                raise TypeError
             k = operator.index(i)
         except TypeError as exc:
             raise TypeError(f"{self.name}: frame index must be an integer; got {i!r}") from exc
