@@ -173,3 +173,13 @@ def test_an_empty_config_path_is_named_as_such(tmp_path, script):
     result = entry_point(str(REPO / script), "--config", "", cwd=tmp_path)
     assert (result.returncode, result.stdout) == (2, "")
     assert result.stderr == f"{script}: error: the config file must be a path; got ''\n"
+
+
+@pytest.mark.parametrize("override", ["catalog=", "catalog= "])
+def test_an_empty_catalog_is_refused_not_read_as_the_current_folder(tmp_path, override):
+    """``catalog=`` read the current folder's catalog.yaml (Path('') is '.'), or named 'catalog.yaml'
+    as missing; checkpoint= and log_dir= were refused already."""
+    result = entry_point(str(REPO / "train.py"), override, cwd=tmp_path)
+    assert (result.returncode, result.stdout) == (2, "")
+    assert result.stderr == (f"train.py: error: catalog must be 'train' or a catalog folder (or its catalog.yaml); "
+                             f"got '{override[8:]}'\n")
