@@ -99,6 +99,20 @@ def test_non_finite_signed_distances_are_refused(model, bad):
         rbf_mapping_iou(rbf, signed[None], theta, phi, signed[None] > 0, theta, phi, 1e-3)
 
 
+def test_fit_alpha_below_zero_by_a_hair_wraps_to_zero_not_two_pi(model, monkeypatch):
+    """Brent's search brackets the grid's best α by a step either side, so below 0 after α = 0: a refined α of
+    -1e-20 came back as -1e-20 % 2π, which rounds to 2π itself, outside the promised [0, 2π)."""
+    import scipy.optimize
+
+    from torch_atr.evaluation import fit_alpha
+
+    theta, phi = torch.tensor([0.3, 2.0]), torch.tensor([0.1, 0.3])
+    signed = model(model.alphas[5].expand(2), theta, phi)
+    monkeypatch.setattr(scipy.optimize, "minimize_scalar",
+                        lambda *args, **kwargs: scipy.optimize.OptimizeResult(x=-1e-20, fun=-1.0))
+    assert fit_alpha(model, signed, theta, phi) == (0.0, -1.0)
+
+
 def test_alpha_grid_must_be_a_whole_number(model):
     """grid=10.5 gave alpha_grid_iou 11 columns at 2π·a/10.5 (uneven across the wrap), grid=True one column,
     and fit_alpha searched 361 α for grid=360.5: the docstrings promise (B, grid, V) at 2π·a/grid."""

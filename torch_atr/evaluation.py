@@ -150,7 +150,8 @@ def fit_alpha(model, signed: torch.Tensor, theta, phi, grid: int = 360) -> tuple
     res = minimize_scalar(lambda a: loss_of(torch.tensor([a], dtype=target.dtype, device=target.device)).item(),
                           bounds=(start - step, start + step), method="bounded", options={"xatol": 1e-6})
     if res.fun <= losses.min().item():
-        return float(res.x) % (2 * math.pi), float(res.fun)
+        alpha = float(res.x) % (2 * math.pi)  # -1e-20 % 2π rounds to 2π itself
+        return (0.0 if alpha == 2 * math.pi else alpha), float(res.fun)
     return start, losses.min().item()
 
 
