@@ -183,3 +183,14 @@ def test_an_empty_catalog_is_refused_not_read_as_the_current_folder(tmp_path, ov
     assert (result.returncode, result.stdout) == (2, "")
     assert result.stderr == (f"train.py: error: catalog must be 'train' or a catalog folder (or its catalog.yaml); "
                              f"got '{override[8:]}'\n")
+
+
+@pytest.mark.parametrize("experiment", ["sensiac-like", "unseen", "studies", "visible", "all"])
+@pytest.mark.parametrize("out", ["", " "])
+def test_an_empty_report_folder_is_refused_not_read_as_the_current_folder(tmp_path, monkeypatch, no_work,
+                                                                          experiment, out):
+    """``--out ''`` is '.': the experiment's report went into the current folder when it was empty."""
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(ConfigError, match=rf"^--out must be a folder path; got '{out}'$"):
+        experiments.main([experiment, "--out", out, "--quick"])
+    assert list(tmp_path.iterdir()) == []

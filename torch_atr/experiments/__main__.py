@@ -72,6 +72,8 @@ def main(argv: list[str] | None = None) -> dict:
     args = parser.parse_intermixed_args(argv)  # overrides after options too: plain parse_args gives them to none
     if args.workers < 0:  # else ProcessPoolExecutor's "max_workers must be greater than 0", once OUT/ was made
         raise ConfigError(f"--workers must be 0 (one per core) or more; got {args.workers}")
+    if not args.out.strip():  # Path('') is '.': the report went into the current folder
+        raise ConfigError(f"--out must be a folder path; got {show(args.out)}")
     if args.seed is not None:  # else torch's "Overflow when unpacking long long", in a worker or the calibration
         check_seed("--seed", args.seed)
     check_tracker_overrides(args.overrides)
