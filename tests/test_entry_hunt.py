@@ -1,6 +1,7 @@
 """The entry points' handling of hostile but realistic input: one line naming what is wrong, an exit
 status of 2, nothing made or replaced that the user did not ask for. Each case stops before any work."""
 
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -194,3 +195,14 @@ def test_an_empty_report_folder_is_refused_not_read_as_the_current_folder(tmp_pa
     with pytest.raises(ConfigError, match=rf"^--out must be a folder path; got '{out}'$"):
         experiments.main([experiment, "--out", out, "--quick"])
     assert list(tmp_path.iterdir()) == []
+
+
+def test_an_override_setting_several_bad_keys_of_a_section_is_named_once():
+    """A mapping override stands for each of its keys: one at fault through two keys was named twice,
+    'overrides tracker={...}, tracker={...}: ...'."""
+    from torch_atr.config import load_config
+    from torch_atr.tracking.job import TrackConfig
+
+    item = "tracker={filter: {particles: 0, sigma: -1}}"
+    with pytest.raises(ConfigError, match=rf"^override {re.escape(item)}: filter: bad value\(s\) particles=0, "):
+        load_config(TrackConfig, None, [item])

@@ -347,7 +347,7 @@ def load_config(cls: type[T], path: str | Path | None = None, overrides: list[st
         # message names; else all. A message may list every key of a section (a range check's help).
         alone = [item for item, key, value in parsed if not _builds_with(cls, base, key, value)]
         named = [item for item, key, _ in parsed if _mentions(str(exc), key)]
-        at_fault = alone or named or [item for item, _, _ in parsed]
+        at_fault = list(dict.fromkeys(alone or named or [item for item, _, _ in parsed]))  # a mapping's keys: once
         raise ConfigError(f"{_named(at_fault, what, labels, cut) if at_fault else 'config'}: {exc}") from None
 
 
