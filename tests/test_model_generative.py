@@ -446,6 +446,10 @@ def test_names_must_be_distinct(data):
     with pytest.raises(ValueError, match=r"Expected vehicle_names to be distinct; \['v0'\] repeat"):
         GenerativeShapeModel.fit(data["templates"], data["theta"], data["phi"], ["v0"] * len(NAMES), CLASSES,
                                  ["car", "tank"], TEMPLATE, ModelConfig(pixel_rank=8))
+    with pytest.raises(ValueError, match=r"Expected class_names to be a list of names; got the single string 'ab'"):
+        GenerativeShapeModel.fit(data["templates"], data["theta"], data["phi"], NAMES, CLASSES, "ab",
+                                 TEMPLATE, ModelConfig(pixel_rank=8))
+
 
 def test_model_config_from_yaml_and_overrides(tmp_path):
     path = tmp_path / "model.yaml"

@@ -435,8 +435,11 @@ def _repeated(names: Sequence) -> list[str]:
 
 
 def _check_distinct(vehicle_names: Sequence[str], class_names: Sequence[str]) -> None:
-    """Raise ValueError naming the list and the names that repeat in it (:func:`_repeated`)."""
+    """Raise ValueError naming the list and the names that repeat in it (:func:`_repeated`), or a list
+    given as one string (its characters were taken for names: class_names="tank" made four classes)."""
     for what, names in (("vehicle_names", vehicle_names), ("class_names", class_names)):
+        if isinstance(names, str):
+            raise ValueError(f"Expected {what} to be a list of names; got the single string {show(names)}")
         if _repeated(names):
             raise ValueError(f"Expected {what} to be distinct; {show(_repeated(names))} repeat(s) in "
                              f"{show(list(names))}")
