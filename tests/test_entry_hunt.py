@@ -1,6 +1,7 @@
 """The entry points' handling of hostile but realistic input: one line naming what is wrong, an exit
 status of 2, nothing made or replaced that the user did not ask for. Each case stops before any work."""
 
+import os
 import re
 import subprocess
 import sys
@@ -206,3 +207,47 @@ def test_an_override_setting_several_bad_keys_of_a_section_is_named_once():
     item = "tracker={filter: {particles: 0, sigma: -1}}"
     with pytest.raises(ConfigError, match=rf"^override {re.escape(item)}: filter: bad value\(s\) particles=0, "):
         load_config(TrackConfig, None, [item])
+
+
+@pytest.mark.parametrize("script", ["track.py", "train.py"])
+def test_a_config_path_starting_with_a_tilde_is_read_from_the_home_folder(tmp_path, script):
+    """``--config=~/c.yaml`` reaches the program with its ~ (a shell expands it after a space, not after
+    '='): the line read "config file not found: ~/c.yaml", where the paths inside a config file and
+    track.py's --out=~/run are expanded."""
+    home = tmp_path / "home"
+    home.mkdir()
+    (home / "c.yaml").write_text("nope: 1\n")
+    result = subprocess.run([sys.executable, str(REPO / script), "--config=~/c.yaml"], capture_output=True,
+                            text=True, cwd=tmp_path, env={**os.environ, "HOME": str(home)}, timeout=120)
+    assert result.returncode == 2
+    assert result.stderr.startswith(f"{script}: error: {home / 'c.yaml'}: unknown config key(s) nope;"), result.stderr
+
+
+@pytest.mark.parametrize("experiment", ["sensiac-like", "unseen", "studies", "visible", "all"])
+def test_a_report_folder_or_checkpoint_starting_with_a_tilde_is_in_the_home_folder(tmp_path, monkeypatch,
+                                                                                  experiment):
+    """``--out=~/exp`` made a folder named '~' in the current folder (and --checkpoint=~/m.pt was not
+    found), where track.py expands both."""
+    import torch_atr.experiments.visible as visible
+
+    home = tmp_path / "home"
+    home.mkdir()
+    (home / "m.pt").write_bytes((REPO / "checkpoints" / "default.pt").read_bytes())
+    monkeypatch.setenv("HOME", str(home))
+    monkeypatch.chdir(tmp_path)
+    seen = []
+
+    def stop(*args, **kwargs):
+        seen.append(args)
+        raise Reached
+
+    monkeypatch.setattr(experiments, "run_all", stop)
+    monkeypatch.setattr(experiments, "run_studies", stop)
+    monkeypatch.setattr(visible, "run_visible", stop)
+    with pytest.raises(Reached):
+        experiments.main([experiment, "--out=~/exp", "--quick", "--checkpoint=~/m.pt"])
+    # run_all(cfg, out, ...); run_studies(out, configs, ...); run_visible(cfg, out, ...)
+    out, cfg = sorted(seen[0][:2], key=lambda arg: not isinstance(arg, Path))
+    assert str(out).startswith(str(home / "exp"))
+    assert all(c.checkpoint == str(home / "m.pt") for c in (cfg.values() if isinstance(cfg, dict) else [cfg]))
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["home"]

@@ -319,7 +319,7 @@ def load_config(cls: type[T], path: str | Path | None = None, overrides: list[st
     if path is not None:
         if not str(path).strip():  # Path('') is '.', the current folder
             raise ConfigError(f"the config file must be a path; got {show(str(path))}")
-        path = Path(path)
+        path = Path(path).expanduser()  # as a shell would, which leaves --config=~/c.yaml as written
         if not path.exists():
             raise ConfigError(f"config file not found: {path}")
         loaded = read_yaml(path)

@@ -26,6 +26,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import logging
+import os
 import time
 from pathlib import Path
 
@@ -70,6 +71,9 @@ def main(argv: list[str] | None = None) -> dict:
                         help="simulator scene overrides: night=false, occluder_width_m=3, turret_sweep_deg=60")
     parser.add_argument("overrides", nargs="*", help="tracker config overrides, key=value")
     args = parser.parse_intermixed_args(argv)  # overrides after options too: plain parse_args gives them to none
+    for key in ("out", "checkpoint"):  # ~ as a shell would, which leaves --out=~/exp as written (a folder '~')
+        if getattr(args, key) is not None:
+            setattr(args, key, os.path.expanduser(getattr(args, key)))
     if args.workers < 0:  # else ProcessPoolExecutor's "max_workers must be greater than 0", once OUT/ was made
         raise ConfigError(f"--workers must be 0 (one per core) or more; got {args.workers}")
     if not args.out.strip():  # Path('') is '.': the report went into the current folder
