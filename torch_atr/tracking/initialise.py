@@ -53,6 +53,7 @@ from __future__ import annotations
 
 import logging
 import math
+import numbers
 from dataclasses import dataclass
 
 import numpy as np
@@ -308,6 +309,12 @@ def blind_hypotheses(blob: torch.Tensor, distance: torch.Tensor, camera: Camera,
     return states, log_lik
 
 
+def _ranked(log_lik: torch.Tensor, stable: bool = False) -> torch.Tensor:
+    """(M,) indices of ``log_lik`` (M,), best first; a value not finite ranks with −inf, last (a plain
+    descending sort puts NaN first). ``stable``: ties keep their order."""
+    return torch.where(log_lik.isfinite(), log_lik, -math.inf).argsort(descending=True, stable=stable)
+
+
 def best_hypotheses(log_lik: torch.Tensor, count: int, classes: torch.Tensor | None = None) -> torch.Tensor:
     """Indices of the best hypotheses, grouped by class (ascending), best first within each class.
 
@@ -319,13 +326,17 @@ def best_hypotheses(log_lik: torch.Tensor, count: int, classes: torch.Tensor | N
     ``count`` best.
 
     Args:
-        log_lik: (M,) hypotheses' log-likelihoods, −inf for invalid ones; count: how many to keep;
-        classes: (M,) the class of each hypothesis, or None.
+        log_lik: (M,) hypotheses' log-likelihoods, M ≥ 1, −inf (or NaN) for invalid ones; count: how
+            many to keep, ≥ 1; classes: (M,) the class of each hypothesis, or None.
     Returns:
-        (K,) int64 indices into log_lik, K ≥ 1.
+        (K,) int64 indices into log_lik, K ≥ 1: only finite ones while any is (the best one otherwise).
     """
     check_shape("log_lik", log_lik, ("M",))
-    order = log_lik.argsort(descending=True)[:max(1, int(log_lik.isfinite().sum()))]
+    if log_lik.shape[0] == 0:
+        raise ValueError("Expected at least one hypothesis to choose from; got none")
+    if isinstance(count, bool) or not isinstance(count, numbers.Integral) or count < 1:
+        raise ValueError(f"Expected count, the hypotheses to keep, to be a whole number >= 1; got {count!r}")
+    order = _ranked(log_lik)[:max(1, int(log_lik.isfinite().sum()))]
     if classes is None:
         return order[:count]
     check_shape("classes", classes, (log_lik.shape[0],))
@@ -346,7 +357,7 @@ def hypothesis_shares(best: torch.Tensor, log_lik: torch.Tensor, n: int, classes
     (or None). Returns (n,) int64 indices into log_lik.
     """
     if n < best.shape[0]:
-        order = log_lik[best].argsort(descending=True, stable=True)
+        order = _ranked(log_lik[best], stable=True)
         if classes is not None:  # each hypothesis's rank within its class (best_hypotheses groups them)
             grouped = classes[best]
             rank = torch.arange(best.shape[0], device=best.device) - torch.searchsorted(grouped, grouped)

@@ -1,0 +1,59 @@
+"""The blind start's and the recovery paths' edge cases, each against an independent reference
+(brute force, a closed form, the same computation on the whole frame)."""
+
+import math
+
+import pytest
+import torch
+
+from torch_atr.tracking.initialise import best_hypotheses, hypothesis_shares
+
+
+def _brute_best(log_lik: list[float], count: int, classes: list[int] | None) -> list[int]:
+    """best_hypotheses by hand: the finite hypotheses only (the best one of all when none is), each
+    class with one keeping count // C of its best (at least one), classes ascending, best first."""
+    finite = [i for i, v in enumerate(log_lik) if math.isfinite(v)]
+    if not finite:
+        return None  # any one index: nothing to prefer
+    ranked = sorted(finite, key=lambda i: -log_lik[i])
+    if classes is None:
+        return ranked[:count]
+    present = sorted({classes[i] for i in finite})
+    per_class = max(1, count // len(present))
+    return [i for c in present for i in [j for j in ranked if classes[j] == c][:per_class]]
+
+
+@pytest.mark.parametrize("log_lik, count, classes", [
+    ([1.0, math.nan, 3.0, 2.0], 2, None),
+    ([1.0, math.nan, 3.0, 2.0], 2, [0, 1, 0, 1]),
+    ([1.0, math.nan, math.nan, 2.0], 4, [0, 1, 1, 0]),  # class 1 has no finite score: no share
+    ([math.nan, -math.inf, 0.5, math.nan, -1.0, 2.0], 3, None),
+    ([math.inf, 1.0, 2.0], 2, None),
+    ([-math.inf, 1.0, -math.inf, 2.0], 4, [0, 0, 1, 1]),
+    ([1.0, 9.0, 3.0, 8.0, 2.0, 7.0], 4, [0, 1, 2, 0, 1, 2]),
+    ([1.0, 2.0, 3.0], 10, [0, 0, 0]),
+])
+def test_best_hypotheses_never_prefer_a_nan_score(log_lik, count, classes):
+    """A NaN log-likelihood (a diverged shape) sorted first in a descending argsort and was kept as the
+    best hypothesis, and a class's finite best was dropped for it ([1, NaN, 3, 2], count 2: [1, 2]
+    for [2, 3]); a NaN ranks now with −inf, and so does +inf, which no likelihood is."""
+    got = best_hypotheses(torch.tensor(log_lik, dtype=torch.float64), count,
+                          None if classes is None else torch.tensor(classes)).tolist()
+    assert got == _brute_best(log_lik, count, classes)
+
+
+def test_hypothesis_shares_give_the_first_particle_to_the_best_finite_hypothesis():
+    """With fewer particles than hypotheses the best goes first: a NaN, sorted first, took it."""
+    log_lik = torch.tensor([math.nan, 1.0, 3.0], dtype=torch.float64)
+    best = torch.tensor([0, 1, 2])
+    assert hypothesis_shares(best, log_lik, 2).tolist() == [2, 1]
+
+
+@pytest.mark.parametrize("count", [0, -3, 2.5, True])
+def test_best_hypotheses_refuse_a_count_below_one_and_no_hypotheses(count):
+    """count 0 returned no index and the particles' shares then divided by zero (ZeroDivisionError);
+    no hypothesis at all returned none, though at least one is promised."""
+    with pytest.raises(ValueError, match="count"):
+        best_hypotheses(torch.zeros(4, dtype=torch.float64), count)
+    with pytest.raises(ValueError, match="at least one hypothesis"):
+        best_hypotheses(torch.zeros(0, dtype=torch.float64), 4)
