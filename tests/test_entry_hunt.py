@@ -251,3 +251,14 @@ def test_a_report_folder_or_checkpoint_starting_with_a_tilde_is_in_the_home_fold
     assert str(out).startswith(str(home / "exp"))
     assert all(c.checkpoint == str(home / "m.pt") for c in (cfg.values() if isinstance(cfg, dict) else [cfg]))
     assert sorted(p.name for p in tmp_path.iterdir()) == ["home"]
+
+
+@pytest.mark.parametrize("experiment", ["sensiac-like", "unseen", "studies"])
+def test_a_run_that_fails_before_any_sequence_leaves_no_empty_report_folder(tmp_path, monkeypatch, experiment):
+    """--ray without Ray installed failed once OUT/sequences (studies: OUT/baseline/sequences) was made:
+    the line was right, and the empty folders stayed, read as an unfinished run of that experiment."""
+    monkeypatch.setitem(sys.modules, "ray", None)  # import ray: ImportError, installed or not
+    (tmp_path / "kept").mkdir()
+    with pytest.raises(ConfigError, match="--ray needs Ray"):
+        experiments.main([experiment, "--out", str(tmp_path / "kept" / "out"), "--quick", "--ray", "local"])
+    assert [p.name for p in tmp_path.iterdir()] == ["kept"] and not any((tmp_path / "kept").iterdir())

@@ -28,6 +28,7 @@ import dataclasses
 import logging
 import os
 import time
+from contextlib import ExitStack
 from pathlib import Path
 
 from torch_atr.cli import console_logging, run_main
@@ -38,7 +39,7 @@ from torch_atr.experiments.report import (REPORT_FORMAT, is_report_folder, mean_
 from torch_atr.experiments.sensiac_like import FULL, QUICK, SensiacLikeConfig, run_all
 from torch_atr.experiments.studies import STUDIES_FORMAT, run_studies, study_configs, write_studies_report
 from torch_atr.experiments.unseen import UNSEEN_FORMAT, unseen_fields, write_unseen_report
-from torch_atr.io import OutputExistsError
+from torch_atr.io import OutputExistsError, created_folders
 from torch_atr.tracking import TrackerConfig
 from torch_atr.validate import show
 
@@ -102,7 +103,8 @@ def main(argv: list[str] | None = None) -> dict:
     _check_out(out, UNSEEN_FORMAT if args.experiment == "unseen" else REPORT_FORMAT)
     _read_checkpoint(cfg.checkpoint)
     start = time.perf_counter()
-    results = run_all(cfg, out, args.workers, ray_address=args.ray)
+    with created_folders(out / "sequences"):  # a run that fails leaves none of the empty folders it made
+        results = run_all(cfg, out, args.workers, ray_address=args.ray)
     if args.experiment == "unseen":
         agg = write_unseen_report(out, cfg, results, time.perf_counter() - start)
         log.info("wrote %s: report.md, results.json; config %s", out, dataclasses.asdict(cfg))
@@ -175,7 +177,10 @@ def _studies(args: argparse.Namespace, given: dict, out: Path) -> list[dict]:
     for checkpoint in {c.checkpoint for c in configs.values()}:
         _read_checkpoint(checkpoint)
     start = time.perf_counter()
-    results = run_studies(out, configs, args.workers, ray_address=args.ray)
+    with ExitStack() as made:  # a run that fails leaves none of the empty folders it made
+        for name in configs:
+            made.enter_context(created_folders(out / name / "sequences"))
+        results = run_studies(out, configs, args.workers, ray_address=args.ray)
     rows = write_studies_report(out, configs, results, time.perf_counter() - start)
     log.info("wrote %s: report.md, results.json", out)
     return rows
@@ -192,7 +197,8 @@ def _visible(args: argparse.Namespace, given: dict, out: Path) -> dict:
     _check_out(out, VISIBLE_FORMAT)
     _read_checkpoint(cfg.checkpoint)
     start = time.perf_counter()
-    calibration, drawn, results = run_visible(cfg, out, args.workers)
+    with created_folders(out / "sequences"):  # a run that fails leaves none of the empty folders it made
+        calibration, drawn, results = run_visible(cfg, out, args.workers)
     from torch_atr.experiments.sensiac_like import worker_model
 
     agg = write_visible_report(out, cfg, calibration, drawn, results, worker_model(cfg.checkpoint),
