@@ -3,10 +3,15 @@
 
 import math
 
+import numpy as np
 import pytest
 import torch
 
+from torch_atr.tracking import TrackerConfig
+from torch_atr.tracking.blob import BlobTracker
+from torch_atr.tracking.filter import FilterConfig
 from torch_atr.tracking.initialise import best_hypotheses, hypothesis_shares
+from torch_atr.tracking.observation import place_silhouette
 
 
 def _brute_best(log_lik: list[float], count: int, classes: list[int] | None) -> list[int]:
@@ -57,3 +62,21 @@ def test_best_hypotheses_refuse_a_count_below_one_and_no_hypotheses(count):
         best_hypotheses(torch.zeros(4, dtype=torch.float64), count)
     with pytest.raises(ValueError, match="at least one hypothesis"):
         best_hypotheses(torch.zeros(0, dtype=torch.float64), 4)
+
+
+def test_blob_tracker_scores_are_plain_numbers(model):
+    """BlobTracker.score built an autograd graph through the model's kernel widths (Tracker.score runs
+    without one): its result required grad, so ``.numpy()`` raised and each call kept the graph. The
+    scores are those the next step weighs the same particles by (no resampling; a blob drawn from the
+    first one's shape, so that none underflows)."""
+    tracker = BlobTracker(model, TrackerConfig(filter=FilterConfig(particles=5, resample_ess=0.0)), seed=0)
+    views = torch.tensor([[1.5 + 0.1 * k, 0.1, float(model.alphas[3]) + 0.05 * k] for k in range(5)],
+                         dtype=torch.float64)
+    with torch.no_grad():
+        shape = model(views[:1, 2].float(), views[:1, 0].float(), views[:1, 1].float())[0]
+    mask = place_silhouette(shape, torch.tensor([80.0, 60.0]), torch.tensor([100.0, 100.0]), (120, 160)).numpy()
+    scores = tracker.score(mask, views)
+    assert not scores.requires_grad and np.isfinite(scores.numpy()).all()
+    tracker.reset(views)
+    assert tracker.step(mask=mask)["lost"] == 0
+    torch.testing.assert_close(tracker.log_weights, torch.log_softmax(scores, dim=0).to(tracker.log_weights))

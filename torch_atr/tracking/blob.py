@@ -100,6 +100,7 @@ class BlobTracker(Tracker):
         self._reset_views(particles.to(self.device, self.dtype))
         self._start, self._missed, self._unexplained = self._frames, 0, 0
 
+    @torch.no_grad()
     def score(self, mask: np.ndarray, particles: torch.Tensor) -> torch.Tensor:
         """Eq. 5.2 of any particles (N, 3) [θ, φ, α] laid on the blob of a target mask (H, W), not
         empty, leaving the filter as it is. Returns (N,) log-likelihoods; higher is better."""
