@@ -1,17 +1,23 @@
 """The blind start's and the recovery paths' edge cases, each against an independent reference
 (brute force, a closed form, the same computation on the whole frame)."""
 
+import inspect
 import math
 
 import numpy as np
 import pytest
 import torch
 
-from torch_atr.tracking import TrackerConfig
+from torch_atr.config import load_config
+from torch_atr.data.synthetic import SceneConfig, SyntheticSequence
+from torch_atr.pose import camera_centre
+from torch_atr.tracking import Tracker, TrackerConfig, initialise
+from torch_atr.tracking import filter as filter_module
 from torch_atr.tracking.blob import BlobTracker
 from torch_atr.tracking.filter import FilterConfig
 from torch_atr.tracking.initialise import best_hypotheses, hypothesis_shares
-from torch_atr.tracking.observation import place_silhouette
+from torch_atr.tracking.motion import X, Z
+from torch_atr.tracking.observation import frame_distance, place_silhouette
 
 
 def _brute_best(log_lik: list[float], count: int, classes: list[int] | None) -> list[int]:
@@ -102,3 +108,38 @@ def test_blob_tracker_weighs_a_small_car_head_on_as_on_the_whole_frame(model):
     assert tracker.step(mask=mask)["lost"] == 0
     expected = torch.log_softmax(tracker.score(mask, views), dim=0)
     torch.testing.assert_close(tracker.log_weights, expected.to(tracker.log_weights))
+
+
+def test_a_search_at_the_ground_range_scores_its_hypotheses_on_the_whole_frame(model, monkeypatch):
+    """``redetect.keep_range=false`` places the hypotheses at the ground's range, but the frame's distance
+    was transformed over a margin of τ in the particles' largest window only. With the particles at
+    1.5 x the BTR-70's range (a track drifted in range: what that search is for) the hypotheses' windows
+    are 1.5 x larger, their cells beyond the margin read the region's edge, nearer than τ, and the best
+    hypothesis scored −0.73 for the whole frame's −0.32 (−3.9 at 3 x): the search fired less the
+    further the track had drifted. Its hypotheses now score as on the whole frame's distance."""
+    seq = SyntheticSequence("btr_70", SceneConfig(frames=2))
+    cfg = load_config(TrackerConfig, None, [
+        "init.mode=truth", "filter.particles=100", "init.alpha_steps=12", "init.azimuth_steps=12",
+        "redetect.every=1", "redetect.until=0", "redetect.after_truth=true", "redetect.keep_range=false",
+        f"init.camera_height_m={seq.camera_height_m}"])
+    tracker = Tracker(model, seq.camera, cfg, seed=0)
+    calls = []
+
+    def spy(blob, distance, *args, **kwargs):
+        calls.append((blob, distance, args, kwargs, initialise.blind_hypotheses(blob, distance, *args, **kwargs)))
+        return calls[-1][-1]
+
+    monkeypatch.setattr(filter_module, "blind_hypotheses", spy)
+    mask = seq.true_mask(1)
+    tracker.initialise(seq.truth(0))
+    particles = tracker.particles.clone()
+    centre = camera_centre(seq.camera).to(particles)
+    particles[:, X:Z + 1] = centre + 1.5 * (particles[:, X:Z + 1] - centre)
+    tracker.reset(particles)
+    tracker.step(mask=np.zeros_like(mask))
+    tracker.step(mask=mask)  # the search: one frame after the start
+    (blob, distance, args, kwargs, (_, got)), = calls
+    bound = inspect.signature(initialise.blind_hypotheses).bind(blob, distance, *args, **kwargs)
+    bound.arguments["distance"], bound.arguments["origin"] = frame_distance(mask, math.inf)
+    _, expected = initialise.blind_hypotheses(*bound.args, **bound.kwargs)
+    torch.testing.assert_close(got, expected)

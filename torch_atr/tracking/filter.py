@@ -738,6 +738,8 @@ class Tracker:
         wanted = (not rc.keep_range and self.cfg.init.ground_row is None and frame is not None
                   and self.segmenter.ready)  # the ground row places the hypotheses only without keep_range
         contrast = self.segmenter.contrast(frame, mask) if wanted else math.nan
+        if not rc.keep_range:  # the hypotheses' windows, at the ground's range, can be larger than the particles'
+            distance = self._frame_distance(mask, math.inf)  # for which the distance's margin was cut
         w = self.log_weights.exp()
         depths = self.camera.world_to_sensor(self.particles[:, X:Z + 1])[:, 2].to(w)  # (N,) along the optical axis
         depth = float((w * depths).sum())
