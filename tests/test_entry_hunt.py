@@ -262,3 +262,13 @@ def test_a_run_that_fails_before_any_sequence_leaves_no_empty_report_folder(tmp_
     with pytest.raises(ConfigError, match="--ray needs Ray"):
         experiments.main([experiment, "--out", str(tmp_path / "kept" / "out"), "--quick", "--ray", "local"])
     assert [p.name for p in tmp_path.iterdir()] == ["kept"] and not any((tmp_path / "kept").iterdir())
+
+
+@pytest.mark.parametrize("experiment", ["sensiac-like", "unseen", "visible"])
+def test_a_method_listed_twice_is_tracked_once(tmp_path, no_work, experiment):
+    """``--methods I IV I`` tracked every sequence with Method I twice and tabled 'I/IV/I' (vehicles
+    and ranges listed twice were one job already)."""
+    with pytest.raises(Reached):
+        experiments.main([experiment, "--out", str(tmp_path / "out"), "--quick", "--methods", "I", "IV",
+                          "--methods", "I"])
+    assert no_work[0].methods == ("I", "IV")

@@ -90,7 +90,8 @@ def main(argv: list[str] | None = None) -> dict:
         fields = dict(QUICK) if args.quick else dict(FULL) if args.full else {}
     given = {"init": args.init, "frames": args.frames, "particles": args.particles, "seed": args.seed,
              "checkpoint": args.checkpoint, "vehicles": args.vehicles and tuple(args.vehicles),
-             "ranges_m": args.ranges and tuple(args.ranges), "methods": args.methods and tuple(args.methods)}
+             "ranges_m": args.ranges and tuple(args.ranges),
+             "methods": args.methods and tuple(dict.fromkeys(args.methods))}  # each method once: I I tracked twice
     given = {k: v for k, v in given.items() if v is not None}
     out = Path(args.out)
     if args.experiment == "all":
