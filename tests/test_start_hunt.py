@@ -16,7 +16,7 @@ from torch_atr.tracking import filter as filter_module
 from torch_atr.tracking.blob import BlobTracker
 from torch_atr.tracking.filter import FilterConfig
 from torch_atr.tracking.initialise import best_hypotheses, hypothesis_shares
-from torch_atr.tracking.motion import X, Z
+from torch_atr.tracking.motion import SPEED, X, Z
 from torch_atr.tracking.observation import frame_distance, place_silhouette
 
 
@@ -143,3 +143,38 @@ def test_a_search_at_the_ground_range_scores_its_hypotheses_on_the_whole_frame(m
     bound.arguments["distance"], bound.arguments["origin"] = frame_distance(mask, math.inf)
     _, expected = initialise.blind_hypotheses(*bound.args, **bound.kwargs)
     torch.testing.assert_close(got, expected)
+
+
+def test_a_search_keeps_the_range_of_the_particles_ahead_of_the_camera(model, monkeypatch):
+    """The search places its hypotheses at the particles' weighted mean depth and jitters them by their
+    relative spread. Particles behind the camera (they have no window; after a reset and a frame
+    without a blob they still had weight) pulled the mean towards 0 and blew the spread up: half the
+    BTR-70's particles mirrored behind the camera gave a relative spread of 7000, and the run stopped
+    on 'init.range_std must be in [0, 1e3]'. The range kept is now that of the particles ahead of the
+    camera (their mean depth, by numpy), the spread within init.range_std's bound."""
+    seq = SyntheticSequence("btr_70", SceneConfig(frames=2))
+    still = ["motion.sigma2_" + k + "=0" for k in ("x", "y", "z", "heading", "speed", "alpha")]
+    cfg = load_config(TrackerConfig, None, [
+        "init.mode=truth", "filter.particles=100", "init.alpha_steps=12", "init.azimuth_steps=12",
+        "redetect.every=1", "redetect.until=0", "redetect.margin=0", "redetect.after_truth=true",
+        "redetect.restart=0", *still])
+    tracker = Tracker(model, seq.camera, cfg, seed=0)
+    depths = []
+
+    def spy(*args, **kwargs):
+        depths.append(inspect.signature(initialise.blind_hypotheses).bind(*args, **kwargs).arguments["known_depth"])
+        return initialise.blind_hypotheses(*args, **kwargs)
+
+    monkeypatch.setattr(filter_module, "blind_hypotheses", spy)
+    tracker.initialise(seq.truth(0))
+    particles = tracker.particles.clone()
+    particles[:, X] += 40.0  # beside the blob: the hypotheses beat them
+    particles[:, SPEED] = 0.0
+    centre = camera_centre(seq.camera).to(particles)
+    particles[1::2, X:Z + 1] = centre - 0.9999 * (particles[1::2, X:Z + 1] - centre)  # behind the camera
+    tracker.reset(particles)
+    tracker.step(mask=np.zeros_like(seq.true_mask(1)))  # no blob: the weights stay equal
+    sensor = (tracker.particles[:, X:Z + 1].numpy() @ seq.camera.R.numpy().T + seq.camera.t.numpy())[:, 2]
+    row = tracker.step(mask=seq.true_mask(1))  # the search
+    assert depths == [pytest.approx(sensor[sensor > 0].mean(), rel=1e-6)]  # the model's float32
+    assert row["lost"] == 0 and abs(row["x"] - seq.truth(1).x) < 5.0

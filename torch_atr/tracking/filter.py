@@ -73,6 +73,7 @@ from torch_atr.tracking.estimates import (
 from torch_atr.tracking.ground import half_heights, interpolate_periodic
 from torch_atr.tracking.initialise import (
     HypothesisGrid,
+    MAX_INIT_STD,
     InitConfig,
     blind_hypotheses,
     blind_particles,
@@ -742,7 +743,13 @@ class Tracker:
             distance = self._frame_distance(mask, math.inf)  # for which the distance's margin was cut
         w = self.log_weights.exp()
         depths = self.camera.world_to_sensor(self.particles[:, X:Z + 1])[:, 2].to(w)  # (N,) along the optical axis
-        depth = float((w * depths).sum())
+        ahead = w  # the weights of the range kept: the particles' ahead of the camera (behind it, no window)
+        if rc.keep_range and not bool((depths > 0).all()):
+            ahead = w * (depths > 0)
+            if not float(ahead.sum()) > 0:  # no range to keep
+                return log_lik, False
+            ahead = ahead / ahead.sum()
+        depth = float((ahead * depths).sum())
         alpha_index = None
         if views_only:
             steps = self._grid.alpha.shape[0]
@@ -760,8 +767,9 @@ class Tracker:
         n = self.particles.shape[0]
         m = max(1, round(rc.share * n))
         init = self.cfg.init
-        if rc.keep_range:  # the particles' relative range spread; depth > 0 here, or no hypothesis is valid
-            init = replace(init, range_std=float((w * (depths - depth).square()).sum().sqrt()) / depth)
+        if rc.keep_range:  # the particles' relative range spread (depth > 0 here), within init.range_std's bound
+            spread = float((ahead * (depths - depth).square()).sum().sqrt()) / depth
+            init = replace(init, range_std=min(spread, MAX_INIT_STD))
         new = blind_particles(states, torch.where(better, hyp, -math.inf), m, init, self.camera,
                               self.generator).to(self.dtype)
         if views_only:  # the identity stays the particles': the new ones take theirs, drawn by weight

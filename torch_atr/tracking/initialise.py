@@ -69,6 +69,7 @@ from torch_atr.tracking.motion import ALPHA, HEADING, SPEED, STATE_DIM, X, Z
 from torch_atr.tracking.observation import blob_windows, cut_edges, log_likelihood, observe, silhouette_boxes
 
 INIT_MODES = ("blind", "truth")
+MAX_INIT_STD = 1e3  # the bound of InitConfig's spreads (range_std, relative; the others in their units)
 
 log = logging.getLogger(__name__)
 
@@ -100,8 +101,8 @@ class InitConfig:
             raise ConfigError(f"init.alpha must be 'vehicle' or 'class'; got {self.alpha!r}")
         for key in ("position_std_m", "heading_std_rad", "speed_std_mps", "range_std"):
             value = getattr(self, key)
-            if not (math.isfinite(value) and 0 <= value <= 1e3):
-                raise ConfigError(f"init.{key} must be in [0, 1e3]; got {value!r}")
+            if not (math.isfinite(value) and 0 <= value <= MAX_INIT_STD):
+                raise ConfigError(f"init.{key} must be in [0, {MAX_INIT_STD:g}]; got {value!r}")
         if self.ground_row is not None and not (math.isfinite(self.ground_row) and -1 <= self.ground_row <= 2):
             raise ConfigError(f"init.ground_row must be in [-1, 2] rows or null; got {self.ground_row!r}")
         if self.camera_height_m is not None and not (math.isfinite(self.camera_height_m)
