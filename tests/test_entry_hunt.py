@@ -272,3 +272,20 @@ def test_a_method_listed_twice_is_tracked_once(tmp_path, no_work, experiment):
         experiments.main([experiment, "--out", str(tmp_path / "out"), "--quick", "--methods", "I", "IV",
                           "--methods", "I"])
     assert no_work[0].methods == ("I", "IV")
+
+
+@pytest.mark.parametrize("text, key, nested", [
+    ("tracker.filter.particles: 10\n", "tracker.filter.particles", "tracker: then filter: then particles:"),
+    ("tracker:\n  filter.particles: 10\n", "filter.particles", "filter: then particles:")])
+def test_a_dotted_key_in_a_file_says_to_nest_it(tmp_path, text, key, nested):
+    """A file's keys are names, not paths: 'filter.particles: 10' under tracker read "unknown config key(s)
+    tracker.filter.particles; ... (did you mean tracker.filter.particles?)", suggesting what was written."""
+    from torch_atr.config import load_config
+    from torch_atr.tracking.job import TrackConfig
+
+    (tmp_path / "c.yaml").write_text(text)
+    with pytest.raises(ConfigError, match=rf"c.yaml: unknown config key\(s\) tracker.filter.particles; known: .*"
+                                          rf"\(a file nests its sections: write {key} as {nested}, each indented "
+                                          rf"below the one before\)$") as info:
+        load_config(TrackConfig, tmp_path / "c.yaml")
+    assert "did you mean" not in str(info.value)

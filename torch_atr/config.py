@@ -185,9 +185,13 @@ def _build(cls: type[T], data: dict, prefix: str = "", base: Any = None) -> T:
                  or [prefix + near for key in unknown for near in _nearest(str(key), sorted(fields))]
                  or [home for key in unknown for near in difflib.get_close_matches(str(key), below, n=1)
                      for home in _homes(cls, near, prefix)])
+        # A dotted key in a file (filter.particles: 10) is a path written as one name: the file nests it.
+        dotted = [k for k in unknown if isinstance(k, str) and "." in k and _key_type(cls, k) is not None]
+        hint = (f" (a file nests its sections: write {cut(dotted[0])} as "
+                f"{' then '.join(cut(part) + ':' for part in dotted[0].split('.'))}, each indented below the one "
+                f"before)" if dotted else f" (did you mean {' or '.join(homes)}?)" if homes else "")
         raise ConfigError(f"unknown config key(s) {', '.join(cut(prefix + str(k)) for k in unknown)}; "
-                          f"known: {', '.join(prefix + k for k in sorted(fields))}"
-                          + (f" (did you mean {' or '.join(homes)}?)" if homes else ""))
+                          f"known: {', '.join(prefix + k for k in sorted(fields))}{hint}")
     kwargs = {}
     for k, v in data.items():
         tp = hints[k]
