@@ -289,3 +289,11 @@ def test_a_dotted_key_in_a_file_says_to_nest_it(tmp_path, text, key, nested):
                                           rf"below the one before\)$") as info:
         load_config(TrackConfig, tmp_path / "c.yaml")
     assert "did you mean" not in str(info.value)
+
+
+def test_workers_and_ray_are_one_or_the_other(tmp_path, no_work, capsys):
+    """The usage reads [--workers N | --ray ADDRESS]: given both, --workers was dropped without a word."""
+    with pytest.raises(SystemExit) as info:
+        experiments.main(["sensiac-like", "--out", str(tmp_path / "out"), "--workers", "4", "--ray", "local"])
+    assert info.value.code == 2
+    assert "argument --ray: not allowed with argument --workers" in capsys.readouterr().err

@@ -57,9 +57,10 @@ def main(argv: list[str] | None = None) -> dict:
     size.add_argument("--quick", action="store_true", help="the CI-sized run")
     size.add_argument("--full", action="store_true", help="1000 frames per sequence on a 50 m circle")
     parser.add_argument("--init", choices=["blind", "truth"])
-    parser.add_argument("--workers", type=int, default=0, help="worker processes (0: one per core)")
-    parser.add_argument("--ray", metavar="ADDRESS", help="run the sequences on this Ray cluster ('local': start one "
-                        "here; needs the [ray] extra)")
+    where = parser.add_mutually_exclusive_group()  # Ray runs one task per CPU of its cluster
+    where.add_argument("--workers", type=int, default=0, help="worker processes (0: one per core)")
+    where.add_argument("--ray", metavar="ADDRESS", help="run the sequences on this Ray cluster ('local': start one "
+                       "here; needs the [ray] extra)")
     parser.add_argument("--frames", type=int)
     parser.add_argument("--particles", type=int)
     # A list option given twice takes both lists (argparse's default, "store", kept the last alone).
