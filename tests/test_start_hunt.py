@@ -8,16 +8,23 @@ import numpy as np
 import pytest
 import torch
 
+from torch_atr.camera import Camera
 from torch_atr.config import load_config
 from torch_atr.data.synthetic import SceneConfig, SyntheticSequence
 from torch_atr.pose import camera_centre
-from torch_atr.tracking import Tracker, TrackerConfig, initialise
+from torch_atr.tracking import ShapeAppearance, Tracker, TrackerConfig, initialise
 from torch_atr.tracking import filter as filter_module
 from torch_atr.tracking.blob import BlobTracker
 from torch_atr.tracking.filter import FilterConfig
-from torch_atr.tracking.initialise import best_hypotheses, hypothesis_shares
+from torch_atr.tracking.initialise import InitConfig, best_hypotheses, ground_depth, hypothesis_shares
 from torch_atr.tracking.motion import SPEED, X, Z
 from torch_atr.tracking.observation import frame_distance, place_silhouette
+
+
+def _tilt(degrees: float) -> torch.Tensor:
+    """A rotation about the sensor's x axis (negative: looking down), det +1."""
+    c, s = math.cos(math.radians(degrees)), math.sin(math.radians(degrees))
+    return torch.tensor([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]], dtype=torch.float64)
 
 
 def _brute_best(log_lik: list[float], count: int, classes: list[int] | None) -> list[int]:
@@ -178,3 +185,35 @@ def test_a_search_keeps_the_range_of_the_particles_ahead_of_the_camera(model, mo
     row = tracker.step(mask=seq.true_mask(1))  # the search
     assert depths == [pytest.approx(sensor[sensor > 0].mean(), rel=1e-6)]  # the model's float32
     assert row["lost"] == 0 and abs(row["x"] - seq.truth(1).x) < 5.0
+
+
+def _flat_ground_depth(camera, u: float, v: float, height: float) -> float:
+    """The closed form: the ray through pixel (u, v) (no distortion), d = Rᵀ ((u − cx)/fx, −(v − cy)/fy, 1)
+    in the world, meets the plane y = c_y − height at s = −height / d_y, whose sensor depth is s."""
+    R = camera.R.numpy()
+    ray = R.T @ np.array([(u - camera.cx) / camera.fx, -(v - camera.cy) / camera.fy, 1.0])
+    return -height / ray[1] if ray[1] < 0 else math.nan
+
+
+@pytest.mark.parametrize("height", [0.0, -5.0, math.inf, math.nan, None, True])
+def test_ground_depth_refuses_a_camera_not_above_the_ground(height):
+    """At height 0 every ray met the ground at the camera (depth 0) and below the ground behind it
+    (−25 m for −5 m): the blind start placed every hypothesis nowhere (all −inf) and drew every
+    particle at the world's origin; None raised a bare TypeError. The flat-ground intersection of a
+    tilted camera stays the closed form's."""
+    camera = Camera(1000, 1000, 320, 256, 640, 512, R=_tilt(-3.0), t=[1.0, -2.0, 3.0])
+    pixel = torch.tensor([320.0, 400.0], dtype=torch.float64)
+    with pytest.raises(ValueError, match="camera_height_m"):
+        ground_depth(camera, pixel, height)
+    assert ground_depth(camera, pixel, 5.0) == pytest.approx(_flat_ground_depth(camera, 320.0, 400.0, 5.0), rel=1e-12)
+    assert math.isnan(ground_depth(camera, torch.tensor([320.0, 10.0], dtype=torch.float64), 5.0))  # above the horizon
+
+
+def test_a_blind_start_on_a_camera_at_ground_level_is_refused(model):
+    seq = SyntheticSequence("btr_70", SceneConfig(frames=1))
+    mask = seq.true_mask(0)
+    distance, origin = frame_distance(mask, math.inf)
+    appearance = ShapeAppearance(model, "I", 32)
+    with pytest.raises(ValueError, match="camera_height_m"):
+        initialise.blind_hypotheses(torch.from_numpy(mask), distance, seq.camera, appearance,
+                                    InitConfig(alpha_steps=4, azimuth_steps=4), 0.1, 0.0, origin=origin)

@@ -199,7 +199,13 @@ def truth_particles(position: torch.Tensor, heading: float, alpha: float | None,
 
 def ground_depth(camera: Camera, pixel: torch.Tensor, camera_height_m: float) -> float:
     """Depth (along the optical axis) at which the ray through ``pixel`` (2,) meets flat ground
-    ``camera_height_m`` below the camera centre (world y = c_y − height); NaN if it never does."""
+    ``camera_height_m`` below the camera centre (world y = c_y − height); NaN if it never does.
+    ValueError unless the height is a finite number of metres > 0 (at 0 every ray met the ground at
+    the camera, depth 0; below it, behind the camera)."""
+    if isinstance(camera_height_m, bool) or not (isinstance(camera_height_m, numbers.Real)
+                                                 and math.isfinite(camera_height_m) and camera_height_m > 0):
+        raise ValueError(f"Expected camera_height_m, the camera's height above the ground, to be a finite number of "
+                         f"metres > 0; got {camera_height_m!r}")
     R, t = camera.R.to(pixel), camera.t.to(pixel)
     ray = R.T @ camera.pixel_rays(camera.undistort(pixel))  # world direction
     if not float(ray[1]) < 0:
@@ -256,7 +262,7 @@ def blind_hypotheses(blob: torch.Tensor, distance: torch.Tensor, camera: Camera,
         camera: the scene's camera (sensor-like, ground-levelled world frame).
         appearance: the predicted shapes (its model and method).
         cfg: the grid sizes; sigma: the likelihood σ.
-        camera_height_m: the camera's height above flat ground (NaN: unknown, ranges from sizes).
+        camera_height_m: the camera's height above flat ground, > 0 (NaN: unknown, ranges from sizes).
         contrast: the blob's median contrast in grey levels, for ``cfg.ground_row`` null
             (:func:`ground_row_from_contrast`; NaN: unknown, the lowest row's centre).
         origin: (u0, v0) the frame pixel of ``distance[0, 0]`` when it is a region.
@@ -286,8 +292,9 @@ def blind_hypotheses(blob: torch.Tensor, distance: torch.Tensor, camera: Camera,
     A, B, S = alpha.shape[0], theta.shape[0], model.template.size_px
     # Range: from the ground at the contact below the blob's lowest row, else where the silhouette has the blob's size.
     contact = torch.stack([(blob_box[0] + blob_box[2]) / 2, blob_box[3] + cfg.contact_row(contrast)])
+    unknown = isinstance(camera_height_m, numbers.Real) and math.isnan(camera_height_m)
     ground = known_depth if math.isfinite(known_depth) else (
-        ground_depth(camera, contact, camera_height_m) if math.isfinite(camera_height_m) else math.nan)
+        math.nan if unknown else ground_depth(camera, contact, camera_height_m))
     f = torch.stack([K[0, 0], K[1, 1]])
     side = f * model.template.window_m / ground if math.isfinite(ground) else None
     centre_px, side = blob_windows(boxes, blob_box, S, side)
