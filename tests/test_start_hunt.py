@@ -18,7 +18,7 @@ from torch_atr.tracking.blob import BlobTracker
 from torch_atr.tracking.filter import FilterConfig
 from torch_atr.tracking.initialise import InitConfig, best_hypotheses, ground_depth, hypothesis_shares
 from torch_atr.tracking.motion import SPEED, X, Z
-from torch_atr.tracking.observation import frame_distance, place_silhouette
+from torch_atr.tracking.observation import frame_distance, place_silhouette, project_windows
 
 
 def _tilt(degrees: float) -> torch.Tensor:
@@ -217,3 +217,36 @@ def test_a_blind_start_on_a_camera_at_ground_level_is_refused(model):
     with pytest.raises(ValueError, match="camera_height_m"):
         initialise.blind_hypotheses(torch.from_numpy(mask), distance, seq.camera, appearance,
                                     InitConfig(alpha_steps=4, azimuth_steps=4), 0.1, 0.0, origin=origin)
+
+
+@pytest.mark.parametrize("fy", [1000.0, 1100.0])
+def test_hypotheses_without_a_height_lay_each_silhouette_on_the_blob_with_non_square_pixels(model, fy):
+    """Without the camera's height each hypothesis takes the range z at which its silhouette box
+    (sw x sh template pixels) has the blob's size. Its window spans fx W / z by fy W / z pixels, so
+    the laid box is sw fx W / (z S) by sh fy W / (z S): by hand, its centre is the blob box's and its
+    area the blob box's (both sides matched in the geometric mean). With fy ≠ fx the window was taken
+    square (fx W / z both ways) when the range was found, and the laid box's area was fy / fx of the
+    blob's (1.1 x at fy = 1.1 fx)."""
+    camera = Camera(1000.0, fy, 320, 256, 640, 512, R=_tilt(-2.0), t=[0.5, -4.0, 1.0])
+    mask = np.zeros((512, 640), dtype=bool)
+    mask[300:309, 200:231] = True  # 31 x 9 px
+    distance, origin = frame_distance(mask, math.inf)
+    cfg = InitConfig(alpha_steps=3, azimuth_steps=4)
+    states, _ = initialise.blind_hypotheses(torch.from_numpy(mask), distance, camera,
+                                            ShapeAppearance(model, "I", 32), cfg, 0.1, origin=origin)
+    uv, side = project_windows(camera, states[:, X:Z + 1], model.template.window_m)
+    S = model.template.size_px
+    theta = torch.arange(4, dtype=torch.float64) * (math.pi / 2)
+    alpha = torch.arange(3, dtype=torch.float64) * (2 * math.pi / 3)
+    ray = camera.R.numpy().T @ np.array([(215 - 320) / 1000.0, -(304 - 256) / fy, 1.0])  # the blob centre's
+    phi = math.asin(-ray[1] / np.linalg.norm(ray))  # the camera's elevation seen from there
+    with torch.no_grad():
+        y = model(alpha.repeat_interleave(4).float(), theta.repeat(3).float(), torch.full((12,), phi))
+    for k in range(12):
+        rows, cols = np.nonzero(y[k].numpy() > 0)
+        sw, sh = cols.max() - cols.min() + 1, rows.max() - rows.min() + 1
+        laid = (sw * float(side[k, 0]) / S, sh * float(side[k, 1]) / S)
+        offset = ((cols.min() + cols.max()) / 2 - (S - 1) / 2, (rows.min() + rows.max()) / 2 - (S - 1) / 2)
+        centre = [float(uv[k, i]) + offset[i] * float(side[k, i]) / S for i in range(2)]
+        assert laid[0] * laid[1] == pytest.approx(31 * 9, rel=1e-6), k
+        assert centre == pytest.approx([215.0, 304.0], abs=1e-6), k

@@ -296,7 +296,10 @@ def blind_hypotheses(blob: torch.Tensor, distance: torch.Tensor, camera: Camera,
     ground = known_depth if math.isfinite(known_depth) else (
         math.nan if unknown else ground_depth(camera, contact, camera_height_m))
     f = torch.stack([K[0, 0], K[1, 1]])
-    side = f * model.template.window_m / ground if math.isfinite(ground) else None
+    if math.isfinite(ground):
+        side = f * model.template.window_m / ground
+    else:  # the range z where the silhouette has the blob's size: its sides' geometric mean is √(fx fy) W / z
+        side = blob_windows(boxes, blob_box, S)[1] * (f / f.prod().sqrt())  # (fx, fy) W / z: 1 for square pixels
     centre_px, side = blob_windows(boxes, blob_box, S, side)
     depth = f[0] * model.template.window_m / side[:, 0]
     sensor = camera.pixel_rays(camera.undistort(centre_px)) * depth[:, None]  # (M, 3), z = depth
