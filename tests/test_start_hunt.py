@@ -250,3 +250,29 @@ def test_hypotheses_without_a_height_lay_each_silhouette_on_the_blob_with_non_sq
         centre = [float(uv[k, i]) + offset[i] * float(side[k, i]) / S for i in range(2)]
         assert laid[0] * laid[1] == pytest.approx(31 * 9, rel=1e-6), k
         assert centre == pytest.approx([215.0, 304.0], abs=1e-6), k
+
+
+def test_blob_tracker_gives_an_empty_silhouette_no_weight(model, monkeypatch):
+    """A silhouette with no pixel y > 0 has no box to lay on the blob. Its NaN box became a window of
+    zeros compared with the template's value at its centre: a finite score (−193 here, above the −225
+    of the view's real shape), so a model with an empty view could give it weight. It is now −inf, as
+    the 3D filter's blind hypotheses give an empty silhouette; the others' scores are unchanged. (The
+    shipped model has no empty view: at least 16 pixels in each of 360 α x 72 θ x 4 φ.)"""
+    tracker = BlobTracker(model, TrackerConfig(filter=FilterConfig(particles=4)), seed=0)
+    views = torch.tensor([[1.5 + 0.2 * k, 0.1, float(model.alphas[3]) + 0.3 * k] for k in range(4)],
+                         dtype=torch.float64)
+    with torch.no_grad():
+        shape = model(views[:1, 2].float(), views[:1, 0].float(), views[:1, 1].float())[0]
+    mask = place_silhouette(shape, torch.tensor([80.0, 60.0]), torch.tensor([100.0, 100.0]), (120, 160)).numpy()
+    before = tracker.score(mask, views)
+    forward = type(tracker.appearance).forward
+
+    def emptied(self, alpha, theta, phi):
+        y = forward(self, alpha, theta, phi)
+        y[2] = -y[2].abs() - 0.01  # the third particle's view: no pixel inside
+        return y
+
+    monkeypatch.setattr(type(tracker.appearance), "forward", emptied)
+    after = tracker.score(mask, views)
+    assert after[2] == -math.inf
+    torch.testing.assert_close(after[[0, 1, 3]], before[[0, 1, 3]])

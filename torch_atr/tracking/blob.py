@@ -178,7 +178,8 @@ class BlobTracker(Tracker):
             self.dtype)
 
     def _log_likelihood(self, distance, particles: torch.Tensor) -> torch.Tensor:
-        """Eq. 5.2 over each particle's silhouette box grown by τ (module docstring). Returns (N,)."""
+        """Eq. 5.2 over each particle's silhouette box grown by τ (module docstring); −inf for an empty
+        silhouette, as in the 3D filter's hypotheses. Returns (N,)."""
         self._set_blob(distance)
         y, uv, side = self._windows(particles, self._blob_box)
         distance = self._covering(distance, side)
@@ -196,7 +197,8 @@ class BlobTracker(Tracker):
         z = observe_windows(distance.signed, uv + (centre - (L - 1) / 2) * scale, extent * scale, template, L,
                             distance.origin, image_px=side.prod(dim=1).sqrt() / template.size_px)
         log_lik = log_likelihood(z.to(y_box), y_box, self.cfg.filter.sigma)
-        return torch.where(log_lik.isfinite(), log_lik, -math.inf).to(self.dtype)
+        laid = log_lik.isfinite() & boxes.isfinite().all(dim=1)  # an empty silhouette is laid nowhere
+        return torch.where(laid, log_lik, -math.inf).to(self.dtype)
 
     def _initialise_blind(self, mask: np.ndarray, distance, frame: np.ndarray | None) -> None:
         """A grid of (α, θ, φ) hypotheses laid on the first blob; particles around the best of each class."""
