@@ -16,6 +16,7 @@ from torch_atr.tracking import ShapeAppearance, Tracker, TrackerConfig, initiali
 from torch_atr.tracking import filter as filter_module
 from torch_atr.tracking.blob import BlobTracker
 from torch_atr.tracking.filter import FilterConfig
+from torch_atr.tracking.ground import bottom_edge_px, interpolate_periodic
 from torch_atr.tracking.initialise import InitConfig, best_hypotheses, ground_depth, hypothesis_shares
 from torch_atr.tracking.motion import SPEED, X, Z
 from torch_atr.tracking.observation import frame_distance, place_silhouette, project_windows
@@ -276,3 +277,146 @@ def test_blob_tracker_gives_an_empty_silhouette_no_weight(model, monkeypatch):
     after = tracker.score(mask, views)
     assert after[2] == -math.inf
     torch.testing.assert_close(after[[0, 1, 3]], before[[0, 1, 3]])
+
+
+# --- found correct: each against its own reference -------------------------------------------------
+
+
+def _rotation(yaw_deg: float, tilt_deg: float) -> torch.Tensor:
+    """A sensor-like rotation world -> sensor (det +1): a turn about y, then a tilt about x."""
+    a = math.radians(yaw_deg)
+    yaw = torch.tensor([[math.cos(a), 0.0, -math.sin(a)], [0.0, 1.0, 0.0], [math.sin(a), 0.0, math.cos(a)]],
+                       dtype=torch.float64)
+    return _tilt(tilt_deg) @ yaw
+
+
+@pytest.mark.parametrize("dist", [None, [-0.2, 0.05, 0.001, -0.002, 0.0]])
+@pytest.mark.parametrize("tilt", [-10.0, -2.0, 0.0, 5.0])
+def test_ground_depth_is_the_flat_ground_intersection_of_a_tilted_camera(dist, tilt):
+    """Against the closed form with the pixel undistorted by scipy's root finder on OpenCV's model
+    (x_d = x (1 + k1 r² + k2 r⁴ + k3 r⁶) + 2 p1 x y + p2 (r² + 2 x²), likewise y): the ray meets the
+    plane 12 m below the camera centre at depth −12 / d_y; NaN for a ray at or above the horizon."""
+    from scipy.optimize import fsolve
+
+    fx, fy, cx, cy = 1000.0, 1010.0, 320.0, 256.0
+    R = _rotation(7.0, tilt)
+    camera = Camera(fx, fy, cx, cy, 640, 512, dist=dist, R=R, t=[1.0, -2.0, 3.0])
+    k1, k2, p1, p2, k3 = dist or [0.0] * 5
+    for u, v in [(320.0, 256.0), (100.0, 500.0), (600.0, 300.0), (320.0, 10.0)]:
+        def residual(q):
+            x, y = q
+            r2 = x * x + y * y
+            radial = 1 + k1 * r2 + k2 * r2 ** 2 + k3 * r2 ** 3
+            return [fx * (x * radial + 2 * p1 * x * y + p2 * (r2 + 2 * x * x)) + cx - u,
+                    fy * (y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y) + cy - v]
+
+        x, y = fsolve(residual, [(u - cx) / fx, (v - cy) / fy], xtol=1e-14)
+        ray = R.numpy().T @ np.array([x, -y, 1.0])
+        expected = -12.0 / ray[1] if ray[1] < 0 else math.nan
+        got = ground_depth(camera, torch.tensor([u, v], dtype=torch.float64), 12.0)
+        assert got == pytest.approx(expected, rel=1e-9, nan_ok=True), (u, v)
+
+
+def test_hypotheses_on_flat_ground_have_the_window_of_the_contact_range(model):
+    """With the camera's height, every hypothesis lies at the depth z where the ray through the blob's
+    lowest row meets the ground (the closed form), its window spans (fx, fy) W / z pixels, and the
+    silhouette's box is centred on the blob's box (by hand from each view's silhouette)."""
+    camera = Camera(1000.0, 1000.0, 320, 256, 640, 512, R=_rotation(4.0, -3.0), t=[0.5, -4.0, 1.0])
+    mask = np.zeros((512, 640), dtype=bool)
+    mask[300:309, 200:231] = True
+    distance, origin = frame_distance(mask, math.inf)
+    states, _ = initialise.blind_hypotheses(torch.from_numpy(mask), distance, camera,
+                                            ShapeAppearance(model, "I", 32), InitConfig(alpha_steps=3, azimuth_steps=4),
+                                            0.1, camera_height_m=6.0, origin=origin)
+    z = _flat_ground_depth(camera, 215.0, 308.0, 6.0)  # the lowest row's centre (ground_row 0)
+    uv, side = project_windows(camera, states[:, X:Z + 1], model.template.window_m)
+    torch.testing.assert_close(side, torch.full_like(side, 1000.0 * model.template.window_m / z))
+    ray = camera.R.numpy().T @ np.array([(215 - 320) / 1000.0, -(304 - 256) / 1000.0, 1.0])
+    phi = math.asin(-ray[1] / np.linalg.norm(ray))
+    theta = torch.arange(4, dtype=torch.float64) * (math.pi / 2)
+    alpha = torch.arange(3, dtype=torch.float64) * (2 * math.pi / 3)
+    with torch.no_grad():
+        y = model(alpha.repeat_interleave(4).float(), theta.repeat(3).float(), torch.full((12,), phi))
+    S = model.template.size_px
+    for k in range(12):
+        rows, cols = np.nonzero(y[k].numpy() > 0)
+        offset = ((cols.min() + cols.max()) / 2 - (S - 1) / 2, (rows.min() + rows.max()) / 2 - (S - 1) / 2)
+        centre = [float(uv[k, i]) + offset[i] * float(side[k, i]) / S for i in range(2)]
+        assert centre == pytest.approx([215.0, 304.0], abs=1e-6), k
+
+
+def test_blind_particles_have_the_promised_spreads():
+    """Around each of two hypotheses (equal shares): the range from the camera centre scaled by
+    1 + range_std N(0, 1) along the line of sight, h and α by half a grid step (σ = π / steps) and
+    wrapped to [0, 2π), the signed speed N(0, speed_std²): sample moments of 10⁵ draws each."""
+    camera = Camera(1000, 1000, 320, 256, 640, 512, R=_rotation(20.0, -3.0), t=[1.0, -5.0, 3.0])
+    centre = camera_centre(camera)
+    states = torch.tensor([[10.0, -5.0, 100.0, 6.25, 0.0, 6.27], [-20.0, -4.0, 300.0, 0.01, 3.0, 0.02]],
+                          dtype=torch.float64)
+    cfg = InitConfig(hypotheses=2, range_std=0.02, speed_std_mps=2.0, alpha_steps=10, azimuth_steps=20)
+    out = initialise.blind_particles(states, torch.tensor([0.0, -1.0], dtype=torch.float64), 200_000, cfg, camera,
+                                     torch.Generator().manual_seed(1))
+    assert ((out[:, [3, 5]] >= 0) & (out[:, [3, 5]] < 2 * math.pi)).all()
+    for i in range(2):
+        drawn = out[i::2]
+        ray, sight = drawn[:, X:Z + 1] - centre, states[i, X:Z + 1] - centre
+        scale = ray.norm(dim=1) / sight.norm()
+        torch.testing.assert_close(ray / ray.norm(dim=1, keepdim=True), (sight / sight.norm()).expand_as(ray))
+        for values, mean, std in ((scale, 1.0, 0.02), (drawn[:, 4], 0.0, 2.0),
+                                  (torch.remainder(drawn[:, 3] - states[i, 3] + math.pi, 2 * math.pi) - math.pi,
+                                   0.0, math.pi / 20),
+                                  (torch.remainder(drawn[:, 5] - states[i, 5] + math.pi, 2 * math.pi) - math.pi,
+                                   0.0, math.pi / 10)):
+            assert float(values.mean()) == pytest.approx(mean, abs=4 * std / math.sqrt(1e5))
+            assert float(values.std()) == pytest.approx(std, rel=0.01)
+
+
+def test_speeds_from_track_are_the_posterior_of_numpys_least_squares_slope():
+    """The slope and its standard error from numpy.polyfit (cov='unscaled' times the residual variance),
+    the measurement floor 0.1 m/s, and the posterior mean (v₀/σ₀² + s u/σ_u²) / (1/σ₀² + s²/σ_u²) with
+    s the heading's component along a camera x axis turned 0.3 rad (R ≠ I)."""
+    rng = np.random.default_rng(0)
+    t = np.arange(10) / 30.0
+    y = 3.0 + 4.0 * t + rng.normal(0, 0.05, 10)
+    axis = np.array([math.cos(0.3), 0.0, -math.sin(0.3)])
+    h = np.array([0.5, 1.5, 3.0, 0.3 + math.pi / 2])
+    v0 = np.array([0.0, 1.0, -2.0, 0.5])
+    (slope, _), cov = np.polyfit(t, y, 1, cov="unscaled")
+    residual = y - np.polyval(np.polyfit(t, y, 1), t)
+    var_u = max(math.sqrt((residual ** 2).sum() / (len(t) - 2) * cov[0, 0]), 0.1) ** 2
+    s = axis[0] * np.sin(h) + axis[2] * np.cos(h)
+    expected = (v0 / 1.5 ** 2 + s * slope / var_u) / (1 / 1.5 ** 2 + s ** 2 / var_u)
+    got = initialise.speeds_from_track(*(torch.tensor(a) for a in (t, y, axis, h, v0)), 1.5)
+    np.testing.assert_allclose(got.numpy(), expected, rtol=1e-10)
+    with pytest.raises(ValueError, match="at least 3"):
+        initialise.speeds_from_track(*(torch.tensor(a) for a in (t[:2], y[:2], axis, h, v0)), 1.5)
+    with pytest.raises(ValueError, match="finite"):
+        initialise.speeds_from_track(*(torch.tensor(a) for a in (t, np.where(t > 0.1, np.nan, y), axis, h, v0)), 1.5)
+
+
+@pytest.mark.parametrize("size", [1, 2, 7, 256])
+@pytest.mark.parametrize("dtype", [torch.float64, torch.float32])
+def test_periodic_interpolation_matches_scipy(size, dtype):
+    """Against scipy's interp1d over the table closed by its first value at 2π, at α wrapped by numpy."""
+    from scipy.interpolate import interp1d
+
+    rng = np.random.default_rng(size)
+    table = rng.normal(size=size)
+    alpha = np.concatenate([rng.uniform(-50, 50, 500), [0.0, 2 * np.pi, -2 * np.pi, 1e6, np.nextafter(2 * np.pi, 0)]])
+    reference = interp1d(np.arange(size + 1) * 2 * np.pi / size, np.append(table, table[0]))(np.mod(alpha, 2 * np.pi))
+    got = interpolate_periodic(torch.tensor(table, dtype=dtype), torch.tensor(alpha))
+    np.testing.assert_allclose(got.numpy(), reference, atol=1e-12 if dtype == torch.float64 else 1e-6)
+
+
+def test_bottom_edge_is_the_lowest_zero_crossing_by_brute_force():
+    """Random signed images (exact zeros among them): the largest r + 0.5 + a_r / (a_r − a_{r+1}) over
+    every column's inside-to-outside step, S when a bottom pixel is inside, NaN without a step."""
+    rng = np.random.default_rng(1)
+    for _ in range(200):
+        S = int(rng.integers(2, 12))
+        a = rng.normal(size=(S, S)) - rng.uniform(-1, 2)
+        a[rng.random((S, S)) < 0.1] = 0.0
+        steps = [r + 0.5 + a[r, c] / (a[r, c] - a[r + 1, c]) for c in range(S) for r in range(S - 1)
+                 if a[r, c] > 0 >= a[r + 1, c]]
+        expected = float(S) if (a[-1] > 0).any() else (max(steps) if steps else math.nan)
+        assert bottom_edge_px(torch.tensor(a)[None]).item() == pytest.approx(expected, abs=1e-12, nan_ok=True)
