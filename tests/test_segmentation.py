@@ -236,6 +236,11 @@ def test_config_validation_and_loading(tmp_path):
     for bad in (-1.0, 36.0, 50.0):  # thin parts need a threshold below var_threshold (36)
         with pytest.raises(ConfigError, match=f"thin_threshold={bad}"):
             SegmentationConfig(thin_threshold=bad)
+    # Unbounded, open_px=3001 took 43 s a frame and warmup_frames=100000 held a megabyte a frame until memory ran out
+    for key, bad in (("open_px", 65), ("close_px", 3001), ("warmup_frames", 1001)):
+        with pytest.raises(ConfigError, match=rf"{key}={bad} .*open_px, close_px in \[0, 64\]"):
+            SegmentationConfig(**{key: bad})
+    assert SegmentationConfig(open_px=64, close_px=64, warmup_frames=1000).close_px == 64
 
 
 def test_normalise_ir_matches_interp():

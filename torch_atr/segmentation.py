@@ -63,6 +63,10 @@ logger = logging.getLogger(__name__)
 FRAME_DTYPES = (np.uint8, np.uint16, np.float32, np.float64)  # what frames may hold
 
 
+MAX_WARMUP_FRAMES = 1000  # warm-up frames are held in memory: about 1 MB each at 640 x 512 (measured)
+MAX_KERNEL_PX = 64  # cleaning kernels: 64 px closes gaps wider than any vehicle's; 3001 took 43 s a frame
+
+
 @dataclass(frozen=True)
 class SegmentationConfig:
     """Background subtraction and mask cleaning settings.
@@ -94,9 +98,9 @@ class SegmentationConfig:
             "var_threshold": self.var_threshold > 0,
             "learning_rate": self.learning_rate == -1 or 0 <= self.learning_rate <= 1,
             "learning_interval": self.learning_interval >= 1,
-            "warmup_frames": self.warmup_frames >= 1,
-            "open_px": self.open_px >= 0,
-            "close_px": self.close_px >= 0,
+            "warmup_frames": 1 <= self.warmup_frames <= MAX_WARMUP_FRAMES,
+            "open_px": 0 <= self.open_px <= MAX_KERNEL_PX,
+            "close_px": 0 <= self.close_px <= MAX_KERNEL_PX,
             "min_area_px": self.min_area_px >= 0,
             "low_percentile": 0 <= self.low_percentile < self.high_percentile,
             "high_percentile": self.high_percentile <= 100,
@@ -105,9 +109,10 @@ class SegmentationConfig:
         }
         bad = [k for k, ok in checks.items() if not ok]
         if bad:
-            raise ConfigError("segmentation: bad value(s) " + ", ".join(f"{k}={show(getattr(self, k))}" for k in bad)
-                              + " (history, warmup_frames, learning_interval >= 1; var_threshold > 0; learning_rate in [0, 1] or -1; "
-                              "open_px, close_px, min_area_px, headroom >= 0; 0 <= low < high <= 100 percentiles; "
+            values = ", ".join(f"{k}={show(getattr(self, k))}" for k in bad)
+            raise ConfigError(f"segmentation: bad value(s) {values} (history, learning_interval >= 1; warmup_frames "
+                              "in [1, 1000]; var_threshold > 0; learning_rate in [0, 1] or -1; open_px, close_px in "
+                              "[0, 64]; min_area_px, headroom >= 0; 0 <= low < high <= 100 percentiles; "
                               "thin_threshold 0 or in (0, var_threshold))")
 
 
