@@ -192,3 +192,28 @@ def test_read_text_of_a_small_file_sets_no_limit_sized_buffer_aside(tmp_path):
     with pytest.raises(InputError, match="larger than 100 bytes"):
         read_text(tmp_path / "big.txt", max_bytes=100)
     assert read_text(tmp_path / "big.txt", max_bytes=101) == "x" * 101
+
+
+def test_read_text_of_a_named_pipe(tmp_path):
+    """A shell's --config <(...) is a named pipe: refused as 'a folder or a device'. Its size is unknown until
+    read (fstat says 0), so it is read in chunks up to the limit: whole beyond one chunk, refused over it."""
+    import threading
+
+    def served(text: str, max_bytes: int) -> str:
+        pipe = tmp_path / "pipe"
+        pipe.unlink(missing_ok=True)
+        os.mkfifo(pipe)
+        writer = threading.Thread(target=lambda: pipe.write_text(text))
+        writer.start()
+        try:
+            return read_text(pipe, max_bytes=max_bytes)
+        finally:
+            writer.join(timeout=5)
+            if writer.is_alive():  # the pipe was never opened (or not to the end): drain it, so the writer ends
+                pipe.read_bytes()
+                writer.join()
+
+    text = "".join(f"key_{i}: {i}\n" for i in range(20000))  # 267 kB: five chunks
+    assert served(text, 10 ** 6) == text
+    with pytest.raises(InputError, match="larger than 100 bytes"):
+        served("x" * 101, 100)

@@ -231,16 +231,25 @@ def vector(where: str, value: Any, length: int) -> list[float]:
 def read_text(path: str | os.PathLike, max_bytes: int = MAX_TEXT_BYTES) -> str:
     """The UTF-8 text of ``path`` (a leading byte-order mark dropped).
 
-    Raises FileNotFoundError naming a missing file, and InputError naming the file for a folder,
-    a file over ``max_bytes`` or bytes that are not UTF-8 (with the line and byte offset).
+    ``path`` may be a named pipe (``--config <(...)``). Raises FileNotFoundError naming a missing file,
+    and InputError naming the file for a folder or a device, a file over ``max_bytes`` or bytes that
+    are not UTF-8 (with the line and byte offset).
     """
     path = Path(path)
     if not path.exists():
         raise FileNotFoundError(f"File not found: {path}")
-    if not path.is_file():
+    pipe = path.is_fifo()  # a shell's <(...) or /dev/stdin from a pipe: its size is unknown until read
+    if not (path.is_file() or pipe):
         raise InputError(f"{path}: expected a file; it is a folder or a device")
     with open(path, "rb") as fh:  # read(n) sets n bytes aside first: 64 MiB for every small file
-        data = fh.read(min(os.fstat(fh.fileno()).st_size, max_bytes) + 1)
+        if pipe:
+            chunks, size = [], 0
+            while size <= max_bytes and (chunk := fh.read(1 << 16)):
+                chunks.append(chunk)
+                size += len(chunk)
+            data = b"".join(chunks)
+        else:
+            data = fh.read(min(os.fstat(fh.fileno()).st_size, max_bytes) + 1)
     if len(data) > max_bytes:
         raise InputError(f"{path}: larger than {max_bytes} bytes; expected a small text file")
     try:
