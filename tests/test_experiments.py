@@ -259,6 +259,16 @@ def test_two_jobs_that_would_share_a_result_file_are_refused(monkeypatch):
         SensiacLikeConfig(vehicles=("heldout:car/a b.obj", "heldout:car/a_b.obj"), ranges_m=(1000.0,))
 
 
+def test_a_bad_frame_or_particle_count_is_named():
+    """The line read 'frames in [1, 1e5] and particles in [1, 1e7]; got 0, 1000', naming neither."""
+    from torch_atr.config import ConfigError
+
+    with pytest.raises(ConfigError, match=r"^frames must be in \[1, 100000\]; got 0$"):
+        SensiacLikeConfig(frames=0)
+    with pytest.raises(ConfigError, match=r"^particles must be in \[1, 10000000\]; got 20000000$"):
+        SensiacLikeConfig(particles=20_000_000)
+
+
 def test_a_vehicle_or_range_listed_twice_is_one_job():
     """'--vehicles t_72 t_72' ran each sequence twice (run_all's jobs are vehicles × ranges) and
     weighed it twice in the means; the repeats go, the order stays."""

@@ -69,8 +69,9 @@ class SensiacLikeConfig:
             raise ConfigError(f"init must be 'blind' or 'truth'; got {show(self.init)}")
         if not 0 < self.circle_diameter_m <= 1e4:
             raise ConfigError(f"circle_diameter_m must be in (0, 10000]; got {self.circle_diameter_m}")
-        if not 1 <= self.frames <= 100_000 or not 1 <= self.particles <= 10_000_000:
-            raise ConfigError(f"frames in [1, 1e5] and particles in [1, 1e7]; got {self.frames}, {self.particles}")
+        for name, top in (("frames", 100_000), ("particles", 10_000_000)):
+            if not 1 <= getattr(self, name) <= top:
+                raise ConfigError(f"{name} must be in [1, {top}]; got {show(getattr(self, name))}")
         grid = [o for o in self.scene if o.split("=", 1)[0].strip() in GRID_SCENE_KEYS]
         if grid:
             raise ConfigError(f"scene: {grid[0]!r} sets the grid itself; use the experiment's own options for "
