@@ -420,3 +420,13 @@ def test_bottom_edge_is_the_lowest_zero_crossing_by_brute_force():
                  if a[r, c] > 0 >= a[r + 1, c]]
         expected = float(S) if (a[-1] > 0).any() else (max(steps) if steps else math.nan)
         assert bottom_edge_px(torch.tensor(a)[None]).item() == pytest.approx(expected, abs=1e-12, nan_ok=True)
+
+
+def test_a_sequence_whose_camera_height_is_none_starts_blind_as_unknown(model):
+    """Sequence.camera_height_m is NaN where unknown; a Sequence of one's own that says None stopped the blind start
+    on math.isfinite(None), a TypeError. It is taken as unknown: the ranges come from the blob's size."""
+    seq = SyntheticSequence("btr_70", SceneConfig(frames=3))
+    seq.camera_height_m = None
+    rows = Tracker(model, seq.camera, load_config(TrackerConfig, None, ["filter.particles=100"]), seed=0).run(
+        seq, progress=False).rows
+    assert len(rows) == 3 and all(math.isfinite(row["x"]) for row in rows)

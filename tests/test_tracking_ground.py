@@ -62,3 +62,28 @@ def test_periodic_interpolation_of_a_non_finite_alpha_is_nan():
     table = torch.tensor([1.0, 3.0, 2.0, 5.0], dtype=torch.float64)
     got = interpolate_periodic(table, torch.tensor([math.nan, math.inf, -math.inf, math.pi / 4], dtype=torch.float64))
     assert got[:3].isnan().all() and got[3].item() == pytest.approx(2.0)
+
+
+def test_ground_contact_follows_the_heights_of_adapted_kernel_widths():
+    """Kernel-width adaptation changes the silhouettes and so their heights; the half-heights were computed once,
+    with the widths of the first frame, and held every particle at the old heights."""
+    import copy
+
+    from conftest import SHIPPED_CHECKPOINT
+    from torch_atr.model import GenerativeShapeModel
+
+    model = GenerativeShapeModel.from_checkpoint(SHIPPED_CHECKPOINT)  # its own copy: adaptation changes the widths
+    seq = SyntheticSequence("btr_70", SceneConfig(frames=3))
+    cfg = load_config(TrackerConfig, None, ["filter.particles=200", "init.mode=truth", "filter.ground_contact=true",
+                                            "adapt.every=1", "adapt.steps=3", "adapt.lr=0.05",
+                                            f"init.camera_height_m={seq.camera_height_m}"])  # run() would copy it
+    tracker = Tracker(model, seq.camera, cfg, seed=0)
+    tracker.warm_up(seq.warmup_frames(20))
+    tracker.initialise(seq.truth(0))
+    tracker.step(seq.frame(0))
+    tracker.step(seq.frame(1))
+    adapted = copy.deepcopy(model)  # the widths frame 2's prediction holds its particles with
+    tracker.step(seq.frame(2))
+    ground_y = float(camera_centre(seq.camera)[1]) - seq.camera_height_m
+    expected = ground_y + interpolate_periodic(half_heights(adapted), tracker.particles[:, ALPHA])
+    torch.testing.assert_close(tracker.particles[:, Y], expected)

@@ -902,7 +902,8 @@ class Tracker:
             (log.warning if self._adapt_undone == 1 else log.debug)(
                 "frame %s: kernel-width adaptation diverged (log widths left [%g, %g]) and was undone; a smaller "
                 "adapt.lr or fewer adapt.steps keeps it (later ones are logged at debug level)", row["frame"], lo, hi)
-        self._grid.forget()  # the widths changed the silhouettes
+        self._grid.forget()  # the widths changed the silhouettes,
+        self._half_heights = None  # and so their heights (ground contact)
 
     # --- a whole sequence -------------------------------------------------------------------
     @torch.no_grad()
@@ -949,7 +950,8 @@ class Tracker:
         self._grid.forget()  # boxes kept at an earlier run's elevation (a new Tracker has none)
         self.dt = 1.0 / (sequence.fps if math.isfinite(sequence.fps) and sequence.fps > 0 else self.cfg.filter.fps)
         if self.cfg.init.camera_height_m is None:
-            self.camera_height_m = sequence.camera_height_m
+            height = sequence.camera_height_m  # NaN where unknown; a Sequence of one's own may say None
+            self.camera_height_m = math.nan if height is None else float(height)
         count = self.cfg.segmentation.warmup_frames
         if hasattr(sequence, "warmup_frames"):
             self.warm_up(sequence.warmup_frames(count))
