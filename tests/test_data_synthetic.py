@@ -551,3 +551,24 @@ def test_a_vehicle_at_the_frames_edge_is_blurred_as_the_whole_frame_is():
     for axis in (0, 1):
         reference = ndimage.correlate1d(reference, kernel / kernel.sum(), axis=axis, mode="mirror")
     assert np.abs(seq.scene(0) - reference).max() < 1e-3
+
+
+def test_a_vehicle_inside_the_frame_is_blurred_as_the_whole_frame_is():
+    """Where 4 σ is a whole number of pixels (σ = 1 px) the kernel reaches exactly the window's padding, and
+    the mirror at a window edge inside the frame read the vehicle's first row back into the outer ring,
+    doubling the kernel's tail there (1.1 mK off for the 0.1 mK of float32 rounding). Reference: the
+    whole composed scene blurred by scipy, mirrored at the frame's edges (REFLECT_101)."""
+    seq = SyntheticSequence("t_72", SceneConfig(frames=10, seed=0, psf_sigma_px=1.0, psf_sigma_per_km=0.0))
+    target = seq._target(0)
+    h, w = target.cover.shape
+    assert 4 < target.u0 and target.u0 + w < seq.cfg.width - 4 and 4 < target.v0 and target.v0 + h < seq.cfg.height - 4
+    sharp, _, occluder = seq._static_scene()
+    window = (slice(target.v0, target.v0 + h), slice(target.u0, target.u0 + w))
+    cover = np.where(occluder[window], 0.0, target.cover)
+    reference = sharp.astype(np.float64)
+    reference[window] += np.where(cover > 0, target.radiance - cover * sharp[window], 0.0)
+    x = np.arange(-4, 5)
+    kernel = np.exp(-x ** 2 / 2.0)
+    for axis in (0, 1):
+        reference = ndimage.correlate1d(reference, kernel / kernel.sum(), axis=axis, mode="mirror")
+    assert np.abs(seq.scene(0) - reference).max() < 3e-4

@@ -878,10 +878,12 @@ class SyntheticSequence(Sequence):
             return out
         # A pixel shows cover · T_target + (1 - cover) · T_scene, and blur is linear:
         # blur(scene with target) = blur(scene) + blur(cover · (T_target - T_scene)), zero beyond
-        # the kernel's reach (pad) around the window; both blurs mirror at the frame's edges.
+        # the kernel's reach around the window; both blurs mirror at the frame's edges. The pad is one pixel
+        # more than the reach, so that the mirror at a window edge inside the frame reads zeros only (at the
+        # reach itself it read the target's first row back, doubling the kernel's tail: 6 mK at σ = 1 px).
         diff = np.where(cover > 0, target.radiance - cover * sharp[window], np.float32(0))
         sigma = self.cfg.psf_sigma
-        pad = math.ceil(_PSF_TRUNCATE * sigma)
+        pad = math.ceil(_PSF_TRUNCATE * sigma) + 1
         r0, r1 = max(target.v0 - pad, 0), min(target.v0 + h + pad, self.cfg.height)
         c0, c1 = max(target.u0 - pad, 0), min(target.u0 + w + pad, self.cfg.width)
         diff = np.pad(diff, ((target.v0 - r0, r1 - target.v0 - h), (target.u0 - c0, c1 - target.u0 - w)))
