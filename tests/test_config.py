@@ -263,6 +263,18 @@ def test_paths_from_config_files_expand_the_home_folder(tmp_path, monkeypatch):
     assert (track.out, track.checkpoint) == (str(tmp_path / "run"), str(tmp_path / "m.pt"))
 
 
+def test_a_config_path_with_an_unknown_users_home_is_not_found(tmp_path, monkeypatch):
+    """~nobody_here/c.yaml names a user without a home; a shell leaves it as written, so it is a file that
+    is not found (Path.expanduser raised a bare RuntimeError, 'Could not determine home directory'), and ~
+    alone is the home folder (HOME)."""
+    monkeypatch.setenv("HOME", str(tmp_path))
+    (tmp_path / "c.yaml").write_text("name: mine\n")
+    assert load_config(TrainConfig, "~/c.yaml").name == "mine"
+    assert os.path.expanduser("~nobody_here_9f3/c.yaml") == "~nobody_here_9f3/c.yaml"  # the scenario
+    with pytest.raises(ConfigError, match=r"^config file not found: ~nobody_here_9f3/c\.yaml$"):
+        load_config(TrainConfig, "~nobody_here_9f3/c.yaml")
+
+
 def test_type_errors_say_what_was_expected_in_words():
     from torch_atr.config import check_type, parse_yaml
 

@@ -12,6 +12,7 @@ import dataclasses
 import datetime
 import difflib
 import math
+import os
 import re
 import types
 import typing
@@ -323,7 +324,9 @@ def load_config(cls: type[T], path: str | Path | None = None, overrides: list[st
     if path is not None:
         if not str(path).strip():  # Path('') is '.', the current folder
             raise ConfigError(f"the config file must be a path; got {show(str(path))}")
-        path = Path(path).expanduser()  # as a shell would, which leaves --config=~/c.yaml as written
+        # ~ as a shell would, which leaves --config=~/c.yaml as written; an unknown ~user stays as written (not
+        # found), where Path.expanduser raises RuntimeError
+        path = Path(os.path.expanduser(path))
         if not path.exists():
             raise ConfigError(f"config file not found: {path}")
         loaded = read_yaml(path)
