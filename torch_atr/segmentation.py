@@ -110,10 +110,10 @@ class SegmentationConfig:
         bad = [k for k, ok in checks.items() if not ok]
         if bad:
             values = ", ".join(f"{k}={show(getattr(self, k))}" for k in bad)
-            raise ConfigError(f"segmentation: bad value(s) {values} (history, learning_interval >= 1; warmup_frames "
-                              "in [1, 1000]; var_threshold > 0; learning_rate in [0, 1] or -1; open_px, close_px in "
-                              "[0, 64]; min_area_px, headroom >= 0; 0 <= low < high <= 100 percentiles; "
-                              "thin_threshold 0 or in (0, var_threshold))")
+            raise ConfigError(f"segmentation: bad value(s) {values} (history, learning_interval >= 1; "
+                              f"warmup_frames in [1, {MAX_WARMUP_FRAMES}]; var_threshold > 0; learning_rate in [0, 1] "
+                              f"or -1; open_px, close_px in [0, {MAX_KERNEL_PX}]; min_area_px, headroom >= 0; "
+                              "0 <= low < high <= 100 percentiles; thin_threshold 0 or in (0, var_threshold))")
 
 
 def normalise_ir(frame: np.ndarray, lo: float, hi: float) -> np.ndarray:
