@@ -77,7 +77,6 @@ def test_masks_and_signed_distances_are_not_confused(model):
             function(model, templates, theta[:views], phi[:views])
 
 
-
 @pytest.mark.parametrize("bad", [float("nan"), float("inf")])
 def test_non_finite_signed_distances_are_refused(model, bad):
     """One NaN (or infinite) pixel made every loss of fit_alpha NaN: it answered α = 0 with a NaN error
@@ -174,6 +173,7 @@ def test_identity_distances_against_a_loop_in_the_models_dtype(model):
             recon = wide(wide.alphas[k].expand(2), theta, phi).numpy()  # (2, S, S)
             for j in (0, 3, K - 1):
                 assert got[k, j].item() == pytest.approx(((signed[j].numpy() - recon) ** 2).mean(), rel=1e-12)
+
 
 def test_tracking_errors_by_hand():
     from torch_atr.evaluation import tracking_errors

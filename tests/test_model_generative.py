@@ -296,7 +296,6 @@ def test_fine_tune_widths_lowers_validation_error(data):
         fine_tune_widths(object(), train, data["theta"], data["phi"], val, data["val_theta"], data["val_phi"], 1, 0.1)
 
 
-
 @pytest.mark.parametrize("ridge", [1e-4, 0.0])
 def test_diverged_width_tuning_is_refused_not_fitted(data, ridge):
     """Adam at lr = 10 (model.width_lr's bound) went NaN at ridge 1e-4, and fit failed in eigh with an
@@ -315,6 +314,7 @@ def test_diverged_width_tuning_is_refused_not_fitted(data, ridge):
                          data["val"].double().reshape(K, data["val"].shape[1], -1), data["val_theta"],
                          data["val_phi"], steps=50, lr=10.0, ridge=ridge)
     assert torch.equal(rbf.log_width, before)  # left as they were
+
 
 def test_fine_tune_widths_loss_is_the_mse_of_explicit_mappings(data):
     """The Gram-matrix loss equals the MSE of explicitly solved Bᵏ applied at the held-out views."""
@@ -403,7 +403,6 @@ def test_fit_rejects_non_finite_views_and_validation_templates(data, key, messag
                                  val_theta=inputs["val_theta"], val_phi=inputs["val_phi"])
 
 
-
 @pytest.mark.parametrize("key", ["phi", "centres_phi", "val_phi"])
 def test_fit_refuses_elevations_in_degrees(data, key):
     """Elevations given in degrees (0, 20, 40) fitted, without a word, a model of meaningless views (cos 40 < 0
@@ -421,6 +420,7 @@ def test_fit_refuses_elevations_in_degrees(data, key):
     GenerativeShapeModel.fit(data["templates"], data["theta"], zenith, NAMES, CLASSES, ["car", "tank"], TEMPLATE,
                              ModelConfig(pixel_rank=8))
 
+
 @pytest.mark.parametrize("key", ["theta", "val_theta", "train", "val"])
 def test_fine_tune_widths_rejects_non_finite_inputs(model, data, key):
     inputs = {"theta": data["theta"].clone(), "val_theta": data["val_theta"].clone(),
@@ -432,7 +432,6 @@ def test_fine_tune_widths_rejects_non_finite_inputs(model, data, key):
         fine_tune_widths(rbf, inputs["train"], inputs["theta"], data["phi"], inputs["val"], inputs["val_theta"],
                          data["val_phi"], 2, 0.01)
     assert torch.equal(rbf.log_width.detach(), before)  # refused before any step
-
 
 
 def test_names_must_be_distinct(data):
