@@ -22,7 +22,7 @@ from pathlib import Path
 
 from torch_atr import viz
 from torch_atr.cli import REPO, console_logging, in_repo, run_main
-from torch_atr.config import ConfigError, load_config
+from torch_atr.config import load_config
 from torch_atr.data import open_sequence
 from torch_atr.io import check_output_dir, claimed_output_dir
 from torch_atr.model import GenerativeShapeModel
@@ -32,7 +32,7 @@ from torch_atr.tracking.filter import Tracker
 from torch_atr.tracking.job import (CONVERGED_FRAMES, TrackConfig, absolute_spec, is_track_run, run_summary,
                                     write_metrics, write_run)
 from torch_atr.training import trained_catalog, training_templates
-from torch_atr.validate import cut, show
+from torch_atr.validate import cut
 
 log = logging.getLogger("track")
 SETTLE_FRAMES = 60  # metrics.json's "settled" block: the frames after a blind start's first 2 s
@@ -73,9 +73,6 @@ def main(argv: list[str] | None = None) -> dict:
     flags = {f"{FLAGS[flag][0]}={value}": cut(f"--{flag} {shlex.quote(value)}") for flag, value in given.items()}
     flags |= {f"{name}=true": f"--{name}" for name in ("tensorboard", "video") if getattr(args, name)}
     cfg = load_config(TrackConfig, args.config, [*flags, *args.overrides], unique=True, labels=flags)
-    for key in ("out", "checkpoint"):  # Path('') is '.': the run's files went into the current folder
-        if not getattr(cfg, key).strip():
-            raise ConfigError(f"{key} must be a path; got {show(getattr(cfg, key))}")
 
     # 1. The model, the sequence, the run folder and the tracker. A bad input is reported before
     # the run folder is checked (a typo in --sequence is not "runs/track exists"), and a value the

@@ -29,7 +29,7 @@ import torch
 
 from torch_atr import viz
 from torch_atr.cli import REPO, console_logging, run_main
-from torch_atr.config import ConfigError, load_config
+from torch_atr.config import load_config
 from torch_atr.evaluation import (fit_alpha, identity_distances, per_class_mean, rbf_mapping_iou,
                                   reconstruction_iou)
 from torch_atr.io import (RUN_CLAIM, atomic_write_text, check_output_dir, check_output_file, check_writable,
@@ -39,7 +39,6 @@ from torch_atr.model.generative import is_checkpoint
 from torch_atr.model.rbf import RBFViewMapping
 from torch_atr.training import (REPORT_FORMAT, TrainConfig, check_checkpoint_path, check_templates, is_train_report,
                                 non_finite_keys, render_set)
-from torch_atr.validate import show
 from torch_atr.vehicles import CLASS_NAMES, load_catalog, load_catalog_folder
 
 log = logging.getLogger("train")
@@ -58,8 +57,6 @@ def main(argv: list[str] | None = None) -> dict:
     args = parser.parse_intermixed_args(argv)  # flags may sit between the key=value overrides
     console_logging()
     cfg = load_config(TrainConfig, args.config, args.overrides, unique=True)
-    if not cfg.catalog.strip():  # Path('') is '.': the current folder's catalog.yaml was read
-        raise ConfigError(f"catalog must be 'train' or a catalog folder (or its catalog.yaml); got {show(cfg.catalog)}")
     check_checkpoint_path(cfg.checkpoint_path, cfg.run_dir, RUN_FILES)
     # The training vehicles (the shipped split, or a folder of your own models): a bad catalog is
     # named first. Then refuse to replace outputs before spending minutes on training.

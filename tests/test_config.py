@@ -275,6 +275,23 @@ def test_a_config_path_with_an_unknown_users_home_is_not_found(tmp_path, monkeyp
         load_config(TrainConfig, "~nobody_here_9f3/c.yaml")
 
 
+@pytest.mark.parametrize("cls_name, key", [("TrackConfig", "out"), ("TrackConfig", "checkpoint"),
+                                           ("TrainConfig", "catalog")])
+def test_a_blank_path_in_a_config_file_names_the_file(tmp_path, cls_name, key):
+    """A blank out, checkpoint (track.py) or catalog (train.py) is Path('') = '.', the current folder. The
+    entry points refused it after load_config, so a file's was named without the file, and TrackConfig(out='')
+    from Python passed; the configs refuse it, as TrainConfig does a blank checkpoint or log_dir."""
+    from torch_atr.tracking.job import TrackConfig
+
+    cls = {"TrackConfig": TrackConfig, "TrainConfig": TrainConfig}[cls_name]
+    path = tmp_path / "c.yaml"
+    path.write_text(f"{key}: ' '\n")
+    with pytest.raises(ConfigError, match=rf"^{re.escape(str(path))}: {key} must be .*; got ' '$"):
+        load_config(cls, path)
+    with pytest.raises(ConfigError, match=rf"^{key} must be .*; got ''$"):
+        cls(**{key: ""})
+
+
 def test_type_errors_say_what_was_expected_in_words():
     from torch_atr.config import check_type, parse_yaml
 

@@ -120,7 +120,8 @@ def test_an_empty_path_is_refused_not_read_as_the_current_folder(tmp_path, args,
     is '.'), and named '.' when it was not; ``--checkpoint ''`` read '.: expected a checkpoint file'."""
     result = entry_point(str(REPO / "track.py"), *args, "--frames", "1", "--particles", "5", cwd=tmp_path)
     assert result.returncode == 2 and result.stdout == ""
-    assert result.stderr.endswith(f"track.py: error: {key} must be a path; got '{' ' if args == ['out= '] else ''}'\n")
+    given, value = ("override out= ", " ") if args == ["out= "] else (f"{args[0]} ''", "")  # as given (load_config)
+    assert result.stderr.endswith(f"track.py: error: {given}: {key} must be a path; got '{value}'\n")
     assert list(tmp_path.iterdir()) == []
 
 
@@ -183,8 +184,8 @@ def test_an_empty_catalog_is_refused_not_read_as_the_current_folder(tmp_path, ov
     as missing; checkpoint= and log_dir= were refused already."""
     result = entry_point(str(REPO / "train.py"), override, cwd=tmp_path)
     assert (result.returncode, result.stdout) == (2, "")
-    assert result.stderr == (f"train.py: error: catalog must be 'train' or a catalog folder (or its catalog.yaml); "
-                             f"got '{override[8:]}'\n")
+    assert result.stderr == (f"train.py: error: override {override}: catalog must be 'train' or a catalog folder (or "
+                             f"its catalog.yaml); got '{override[8:]}'\n")
 
 
 @pytest.mark.parametrize("experiment", ["sensiac-like", "unseen", "studies", "visible", "all"])

@@ -148,6 +148,9 @@ class TrainConfig:
         for key, value in (("checkpoint", self.checkpoint), ("log_dir", self.log_dir)):
             if value is not None and (not value.strip() or "\0" in value):
                 raise ConfigError(f"{key} must be a path; got {show(value)}")
+        if not self.catalog.strip():  # Path('') is '.': the current folder's catalog.yaml was read
+            raise ConfigError(f"catalog must be 'train' or a catalog folder (or its catalog.yaml); "
+                              f"got {show(self.catalog)}")
         for key in ("checkpoint", "log_dir", "catalog"):  # ~ as a shell would, for paths from config files
             if getattr(self, key) not in (None, "train"):
                 object.__setattr__(self, key, os.path.expanduser(getattr(self, key)))

@@ -22,6 +22,7 @@ from torch_atr.evaluation import (best_matches, frames_to_convergence, recogniti
                                   wrapped_abs)
 from torch_atr.io import atomic_write_csv, atomic_write_text
 from torch_atr.tracking.filter import TrackerConfig, TrackResult, column
+from torch_atr.validate import show
 
 DEFAULT_SEQUENCE = "synthetic:vehicle=t_72,range=1000,frames=300,seed=0"
 METRICS_FORMAT = "torch_atr.track_metrics"  # metrics.json's "format": marks a run folder as ours
@@ -52,6 +53,9 @@ class TrackConfig:
             raise ConfigError(f"frames must be null or in [1, 1e7]; got {self.frames!r}")
         if not self.sequence.strip():
             raise ConfigError("sequence must be a sequence spec; got an empty string")
+        for key in ("checkpoint", "out"):  # Path('') is '.': a blank out wrote the run's files into the current folder
+            if not getattr(self, key).strip():
+                raise ConfigError(f"{key} must be a path; got {show(getattr(self, key))}")
         for key in ("checkpoint", "out"):  # ~ as a shell would, for paths from config files
             object.__setattr__(self, key, os.path.expanduser(getattr(self, key)))
 
