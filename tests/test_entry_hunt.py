@@ -8,6 +8,7 @@ import sys
 from pathlib import Path
 
 import pytest
+from conftest import SHIPPED_CHECKPOINT
 
 import torch_atr.experiments.__main__ as experiments
 from torch_atr.config import ConfigError
@@ -15,9 +16,11 @@ from torch_atr.config import ConfigError
 REPO = Path(__file__).resolve().parents[1]
 
 
-def entry_point(*args: str, cwd: Path) -> subprocess.CompletedProcess:
-    """``python args...`` run from ``cwd`` (a script of the repository, or ``-m``), its output as text."""
-    return subprocess.run([sys.executable, *args], capture_output=True, text=True, cwd=cwd, timeout=120)
+def entry_point(*args: str, cwd: Path, env: dict[str, str] | None = None) -> subprocess.CompletedProcess:
+    """``python args...`` run from ``cwd`` (a script of the repository, or ``-m``), its output as text;
+    ``env``: variables set over the current environment."""
+    return subprocess.run([sys.executable, *args], capture_output=True, text=True, cwd=cwd, timeout=120,
+                          env=None if env is None else {**os.environ, **env})
 
 
 class Reached(Exception):
@@ -218,8 +221,7 @@ def test_a_config_path_starting_with_a_tilde_is_read_from_the_home_folder(tmp_pa
     home = tmp_path / "home"
     home.mkdir()
     (home / "c.yaml").write_text("nope: 1\n")
-    result = subprocess.run([sys.executable, str(REPO / script), "--config=~/c.yaml"], capture_output=True,
-                            text=True, cwd=tmp_path, env={**os.environ, "HOME": str(home)}, timeout=120)
+    result = entry_point(str(REPO / script), "--config=~/c.yaml", cwd=tmp_path, env={"HOME": str(home)})
     assert result.returncode == 2
     assert result.stderr.startswith(f"{script}: error: {home / 'c.yaml'}: unknown config key(s) nope;"), result.stderr
 
@@ -233,7 +235,7 @@ def test_a_report_folder_or_checkpoint_starting_with_a_tilde_is_in_the_home_fold
 
     home = tmp_path / "home"
     home.mkdir()
-    (home / "m.pt").write_bytes((REPO / "checkpoints" / "default.pt").read_bytes())
+    (home / "m.pt").write_bytes(SHIPPED_CHECKPOINT.read_bytes())
     monkeypatch.setenv("HOME", str(home))
     monkeypatch.chdir(tmp_path)
     seen = []
