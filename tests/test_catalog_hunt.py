@@ -137,6 +137,32 @@ def test_a_failing_build_leaves_the_old_catalog(tmp_path, monkeypatch):
     assert _tree(tmp_path) == before
 
 
+def test_a_write_failing_in_a_later_split_leaves_the_earlier_split_as_it_was(tmp_path, monkeypatch):
+    """Each split replaced its folder as soon as it was written, so a full disk in the test split left the
+    train split already replaced: a catalog of two builds. Every split is now written before any is replaced.
+    Reference: the folder tree before the build, with a file the new build would not write."""
+    from torch_atr.vehicles import build
+    from torch_atr.vehicles.specs import SPLITS
+
+    assert list(SPLITS)[-1] == "test"  # the scenario: test is written after train
+    build.build_catalog(tmp_path)
+    (tmp_path / "train" / "older_vehicle").mkdir()
+    (tmp_path / "train" / "older_vehicle" / "older_vehicle.urdf").write_text("<robot/>")
+    before = _tree(tmp_path)
+    real_write = build.atomic_write_text
+
+    def failing_write(text, path):
+        if path.parent.parent.name == ".test.building":
+            raise OSError(28, "No space left on device")
+        real_write(text, path)
+
+    monkeypatch.setattr(build, "atomic_write_text", failing_write)
+    with pytest.raises(OSError, match="No space"):
+        build.build_catalog(tmp_path)
+    assert _tree(tmp_path) == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["test", "train"]  # no staging folder left
+
+
 # ------------------------------------------------------------------------------------------
 # Spec validation
 # ------------------------------------------------------------------------------------------

@@ -380,33 +380,36 @@ def vehicle_files(spec: Spec) -> dict[str, str]:
 def build_catalog(out_dir: str | Path = CATALOG_DIR) -> list[Path]:
     """Write every split's vehicles under ``out_dir/<split>/<name>/``; returns the files written.
 
-    Every vehicle is generated before anything is written, and each split is written into a
-    staging folder beside it that then replaces the old split folder, so vehicles removed from
-    the specs disappear and a spec that fails to build, or a write that fails, leaves the old
-    catalog as it was.
+    Every vehicle is generated before anything is written, and every split is written in full into
+    a staging folder beside it before any of them replaces its old split folder, so vehicles
+    removed from the specs disappear and a spec that fails to build, or a write that fails, leaves
+    the old catalog as it was.
     """
     out_dir = Path(out_dir)
     texts = {split: {spec.name: vehicle_files(spec) for spec in specs} for split, specs in SPLITS.items()}
-    written = []
-    for split, vehicles in texts.items():
-        final, staging, old = out_dir / split, out_dir / f".{split}.building", out_dir / f".{split}.old"
-        shutil.rmtree(staging, ignore_errors=True)  # left by a killed build
-        try:
+    folders = {split: (out_dir / split, out_dir / f".{split}.building", out_dir / f".{split}.old") for split in texts}
+    try:  # every split written before any replaces its folder (a full disk in test left a new train split)
+        for split, vehicles in texts.items():
+            staging = folders[split][1]
+            shutil.rmtree(staging, ignore_errors=True)  # left by a killed build
             for name, files in vehicles.items():
                 for fname, text in files.items():
                     atomic_write_text(text, staging / name / fname)
+        for final, staging, old in folders.values():
             shutil.rmtree(old, ignore_errors=True)
             if final.exists():
                 final.rename(old)
             staging.rename(final)
-        except BaseException:
+    except BaseException:
+        for final, staging, old in folders.values():
             if old.exists() and not final.exists():
                 old.rename(final)
             shutil.rmtree(staging, ignore_errors=True)
-            raise
+        raise
+    for _, _, old in folders.values():
         shutil.rmtree(old, ignore_errors=True)
-        written += [final / name / fname for name, files in vehicles.items() for fname in files]
-    return written
+    return [folders[split][0] / name / fname for split, vehicles in texts.items() for name, files in vehicles.items()
+            for fname in files]
 
 
 def main(argv: Sequence[str] | None = None) -> None:
