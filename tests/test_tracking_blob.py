@@ -114,3 +114,28 @@ def test_a_blob_no_view_explains_is_lost_and_the_blob_tracker_says_why(caplog):
     said = [r.getMessage() for r in caplog.records if "no particle explains the blob" in r.getMessage()]
     assert len(said) == 1 and "Each silhouette is laid on the blob's box (120 x 60 px)" in said[0]
     assert "window" not in said[0]
+
+
+def test_the_frames_distance_widened_for_one_scoring_covers_the_next(model):
+    """A window wider than the distance's margin has the mask transformed again (ce6158e), but the caller kept
+    the narrow distance: a second scoring in the frame (re-detection's hypotheses after the particles') was
+    handed it back and the VW up head-on scored −7.4 for −2.9. Reference: ``score``, on the whole frame's
+    distance."""
+    from torch_atr.tracking.filter import FilterConfig
+    from torch_atr.tracking.observation import place_silhouette
+
+    tracker = BlobTracker(model, TrackerConfig(filter=FilterConfig(particles=4, resample_ess=0.0)), seed=0)
+    alpha = float(model.alphas[model.vehicle_names.index("vw_up")])
+    views = torch.tensor([[0.0, 0.05, alpha], [math.pi, 0.05, alpha], [math.pi / 2, 0.05, alpha],
+                          [0.0, 0.6, alpha]], dtype=torch.float64)
+    with torch.no_grad():
+        shape = model(views[:1, 2].float(), views[:1, 0].float(), views[:1, 1].float())[0]
+    mask = place_silhouette(shape, torch.tensor([160.0, 110.0]), torch.tensor([128.0, 128.0]), (240, 320)).numpy()
+    tracker.reset(views)
+    tracker.step(mask=mask)  # the blob's box is known from here on: the step's distance is cut near it
+    expected = tracker.score(mask, views)
+    distance = tracker._frame_distance(mask, tracker._predicted_region()[2])  # as a step transforms it
+    with torch.no_grad():
+        for _ in range(2):
+            torch.testing.assert_close(tracker._log_likelihood(distance, views.to(tracker.dtype)),
+                                       expected.to(tracker.dtype), atol=1e-3, rtol=0)

@@ -76,7 +76,8 @@ class BlobTracker(Tracker):
     def _begin(self) -> None:
         super()._begin()
         self._blob_box: torch.Tensor | None = None  # the last blob's box (4,), image pixels
-        self._mask, self._margin_side = None, math.inf  # the last distance's mask and window side (_frame_distance)
+        # The last distance (_frame_distance, _covering), its mask and the window side its margin covers.
+        self._distance, self._mask, self._margin_side = None, None, math.inf
 
     def initialise(self, truth: FrameTruth) -> None:
         """Particles around a truth's view (θ, φ) and its vehicle's α (or its class centre; for a class
@@ -153,22 +154,25 @@ class BlobTracker(Tracker):
 
     def _frame_distance(self, mask: np.ndarray, side: float) -> FrameDistance:
         """The mask's distance near the blob for windows up to ``side`` pixels (``Tracker._frame_distance``),
-        the mask and side kept: a window laid on the blob can be larger (:meth:`_covering`)."""
+        kept with the mask and side: a window laid on the blob can be larger (:meth:`_covering`)."""
         self._mask, self._margin_side = mask, side
-        return super()._frame_distance(mask, side)
+        self._distance = super()._frame_distance(mask, side)
+        return self._distance
 
     def _covering(self, distance: FrameDistance, side: torch.Tensor) -> FrameDistance:
-        """``distance``, or the last mask's distance again over a margin wide enough for the windows
-        ``side`` (N, 2) pixels. The predicted region's window (4 blob sides) is narrower than the window
-        of a silhouette under a quarter of the template's side (a small car head-on: its 1.7 m of 12 m),
-        and beyond the margin each cell read the region's edge, nearer than τ: a VW up laid on its own
-        blob head-on scored −9.5 for −3.5."""
+        """The mask's distance (``distance``, the last :meth:`_frame_distance`'s mask's) over a margin wide
+        enough for the windows ``side`` (N, 2) pixels: the last one computed, transformed again when a window
+        is wider. The predicted region's window (4 blob sides) is narrower than the window of a silhouette
+        under a quarter of the template's side (a small car head-on: its 1.7 m of 12 m), and beyond the
+        margin each cell read the region's edge, nearer than τ: a VW up laid on its own blob head-on scored
+        −9.5 for −3.5. The widened distance is kept, as the caller's stays narrow: a second call in the
+        frame (re-detection's hypotheses after the particles') was handed the narrow one back, −7.4 for −2.9."""
+        if self._mask is None:
+            return distance
         side = side.prod(dim=1).sqrt()  # as the window's τ is taken (observe_windows)
         side = side[side.isfinite()]
         largest = float(side.max()) if side.numel() else 0.0
-        if largest <= self._margin_side or self._mask is None:
-            return distance
-        return self._frame_distance(self._mask, largest)
+        return self._frame_distance(self._mask, largest) if largest > self._margin_side else self._distance
 
     def _set_blob(self, distance: FrameDistance) -> None:
         """The blob's box from its distance map (positive inside), in frame pixels."""
