@@ -301,22 +301,21 @@ class SceneConfig:
             raise ConfigError("scene: bad value(s) " + "; ".join(bad))
 
     def _check_types(self) -> None:
-        """ConfigError naming every field whose value is not of its kind: true or false for night and
-        clockwise (the string 'false' is truthy: night='false' ran a night scene), an integer for frames,
-        width, height and seed, text for band, a real number (or None where the field allows it) for the
-        rest. Files and specs are typed by :func:`~torch_atr.config.load_config`; this catches the
-        SceneConfig(...) of Python code."""
+        """ConfigError naming every field whose value is not of its declared kind: true or false for a
+        bool (the string 'false' is truthy: night='false' ran a night scene), an integer for an int, text
+        for a str, a real number (or None where the field allows it) for a float. Files and specs are
+        typed by :func:`~torch_atr.config.load_config`; this catches the SceneConfig(...) of Python code."""
         bad = []
         for f in dataclasses.fields(self):
-            value = getattr(self, f.name)
-            if f.name in ("night", "clockwise"):
+            value, tp = getattr(self, f.name), str(f.type)  # the annotation's text (postponed annotations)
+            if tp == "bool":
                 ok, kind = isinstance(value, (bool, np.bool_)), "true or false"
-            elif f.name in ("frames", "width", "height", "seed"):
+            elif tp == "int":
                 ok, kind = isinstance(value, numbers.Integral) and not isinstance(value, bool), "an integer"
-            elif f.name == "band":
+            elif tp == "str":
                 ok, kind = isinstance(value, str), "text"
-            else:
-                optional = "None" in str(f.type)
+            else:  # float or float | None
+                optional = tp.endswith("| None")
                 ok = (value is None and optional) or (isinstance(value, numbers.Real) and not isinstance(value, bool))
                 kind = "a number or null" if optional else "a number"
             if not ok:
