@@ -532,6 +532,24 @@ def test_a_focal_length_the_camera_refuses_is_named_as_the_scenes():
         SceneConfig(focal_px=1e-4)
 
 
+def _scene_blurred_by_scipy(seq: SyntheticSequence, sigma: float) -> np.ndarray:
+    """(H, W) float64: frame 0's composed scene (the vehicle's cover and radiance laid over the sharp static
+    scene, the occluder in front) blurred by scipy with a sampled Gaussian of σ px reaching ceil(4 σ), mirrored
+    at the frame's edges (scipy's 'mirror', OpenCV's REFLECT_101)."""
+    target = seq._target(0)
+    h, w = target.cover.shape
+    sharp, _, occluder = seq._static_scene()
+    window = (slice(target.v0, target.v0 + h), slice(target.u0, target.u0 + w))
+    cover = np.where(occluder[window], 0.0, target.cover)
+    reference = sharp.astype(np.float64)
+    reference[window] += np.where(cover > 0, target.radiance - cover * sharp[window], 0.0)
+    x = np.arange(-math.ceil(4 * sigma), math.ceil(4 * sigma) + 1)
+    kernel = np.exp(-x ** 2 / (2 * sigma ** 2))
+    for axis in (0, 1):
+        reference = ndimage.correlate1d(reference, kernel / kernel.sum(), axis=axis, mode="mirror")
+    return reference
+
+
 def test_a_vehicle_at_the_frames_edge_is_blurred_as_the_whole_frame_is():
     """The frame is the whole composed scene blurred, mirrored at the frame's edges (scipy's 'mirror', OpenCV's
     REFLECT_101; a sampled Gaussian reaching 4 σ). The vehicle's part was blurred with zeros beyond the edge,
@@ -539,18 +557,7 @@ def test_a_vehicle_at_the_frames_edge_is_blurred_as_the_whole_frame_is():
     seq = SyntheticSequence("t_72", SceneConfig(frames=400, seed=1))
     target = seq._target(0)
     assert target.u0 + target.cover.shape[1] == seq.cfg.width  # the scenario: it touches the edge
-    sharp, _, occluder = seq._static_scene()
-    window = (slice(target.v0, target.v0 + target.cover.shape[0]), slice(target.u0, target.u0 + target.cover.shape[1]))
-    cover = np.where(occluder[window], 0.0, target.cover)
-    composed = sharp.astype(np.float64)
-    composed[window] += np.where(cover > 0, target.radiance - cover * sharp[window], 0.0)
-    sigma = seq.cfg.psf_sigma
-    x = np.arange(-math.ceil(4 * sigma), math.ceil(4 * sigma) + 1)
-    kernel = np.exp(-x ** 2 / (2 * sigma ** 2))
-    reference = composed
-    for axis in (0, 1):
-        reference = ndimage.correlate1d(reference, kernel / kernel.sum(), axis=axis, mode="mirror")
-    assert np.abs(seq.scene(0) - reference).max() < 1e-3
+    assert np.abs(seq.scene(0) - _scene_blurred_by_scipy(seq, seq.cfg.psf_sigma)).max() < 1e-3
 
 
 def test_a_vehicle_inside_the_frame_is_blurred_as_the_whole_frame_is():
@@ -562,13 +569,5 @@ def test_a_vehicle_inside_the_frame_is_blurred_as_the_whole_frame_is():
     target = seq._target(0)
     h, w = target.cover.shape
     assert 4 < target.u0 and target.u0 + w < seq.cfg.width - 4 and 4 < target.v0 and target.v0 + h < seq.cfg.height - 4
-    sharp, _, occluder = seq._static_scene()
-    window = (slice(target.v0, target.v0 + h), slice(target.u0, target.u0 + w))
-    cover = np.where(occluder[window], 0.0, target.cover)
-    reference = sharp.astype(np.float64)
-    reference[window] += np.where(cover > 0, target.radiance - cover * sharp[window], 0.0)
-    x = np.arange(-4, 5)
-    kernel = np.exp(-x ** 2 / 2.0)
-    for axis in (0, 1):
-        reference = ndimage.correlate1d(reference, kernel / kernel.sum(), axis=axis, mode="mirror")
-    assert np.abs(seq.scene(0) - reference).max() < 3e-4
+    assert seq.cfg.psf_sigma == 1.0  # the scenario: 4 σ a whole number of pixels
+    assert np.abs(seq.scene(0) - _scene_blurred_by_scipy(seq, 1.0)).max() < 3e-4
