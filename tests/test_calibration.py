@@ -291,7 +291,8 @@ def test_boards_in_two_orientations_one_facing_the_camera_are_refused(turn):
 
 
 @pytest.mark.parametrize("flags", [cv2.CALIB_FIX_K3, cv2.CALIB_FIX_K3 | cv2.CALIB_FIX_PRINCIPAL_POINT,
-                                   cv2.CALIB_FIX_K3 | cv2.CALIB_ZERO_TANGENT_DIST, cv2.CALIB_FIX_ASPECT_RATIO])
+                                   cv2.CALIB_FIX_K3 | cv2.CALIB_ZERO_TANGENT_DIST, cv2.CALIB_FIX_ASPECT_RATIO],
+                         ids=["fix_k3", "fix_k3_principal_point", "fix_k3_zero_tangent", "fix_aspect_ratio"])
 def test_focal_uncertainty_is_opencvs_standard_deviation_on_good_views(views, flags):
     """Reference: cv2.calibrateCameraExtended's stdDeviationsIntrinsics (on views that determine the camera; on
     degenerate ones its pseudo-inverse drops the undetermined direction and reported 0.01 px for fx = 111 px)."""
