@@ -87,3 +87,16 @@ def test_ground_contact_follows_the_heights_of_adapted_kernel_widths():
     ground_y = float(camera_centre(seq.camera)[1]) - seq.camera_height_m
     expected = ground_y + interpolate_periodic(half_heights(adapted), tracker.particles[:, ALPHA])
     torch.testing.assert_close(tracker.particles[:, Y], expected)
+
+
+@pytest.mark.parametrize("height", [0.0, -5.0, math.inf, "5"])
+def test_a_sequences_camera_height_out_of_range_is_refused_naming_the_sequence(model, height):
+    """The sequences shipped refuse a camera height outside (0, 1e4] m, but the tracker took a Sequence of one's
+    own's as given (float(height)): with a truth start and ground contact, 0 or -5 m held every particle on a
+    ground at or above the camera without a word, and '5' was read as 5 m."""
+    seq = SyntheticSequence("btr_70", SceneConfig(frames=2))
+    seq.camera_height_m = height
+    cfg = load_config(TrackerConfig, None, ["filter.particles=50", "init.mode=truth", "filter.ground_contact=true"])
+    with pytest.raises(ValueError, match=rf"^{seq.name}: camera_height_m \(metres above the ground; NaN or None: "
+                                         rf"unknown\): expected a finite number in \(0, 10000\]"):
+        Tracker(model, seq.camera, cfg, seed=0).run(seq, progress=False)
