@@ -150,6 +150,9 @@ def test_save_refuses_what_the_reader_would_refuse_before_writing(tmp_path, monk
     assert json.loads((tmp_path / "s" / "meta.json").read_text())["source_meta"] == {"gain": None, "level": 0.5}
     monkeypatch.setenv("HOME", str(tmp_path / "home"))
     assert save_sequence(seq, "~/clip", progress=False) == tmp_path / "home" / "clip"
+    for unknown_user in ("~nobody_torch_atr/clip", "~nobody_torch_atr"):  # kept as written, as a shell keeps it:
+        with pytest.raises(FileNotFoundError, match="~nobody_torch_atr"):  # Path.expanduser raised RuntimeError
+            FolderSequence(unknown_user)
     monkeypatch.chdir(tmp_path / "home")
     for bad in (".", "..", ""):
         with pytest.raises(ValueError, match="names no folder to create"):

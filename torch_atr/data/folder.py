@@ -81,7 +81,7 @@ class FolderSequence(Sequence):
     """A sequence stored in our folder format (see the module docstring)."""
 
     def __init__(self, folder: str | os.PathLike):
-        self.folder = Path(folder).expanduser()  # ~ as a shell would, for specs from config files
+        self.folder = Path(os.path.expanduser(folder))  # ~ as a shell would, for specs from config files
         if not self.folder.exists():
             raise FileNotFoundError(f"Sequence folder not found: {self.folder}")
         if not self.folder.is_dir():
@@ -254,7 +254,7 @@ def save_sequence(seq: Sequence, folder: str | os.PathLike, progress: bool = Tru
     is in place (the sequences a save with ``overwrite=True`` was asked to replace). A folder that
     holds anything a save does not write is left alone.
     """
-    folder = Path(folder).expanduser()
+    folder = Path(os.path.expanduser(folder))
     if folder.name in ("", ".", ".."):
         raise ValueError(f"save_sequence: {str(folder)!r} names no folder to create; give one such as runs/clip")
     n = len(seq)
