@@ -103,28 +103,6 @@ def test_blob_tracker_scores_are_plain_numbers(model):
     torch.testing.assert_close(tracker.log_weights, torch.log_softmax(scores, dim=0).to(tracker.log_weights))
 
 
-def test_blob_tracker_weighs_a_small_car_head_on_as_on_the_whole_frame(model):
-    """After the first blob the frame's distance is transformed only near the blob: a margin of τ in a
-    window of 4 blob sides. A VW up seen head-on fills 1.7 m of the 12 m window, so its window laid on
-    the blob is 7 blob widths: beyond the margin its cells read the region's edge, nearer than τ, and
-    the view that drew the blob scored −9.5 where the whole frame's distance gives −3.5 (the tanks'
-    wider silhouettes fitted the margin). The step's weights now equal those of ``score``, which
-    transforms the whole frame."""
-    tracker = BlobTracker(model, TrackerConfig(filter=FilterConfig(particles=4, resample_ess=0.0)), seed=0)
-    alpha = float(model.alphas[model.vehicle_names.index("vw_up")])
-    views = torch.tensor([[0.0, 0.05, alpha], [math.pi, 0.05, alpha], [math.pi / 2, 0.05, alpha],
-                          [0.0, 0.6, alpha]], dtype=torch.float64)
-    with torch.no_grad():
-        shape = model(views[:1, 2].float(), views[:1, 0].float(), views[:1, 1].float())[0]
-    mask = place_silhouette(shape, torch.tensor([160.0, 110.0]), torch.tensor([128.0, 128.0]), (240, 320)).numpy()
-    tracker.reset(views)
-    tracker.step(mask=mask)  # the blob's box is known from here on: the next distance is cropped near it
-    tracker.reset(views)
-    assert tracker.step(mask=mask)["lost"] == 0
-    expected = torch.log_softmax(tracker.score(mask, views), dim=0)
-    torch.testing.assert_close(tracker.log_weights, expected.to(tracker.log_weights))
-
-
 def test_a_search_at_the_ground_range_scores_its_hypotheses_on_the_whole_frame(model, monkeypatch):
     """``redetect.keep_range=false`` places the hypotheses at the ground's range, but the frame's distance
     was transformed over a margin of τ in the particles' largest window only. With the particles at

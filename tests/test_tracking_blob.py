@@ -116,11 +116,10 @@ def test_a_blob_no_view_explains_is_lost_and_the_blob_tracker_says_why(caplog):
     assert "window" not in said[0]
 
 
-def test_the_frames_distance_widened_for_one_scoring_covers_the_next(model):
-    """A window wider than the distance's margin has the mask transformed again (ce6158e), but the caller kept
-    the narrow distance: a second scoring in the frame (re-detection's hypotheses after the particles') was
-    handed it back and the VW up head-on scored −7.4 for −2.9. Reference: ``score``, on the whole frame's
-    distance."""
+def _vw_up_head_on(model) -> tuple[BlobTracker, torch.Tensor, np.ndarray]:
+    """A blob tracker of 4 particles, each a view of the VW up (head-on, tail-on, side-on, from 34° up),
+    and the mask of the head-on view: a silhouette under a quarter of the template's side, whose window
+    laid on the blob is 7 blob widths. The tracker has stepped once, so its distance is cut near the blob."""
     from torch_atr.tracking.filter import FilterConfig
     from torch_atr.tracking.observation import place_silhouette
 
@@ -132,7 +131,30 @@ def test_the_frames_distance_widened_for_one_scoring_covers_the_next(model):
         shape = model(views[:1, 2].float(), views[:1, 0].float(), views[:1, 1].float())[0]
     mask = place_silhouette(shape, torch.tensor([160.0, 110.0]), torch.tensor([128.0, 128.0]), (240, 320)).numpy()
     tracker.reset(views)
-    tracker.step(mask=mask)  # the blob's box is known from here on: the step's distance is cut near it
+    tracker.step(mask=mask)  # the blob's box is known from here on: the next distance is cut near it
+    return tracker, views, mask
+
+
+def test_blob_tracker_weighs_a_small_car_head_on_as_on_the_whole_frame(model):
+    """After the first blob the frame's distance is transformed only near the blob: a margin of τ in a
+    window of 4 blob sides. A VW up seen head-on fills 1.7 m of the 12 m window, so its window laid on
+    the blob is 7 blob widths: beyond the margin its cells read the region's edge, nearer than τ, and
+    the view that drew the blob scored −9.5 where the whole frame's distance gives −3.5 (the tanks'
+    wider silhouettes fitted the margin). The step's weights now equal those of ``score``, which
+    transforms the whole frame."""
+    tracker, views, mask = _vw_up_head_on(model)
+    tracker.reset(views)
+    assert tracker.step(mask=mask)["lost"] == 0
+    expected = torch.log_softmax(tracker.score(mask, views), dim=0)
+    torch.testing.assert_close(tracker.log_weights, expected.to(tracker.log_weights))
+
+
+def test_the_frames_distance_widened_for_one_scoring_covers_the_next(model):
+    """A window wider than the distance's margin has the mask transformed again (ce6158e), but the caller kept
+    the narrow distance: a second scoring in the frame (re-detection's hypotheses after the particles') was
+    handed it back and the VW up head-on scored −7.4 for −2.9. Reference: ``score``, on the whole frame's
+    distance."""
+    tracker, views, mask = _vw_up_head_on(model)
     expected = tracker.score(mask, views)
     distance = tracker._frame_distance(mask, tracker._predicted_region()[2])  # as a step transforms it
     with torch.no_grad():
