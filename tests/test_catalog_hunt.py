@@ -4,6 +4,7 @@ and the build's atomicity (torch_atr/vehicles/{geometry,build,specs,catalog}.py)
 from __future__ import annotations
 
 import dataclasses
+import itertools
 import math
 import re
 
@@ -93,6 +94,24 @@ def _tree(root):
     return {str(p.relative_to(root)): p.read_bytes() for p in sorted(root.rglob("*")) if p.is_file()}
 
 
+def _build_fails_on_a_full_disk_leaving(root, before, monkeypatch, build, fails) -> None:
+    """build_catalog(root) with ``fails(path)`` choosing the writes that hit a full disk: it raises, and
+    leaves the tree ``before`` and no staging folder. The real writer is put back afterwards."""
+    real_write = build.atomic_write_text
+
+    def failing_write(text, path):
+        if fails(path):
+            raise OSError(28, "No space left on device")
+        real_write(text, path)
+
+    monkeypatch.setattr(build, "atomic_write_text", failing_write)
+    with pytest.raises(OSError, match="No space"):
+        build.build_catalog(root)
+    monkeypatch.setattr(build, "atomic_write_text", real_write)
+    assert _tree(root) == before
+    assert sorted(p.name for p in root.iterdir()) == ["test", "train"]  # no staging folder left
+
+
 def test_a_failing_build_leaves_the_old_catalog(tmp_path, monkeypatch):
     """build_catalog emptied each split folder first and then generated vehicle by vehicle, so a spec that
     failed to build (or a write that failed) half way left a catalog with vehicles missing. Now
@@ -116,21 +135,9 @@ def test_a_failing_build_leaves_the_old_catalog(tmp_path, monkeypatch):
         build.build_catalog(tmp_path)
     assert _tree(tmp_path) == before
     monkeypatch.setattr(build, "vehicle_files", real)
-    real_write = build.atomic_write_text
-    count = {"n": 0}
-
-    def failing_write(text, path):
-        count["n"] += 1
-        if count["n"] == 50:  # a full disk in the middle of the train split
-            raise OSError(28, "No space left on device")
-        real_write(text, path)
-
-    monkeypatch.setattr(build, "atomic_write_text", failing_write)
-    with pytest.raises(OSError, match="No space"):
-        build.build_catalog(tmp_path)
-    assert _tree(tmp_path) == before
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["test", "train"]  # no staging folder left
-    monkeypatch.setattr(build, "atomic_write_text", real_write)
+    writes = itertools.count(1)
+    _build_fails_on_a_full_disk_leaving(tmp_path, before, monkeypatch, build,
+                                        lambda path: next(writes) == 50)  # in the middle of the train split
     (tmp_path / "train" / "gone_vehicle").mkdir()
     (tmp_path / "train" / "gone_vehicle" / "gone_vehicle.urdf").write_text("<robot/>")
     build.build_catalog(tmp_path)  # a vehicle no longer in the specs disappears
@@ -149,18 +156,8 @@ def test_a_write_failing_in_a_later_split_leaves_the_earlier_split_as_it_was(tmp
     (tmp_path / "train" / "older_vehicle").mkdir()
     (tmp_path / "train" / "older_vehicle" / "older_vehicle.urdf").write_text("<robot/>")
     before = _tree(tmp_path)
-    real_write = build.atomic_write_text
-
-    def failing_write(text, path):
-        if path.parent.parent.name == ".test.building":
-            raise OSError(28, "No space left on device")
-        real_write(text, path)
-
-    monkeypatch.setattr(build, "atomic_write_text", failing_write)
-    with pytest.raises(OSError, match="No space"):
-        build.build_catalog(tmp_path)
-    assert _tree(tmp_path) == before
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["test", "train"]  # no staging folder left
+    _build_fails_on_a_full_disk_leaving(tmp_path, before, monkeypatch, build,
+                                        lambda path: path.parent.parent.name == ".test.building")
 
 
 # ------------------------------------------------------------------------------------------
