@@ -38,8 +38,8 @@ import cv2
 import numpy as np
 from tqdm import tqdm
 
-from torch_atr.data.sequence import (MAX_CAMERA_HEIGHT_M, TEXT_FIELDS, TRUTH_FIELDS, FrameTruth, Sequence,
-                                     check_fps, load_camera_json, register_scheme)
+from torch_atr.data.sequence import (TEXT_FIELDS, TRUTH_FIELDS, FrameTruth, Sequence,
+                                     check_camera_height, check_fps, load_camera_json, register_scheme)
 from torch_atr.io import TEMP_CHARS, hidden_stem, strict_json, unheld
 from torch_atr.validate import (InputError, image_file_size, image_size, integer, parse_real, read_image,
                                 read_json_object, read_text, real, show)
@@ -143,9 +143,7 @@ def _read_meta(path: Path) -> dict:
         raise InputError(f"{path}, key 'name': expected a string; got {show(meta['name'])}")
     if meta["fps"] is not None:
         real(f"{path}, key 'fps' (or null)", meta["fps"], lo=0, lo_open=True)
-    if meta.get("camera_height_m") is not None:
-        real(f"{path}, key 'camera_height_m' (or null)", meta["camera_height_m"], lo=0, hi=MAX_CAMERA_HEIGHT_M,
-             lo_open=True)
+    check_camera_height(f"{path}, key 'camera_height_m' (or null)", meta.get("camera_height_m"))
     integer(f"{path}, key 'frames'", meta["frames"], lo=1)
     shape, dtype = meta["shape"], meta["dtype"]
     if not (isinstance(shape, list) and len(shape) in (2, 3) and isinstance(dtype, str)
@@ -260,12 +258,10 @@ def save_sequence(seq: Sequence, folder: str | os.PathLike, progress: bool = Tru
     n = len(seq)
     if n == 0:
         raise ValueError(f"{seq.name}: cannot save a sequence with no frames")
-    fps, height = float(seq.fps), float(seq.camera_height_m)
+    fps = float(seq.fps)
     if not math.isnan(fps):
         check_fps(fps, f"{seq.name} (not saved)")
-    if not math.isnan(height):
-        real(f"{seq.name} (not saved): camera_height_m (metres, or NaN)", height, lo=0, hi=MAX_CAMERA_HEIGHT_M,
-             lo_open=True)
+    height = check_camera_height(f"{seq.name} (not saved): camera_height_m (metres, or NaN)", seq.camera_height_m)
     try:
         exists = folder.exists()
     except OSError as exc:  # a name too long for the file system: one line naming it

@@ -30,19 +30,28 @@ import os
 import re
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable, Iterator
+from typing import Any, Callable, Iterator
 
 import numpy as np
 
 from torch_atr.camera import Camera
 from torch_atr.pose import check_sensor_like
-from torch_atr.validate import InputError, read_json_object, show
+from torch_atr.validate import InputError, read_json_object, real, show
 
 logger = logging.getLogger(__name__)
 
 TEXT_FIELDS: frozenset[str] = frozenset({"vehicle", "vehicle_class"})
 MAX_CAMERA_HEIGHT_M = 1e4  # a camera height above the ground (Sequence.camera_height_m) is in (0, this] metres
 
+
+
+def check_camera_height(where: str, height: Any) -> float:
+    """A camera's height above flat ground (``Sequence.camera_height_m``): metres in (0,
+    ``MAX_CAMERA_HEIGHT_M``], or NaN where unknown (given as None or NaN). InputError starting with
+    ``where`` otherwise (0 or below put the ground at or above the camera)."""
+    if height is None or (isinstance(height, numbers.Real) and not isinstance(height, bool) and math.isnan(height)):
+        return math.nan
+    return real(where, height, lo=0, hi=MAX_CAMERA_HEIGHT_M, lo_open=True)
 
 @dataclass(frozen=True, eq=False)
 class FrameTruth:

@@ -59,7 +59,7 @@ import torch
 from torch_atr._checks import check_device, check_shape
 from torch_atr.camera import Camera
 from torch_atr.config import ConfigError
-from torch_atr.data.sequence import MAX_CAMERA_HEIGHT_M, FrameTruth, Sequence
+from torch_atr.data.sequence import FrameTruth, Sequence, check_camera_height
 from torch_atr.model import GenerativeShapeModel
 from torch_atr.model.generative import LOG_WIDTH_RANGE
 from torch_atr.pose import VehiclePose, camera_centre, check_sensor_like, view_of_pose
@@ -105,7 +105,7 @@ from torch_atr.tracking.observation import (
     sees_image,
 )
 from torch_atr.tracking.resampling import SCHEMES, effective_sample_size, resample
-from torch_atr.validate import real, show
+from torch_atr.validate import show
 
 log = logging.getLogger(__name__)
 
@@ -949,13 +949,10 @@ class Tracker:
         self._begin()
         self._grid.forget()  # boxes kept at an earlier run's elevation (a new Tracker has none)
         self.dt = 1.0 / (sequence.fps if math.isfinite(sequence.fps) and sequence.fps > 0 else self.cfg.filter.fps)
-        if self.cfg.init.camera_height_m is None:  # the sequence's: NaN where unknown (one's own may say None)
-            height = sequence.camera_height_m
-            unknown = height is None or (isinstance(height, numbers.Real) and math.isnan(height))
-            # one's own out of range (0, -5 m) put the ground at or above the camera without a word
-            self.camera_height_m = math.nan if unknown else real(
-                f"{sequence.name}: camera_height_m (metres above the ground; NaN or None: unknown)", height, lo=0,
-                hi=MAX_CAMERA_HEIGHT_M, lo_open=True)
+        if self.cfg.init.camera_height_m is None:  # the sequence's (one's own may say None, or 0 or -5 m)
+            self.camera_height_m = check_camera_height(
+                f"{sequence.name}: camera_height_m (metres above the ground; NaN or None: unknown)",
+                sequence.camera_height_m)
         count = self.cfg.segmentation.warmup_frames
         if hasattr(sequence, "warmup_frames"):
             self.warm_up(sequence.warmup_frames(count))
