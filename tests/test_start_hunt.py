@@ -85,6 +85,14 @@ def test_best_hypotheses_refuse_no_hypotheses():
         best_hypotheses(torch.zeros(0, dtype=torch.float64), 4)
 
 
+def _blob_of(model, view: torch.Tensor) -> np.ndarray:
+    """The model's silhouette of one view [θ, φ, α] as a target mask: (120, 160) bool, laid in a window of
+    100 px centred at (80, 60)."""
+    with torch.no_grad():
+        shape = model(view[2:].float(), view[:1].float(), view[1:2].float())[0]
+    return place_silhouette(shape, torch.tensor([80.0, 60.0]), torch.tensor([100.0, 100.0]), (120, 160)).numpy()
+
+
 def test_blob_tracker_scores_are_plain_numbers(model):
     """BlobTracker.score built an autograd graph through the model's kernel widths (Tracker.score runs
     without one): its result required grad, so ``.numpy()`` raised and each call kept the graph. The
@@ -93,9 +101,7 @@ def test_blob_tracker_scores_are_plain_numbers(model):
     tracker = BlobTracker(model, TrackerConfig(filter=FilterConfig(particles=5, resample_ess=0.0)), seed=0)
     views = torch.tensor([[1.5 + 0.1 * k, 0.1, float(model.alphas[3]) + 0.05 * k] for k in range(5)],
                          dtype=torch.float64)
-    with torch.no_grad():
-        shape = model(views[:1, 2].float(), views[:1, 0].float(), views[:1, 1].float())[0]
-    mask = place_silhouette(shape, torch.tensor([80.0, 60.0]), torch.tensor([100.0, 100.0]), (120, 160)).numpy()
+    mask = _blob_of(model, views[0])
     scores = tracker.score(mask, views)
     assert not scores.requires_grad and np.isfinite(scores.numpy()).all()
     tracker.reset(views)
@@ -249,9 +255,7 @@ def test_blob_tracker_gives_an_empty_silhouette_no_weight(model, monkeypatch):
     tracker = BlobTracker(model, TrackerConfig(filter=FilterConfig(particles=4)), seed=0)
     views = torch.tensor([[1.5 + 0.2 * k, 0.1, float(model.alphas[3]) + 0.3 * k] for k in range(4)],
                          dtype=torch.float64)
-    with torch.no_grad():
-        shape = model(views[:1, 2].float(), views[:1, 0].float(), views[:1, 1].float())[0]
-    mask = place_silhouette(shape, torch.tensor([80.0, 60.0]), torch.tensor([100.0, 100.0]), (120, 160)).numpy()
+    mask = _blob_of(model, views[0])
     before = tracker.score(mask, views)
     forward = type(tracker.appearance).forward
 
