@@ -6,7 +6,8 @@ is wrong across 0 / 2π (the mean of 0.1 and 2π − 0.1 is 0, not π).
 
 The weighted sums are elementwise products and ``sum``, not BLAS products: a matrix-vector product
 gave last-bit differences between identical runs (the BLAS library's threading is not fixed),
-and the tracker promises the same run for the same seed.
+and the tracker promises the same run for the same seed. For the same reason the class posterior
+is a masked ``sum``, not ``index_add_``, whose CUDA kernel adds with atomics in no fixed order.
 """
 
 from __future__ import annotations
@@ -52,7 +53,8 @@ def class_posterior(classes: torch.Tensor, weights: torch.Tensor, num_classes: i
     _check(classes, weights, ())
     if classes.is_floating_point() or classes.dtype == torch.bool:
         raise ValueError(f"Expected integer classes; got {classes.dtype}")
-    if not bool(((classes >= 0) & (classes < num_classes)).all()):  # index_add_ would fail unclearly
+    if not bool(((classes >= 0) & (classes < num_classes)).all()):  # they would fall silently out of the sum
         raise ValueError(f"Expected classes in [0, {num_classes}); got min {int(classes.min())}, "
                          f"max {int(classes.max())}")
-    return torch.zeros(num_classes, dtype=weights.dtype, device=weights.device).index_add_(0, classes, weights)
+    member = classes[:, None] == torch.arange(num_classes, device=classes.device)  # (N, C)
+    return torch.where(member, weights[:, None], torch.zeros((), dtype=weights.dtype, device=weights.device)).sum(0)
