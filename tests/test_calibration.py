@@ -316,7 +316,11 @@ def distorted_views():
     Ks[:2, 2] += (ss - 1) / 2
     u, v = np.meshgrid(np.arange(W * ss, dtype=np.float64), np.arange(H * ss, dtype=np.float64))
     criteria = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-10)
-    pinhole = cv2.undistortPoints(np.stack([u, v], -1).reshape(-1, 1, 2), Ks, DIST, R=None, P=Ks, criteria=criteria)
+    points = np.stack([u, v], -1).reshape(-1, 1, 2)
+    if hasattr(cv2, "undistortPointsIter"):  # OpenCV 4 (4.10 has no criteria in undistortPoints)
+        pinhole = cv2.undistortPointsIter(points, Ks, DIST, None, Ks, criteria)
+    else:  # OpenCV 5 folded it into undistortPoints
+        pinhole = cv2.undistortPoints(points, Ks, DIST, R=None, P=Ks, criteria=criteria)
     pad = W * ss  # the pinhole image reaches beyond the distorted one's edges
     map_u, map_v = (pinhole.reshape(H * ss, W * ss, 2)[..., k].astype(np.float32) + pad for k in (0, 1))
     ppm, x0 = 2000.0, -2 * SQUARE  # texture pixels per metre; the white margin's corner

@@ -44,9 +44,10 @@ def test_random_bytes_are_refused_naming_the_file(tmp_path):
 
 def test_a_non_utf8_text_format_not_read_here_is_refused_naming_the_file(tmp_path, monkeypatch):
     """An ASCII STL named in Latin-1: trimesh decodes STL itself, guessing the encoding only with
-    the optional charset_normalizer (absent here; installed with requests, say), so without it the
-    file is refused, with a message that says what to do rather than which package trimesh lacked."""
-    monkeypatch.setitem(sys.modules, "charset_normalizer", None)  # as on a machine without it
+    the optional charset_normalizer (chardet in trimesh 4.0; absent here; installed with requests, say), so
+    without it the file is refused, with a message that says what to do rather than which package trimesh lacked."""
+    for guesser in ("charset_normalizer", "chardet"):
+        monkeypatch.setitem(sys.modules, guesser, None)  # as on a machine without it
     path = tmp_path / "box.stl"
     text = trimesh.exchange.stl.export_stl_ascii(trimesh.creation.box())
     path.write_bytes(text.replace("solid", "solid Kühler", 1).encode("latin-1"))

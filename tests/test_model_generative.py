@@ -242,7 +242,7 @@ def test_save_rejects_non_plain_extra(model, tmp_path):
         model.save(tmp_path / "x.pt", extra={"iou": np.float64(0.9)})
     with pytest.raises(ValueError, match=r"extra\[.mode.\]\[0\] holds a Mode; checkpoints store only"):
         model.save(tmp_path / "x.pt", extra={"mode": [enum.IntEnum("Mode", "A B").B]})
-    with pytest.raises(ValueError, match=r"extra\['iou'\] has a non-string key np.str_\('tank'\)"):
+    with pytest.raises(ValueError, match=r"extra\['iou'\] has a non-string key (np.str_\()?'tank'\)? of type str_$"):
         model.save(tmp_path / "x.pt", extra={"iou": {np.str_("tank"): 0.9}})
     assert not (tmp_path / "x.pt").exists()
 

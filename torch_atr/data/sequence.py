@@ -167,7 +167,7 @@ class Sequence(abc.ABC):
     def _index(self, i) -> int:
         n = len(self)
         try:
-            if isinstance(i, bool):  # an int to operator.index: frame(True) read frame 1
+            if isinstance(i, (bool, np.bool_)):  # ints to operator.index (np.bool_ before NumPy 2): True read frame 1
                 raise TypeError
             k = operator.index(i)
         except TypeError as exc:

@@ -310,7 +310,7 @@ def _check_plain(name: str, value) -> None:
     if isinstance(value, dict):
         for key, item in value.items():
             if type(key) is not str:  # np.str_ keys (from an array of names) are refused by torch.load(weights_only)
-                raise ValueError(f"{name} has a non-string key {key!r}")
+                raise ValueError(f"{name} has a non-string key {key!r} of type {type(key).__name__}")
             _check_plain(f"{name}[{key!r}]", item)
         return
     raise ValueError(f"{name} holds a {type(value).__name__}; checkpoints store only tensors and plain data")

@@ -395,7 +395,8 @@ def _read_mesh(path: Path) -> trimesh.Trimesh:
     faces of a NaN vertex without a word, and :func:`load_vehicle` merges vertices in metres. OBJ and
     OFF text is decoded by :func:`_mesh_text` (and an OBJ's relative face indices resolved by
     :func:`_obj_absolute_indices`); other text formats (ASCII STL, PLY) trimesh decodes itself,
-    guessing a non-UTF-8 encoding only when the optional ``charset_normalizer`` is installed, and
+    guessing a non-UTF-8 encoding only when the optional ``charset_normalizer`` (``chardet`` in
+    trimesh 4.0) is installed, and
     refused here (saying so) when it is not."""
     note = ""
     try:
@@ -408,7 +409,7 @@ def _read_mesh(path: Path) -> trimesh.Trimesh:
         else:
             mesh = trimesh.load(path, force="mesh", process=False)
     except Exception as exc:  # trimesh raises many types for unreadable files
-        if isinstance(exc, ImportError) and exc.name == "charset_normalizer":  # trimesh's guess at a text's encoding
+        if isinstance(exc, ImportError) and exc.name in ("charset_normalizer", "chardet"):  # trimesh's encoding guess
             raise ValueError(f"could not read mesh {path}: its text is not UTF-8; save it as UTF-8") from exc
         raise ValueError(f"could not read mesh {path}{note}: {exc}") from exc
     if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
