@@ -38,6 +38,7 @@ from torch_atr.camera import Camera
 from torch_atr.config import ConfigError, ModelConfig, TemplateConfig, load_config
 from torch_atr.data import (FolderSequence, FrameTruth, SensiacSequence, agt_frame_truths, open_sequence, read_agt,
                             read_bbox_met, save_sequence)
+from torch_atr.data.sensiac import vehicle_class
 from torch_atr.data.sequence import TRUTH_FIELDS, Sequence
 from torch_atr.data.synthetic import MAX_FRAME_PIXELS, SceneConfig, SyntheticSequence, parse_synthetic_spec
 from torch_atr.model import GenerativeShapeModel, load_checkpoint
@@ -219,7 +220,13 @@ test_fuzz_arf_reader, test_fuzz_arf_reader_large = fuzz(case=arf_cases())(_arf_p
 
 # ------------------------------------------------------------------------------------------- AGT
 
-_names = st.text(st.characters(blacklist_categories=("Cs", "Cc"), blacklist_characters='"'), min_size=1, max_size=12)
+# Target types: SENSIAC's, spelt as its files do, with their classes written out here; or any other text (class
+# ""). Hypothesis also draws the package's own string literals, so other text can spell "suv" or "BTR70".
+_SENSIAC_TYPES = [("BTR70", "apc"), ("T-72", "tank"), ("bmp 2", "apc"), ("Ford F150", "pickup"), ("ISUZU_SUV", "suv"),
+                  ("ZSU-23-4", "tank")]
+_names = st.one_of(st.sampled_from(_SENSIAC_TYPES), st.text(
+    st.characters(blacklist_categories=("Cs", "Cc"), blacklist_characters='"'), min_size=1, max_size=12).filter(
+        lambda name: vehicle_class(name) == "").map(lambda name: (name, "")))
 _reals = st.floats(allow_nan=False, allow_infinity=False, min_value=-1e12, max_value=1e12)
 
 
@@ -249,9 +256,9 @@ def agt_documents(draw):
         if draw(st.booleans()):
             lines += ["      Tgt", "      {"]
             if draw(st.booleans()):
-                name = draw(_names)
+                name, cls = draw(_names)
                 attr("TgtType", f'"{name}"')
-                values["vehicle"] = name
+                values["vehicle"], values["vehicle_class"] = name, cls
             if draw(st.booleans()):
                 r = draw(_reals)
                 attr("Range", f'"{r!r}"')
