@@ -163,7 +163,7 @@ def test_read_text_names_file_line_and_byte(tmp_path):
     ('{"fx": 1e400}', "1e400 is not a finite number"),
     ('{"n": ' + "9" * 5000 + "}", "Exceeds the limit"),
     ("[" * 100_000, "nested too deeply"),
-    ('{"a": 1,}', r"line 1, column 9: not valid JSON"),
+    ('{"a": 1,}', r"line 1, column [89]: not valid JSON"),  # Python's place for the error: 3.13 names the comma
     ("[1, 2]", "expected a JSON object; got list"),
     ('{"fx": 800, "fy": 800, "fx": 80}', r"not valid JSON \(key 'fx' appears twice in one object"),
     ('{"cam": {"R": 1, "t": 2, "R": 3}}', r"not valid JSON \(key 'R' appears twice in one object"),
