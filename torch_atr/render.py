@@ -157,7 +157,8 @@ def _fill(xy: torch.Tensor, faces: torch.Tensor, orient: torch.Tensor, height: i
     """
     B, H, W = xy.shape[0], height, width
     edges, slot_edge, slot_sign = _mesh_edges(faces)
-    # Σ over the triangle sides on each edge of o·(+1 along edges[:, 0] -> edges[:, 1], else −1).
+    # Σ over the triangle sides on each edge of o·(+1 along edges[:, 0] -> edges[:, 1], else −1). These sums (and
+    # bincount's below) are of small integers in float64, exact in any order, so CUDA's atomic adds stay deterministic.
     weight = torch.zeros(B, len(edges), dtype=torch.float64, device=xy.device)
     weight.index_add_(1, slot_edge, orient.repeat_interleave(3, dim=1) * slot_sign)
     xy = torch.where(xy.isfinite(), xy, torch.zeros_like(xy)).to(torch.float64)
