@@ -37,8 +37,10 @@ def _check_weights(weights: torch.Tensor) -> None:
 def _inverse_cdf(weights: torch.Tensor, points: torch.Tensor) -> torch.Tensor:
     """Indices j with C_{j−1} <= point < C_j for sorted points in [0, 1), C the cumulative weights
     divided by their total, in float64: C ends at exactly 1 after the last particle of non-zero
-    weight, so weights summing to 1 only within rounding send no point to trailing zero weights."""
-    cdf = torch.cumsum(weights, 0, dtype=torch.float64)
+    weight, so weights summing to 1 only within rounding send no point to trailing zero weights. The sum is taken
+    on the CPU: CUDA's floating-point cumsum adds in no fixed order (PyTorch lists it among its nondeterministic
+    operations), and the filter promises the same run for the same seed."""
+    cdf = torch.cumsum(weights.to("cpu", torch.float64), 0).to(weights.device)
     cdf = cdf / cdf[-1]
     return torch.searchsorted(cdf, points.to(cdf), right=True).clamp_max(weights.shape[0] - 1)
 
