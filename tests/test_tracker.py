@@ -285,19 +285,23 @@ class _CudaNondeterminism(torch.overrides.TorchFunctionMode):
         return func(*args, **kwargs)
 
 
-@pytest.mark.parametrize("method", ["I", "IV"])  # II and III differ from I only in snapping, which sums nothing
+@pytest.mark.parametrize("method", ["I", "IV", "uncalibrated"])  # II and III differ from I only in snapping
 def test_the_filter_calls_nothing_nondeterministic_on_cuda(model, btr, method):
-    """The same seed gives the same run on any device: a blind start, re-detection and 12 frames call
-    none of the operations whose CUDA kernels add in no fixed order (class_posterior's index_add_ and resampling's
-    cumsum did)."""
-    templates = None
-    if method == "IV":
-        from torch_atr.training import training_templates
-        templates = training_templates(model)
-    tracker = Tracker(copy.deepcopy(model), btr.camera, _config("filter.particles=200", f"filter.method={method}",
-                                                                "redetect.every=5"), seed=1, templates=templates)
+    """The same seed gives the same run on any device: a blind start, re-detection and 12 frames (of Methods I and
+    IV, and of the blob tracker without a camera) call none of the operations whose CUDA kernels add in no fixed
+    order (class_posterior's index_add_ and resampling's cumsum did)."""
+    from torch_atr.tracking.blob import BlobTracker
+    from torch_atr.training import training_templates
+
+    cfg = _config("filter.particles=200", f"filter.method={'I' if method == 'uncalibrated' else method}",
+                  "redetect.every=5")
+    if method == "uncalibrated":
+        tracker, sequence = BlobTracker(copy.deepcopy(model), cfg, seed=1), Clip(btr, camera=False)
+    else:
+        templates = training_templates(model) if method == "IV" else None
+        tracker, sequence = Tracker(copy.deepcopy(model), btr.camera, cfg, seed=1, templates=templates), btr
     with _CudaNondeterminism() as mode:
-        tracker.run(btr, frames=12, progress=False)
+        tracker.run(sequence, frames=12, progress=False)
     assert sorted(set(mode.calls)) == []
 
 
