@@ -33,7 +33,7 @@ from torch_atr.config import ConfigError, read_yaml
 from torch_atr.validate import InputError, real, show, vector
 from torch_atr.vehicles.catalog import HeldoutEntry
 from torch_atr.vehicles.geometry import Part, ellipse, prism_xz
-from torch_atr.vehicles.loader import Vehicle, _read_mesh, load_vehicle
+from torch_atr.vehicles.loader import Vehicle, load_vehicle, read_mesh
 
 SECTIONS = 32  # polygon corners of a wheel or of a circle round which a track runs (a multiple of 4: the
 # polygon reaches the circle's top, bottom, front and back)
@@ -164,7 +164,7 @@ def load_with_running_gear(root: str | Path, entry: HeldoutEntry, gear: RunningG
     that ``load_vehicle`` then transforms, trims and centres with the entry's up, forward and scale.
     """
     source = Path(root) / entry.path
-    body = _read_mesh(source)
+    body = read_mesh(source)
     gear_part = gear_mesh(gear)
     vertices = np.concatenate([body.vertices, gear_part.vertices])
     faces = np.concatenate([body.faces, gear_part.faces + len(body.vertices)])

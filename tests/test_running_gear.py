@@ -17,6 +17,7 @@ import trimesh
 
 from torch_atr.config import ConfigError
 from torch_atr.vehicles.catalog import HeldoutEntry, default_meshes_root, read_manifest
+from torch_atr.vehicles.loader import read_mesh
 
 BENCHMARKS = Path(__file__).resolve().parents[1] / "benchmarks"
 CHRONO_GEAR = BENCHMARKS / "chrono_running_gear.yaml"
@@ -110,9 +111,8 @@ def test_chrono_wheeled_vehicles_are_mirror_symmetric():
 
 @needs_meshes
 def test_chrono_running_gear_sits_under_its_body():
-    rg = module()
     for path, gear in chrono_gear().items():
-        body = rg._read_mesh(MESHES_ROOT / path).vertices  # the file frame, as the gear is given
+        body = read_mesh(MESHES_ROOT / path).vertices  # the file frame, as the gear is given
         assert max(ground(gear)) < body[:, 2].min(), path  # the ground is below the whole body
         xs = [w.centre[0] for w in gear.wheels]
         assert body[:, 0].min() < min(xs) and max(xs) < body[:, 0].max(), path  # wheels within its length

@@ -220,7 +220,7 @@ def load_vehicle(
         return Vehicle(name, cls, mesh, path, MappingProxyType(values), rig)
     if joints:
         raise ValueError(f"{path} is a plain mesh and has no joints; got {sorted(joints)}")
-    mesh = _read_mesh(path)
+    mesh = read_mesh(path)
     _check_size(path, mesh.vertices[np.unique(mesh.faces)] @ rotation.T, scale)  # before thick_bounds (its cost
     # grows with the extent) and before merging: trimesh merges vertices on a 1e-8 grid held as int64, so it merges
     # in metres, not file units (coordinates beyond ±9e10 overflowed the grid and every vertex became one)
@@ -250,7 +250,7 @@ def forward_extent(path: str | Path, *, up_axis: str = "z", forward_axis: str = 
         rig = _load_urdf(path, rotation)
         forward = rig.mesh(_rest_pose(rig.limits)).vertices[:, 0]
     else:
-        mesh = _read_mesh(path)
+        mesh = read_mesh(path)
         forward = mesh.vertices[np.unique(mesh.faces)] @ rotation[0]  # a vertex no face uses is no part of it
     with np.errstate(over="ignore"):  # an overflow is the inf refused below
         extent = float(np.ptp(forward))
@@ -388,8 +388,8 @@ def _obj_absolute_indices(text: str) -> str:
     return "".join(lines)
 
 
-def _read_mesh(path: Path) -> trimesh.Trimesh:
-    """The mesh a file holds, as one unprocessed Trimesh (vertices not merged);
+def read_mesh(path: str | Path) -> trimesh.Trimesh:
+    """The mesh a file holds, in the file's own frame and units, as one unprocessed Trimesh (vertices not merged);
     ValueError naming the file when it cannot be read, holds no triangles, a triangle with a vertex
     index out of range, or non-finite vertices. It is read unprocessed: trimesh's processing drops the
     faces of a NaN vertex without a word, and :func:`load_vehicle` merges vertices in metres. OBJ and
@@ -398,6 +398,7 @@ def _read_mesh(path: Path) -> trimesh.Trimesh:
     guessing a non-UTF-8 encoding only when the optional ``charset_normalizer`` (``chardet`` in
     trimesh 4.0) is installed, and
     refused here (saying so) when it is not."""
+    path = Path(path)
     note = ""
     try:
         if path.suffix.lower() in _TEXT_MESHES:
@@ -488,7 +489,7 @@ def _geometry(geom: ET.Element, urdf: Path, where: str) -> trimesh.Trimesh:
         if not g.get("filename"):
             raise ValueError(f"{where}: <mesh> without a filename")
         s = _positive(g, "scale", 3, where, default=(1.0, 1.0, 1.0))
-        mesh = _read_mesh(_mesh_path(urdf, g.get("filename"), where))
+        mesh = read_mesh(_mesh_path(urdf, g.get("filename"), where))
         return trimesh.Trimesh(mesh.vertices * s, mesh.faces, process=False)
     raise ValueError(f"{where}: unsupported geometry <{g.tag}>")
 
