@@ -269,17 +269,19 @@ def _focal_uncertainty(obj: np.ndarray, img_points: list[np.ndarray], K: np.ndar
     if flags & cv2.CALIB_FIX_FOCAL_LENGTH:
         return 0.0
     fx, fy = K[0, 0], K[1, 1]
+    aspect = flags & cv2.CALIB_FIX_ASPECT_RATIO  # one focal parameter, fy, with fx = fy · fx / fy
+    focal = np.array([fy] if aspect else [fx, fy])
+    fixed_tangent = cv2.CALIB_ZERO_TANGENT_DIST | getattr(cv2, "CALIB_FIX_TANGENT_DIST", 0)
+    # projectPoints' Jacobian columns: rvec 0-2, tvec 3-5, fx 6, fy 7, cx 8, cy 9, k1 10, k2 11, p1 12, p2 13, k3 14
+    free = [column for column, fixed in ((8, cv2.CALIB_FIX_PRINCIPAL_POINT), (9, cv2.CALIB_FIX_PRINCIPAL_POINT),
+                                         (10, cv2.CALIB_FIX_K1), (11, cv2.CALIB_FIX_K2), (12, fixed_tangent),
+                                         (13, fixed_tangent), (14, cv2.CALIB_FIX_K3)) if not flags & fixed]
     blocks, residuals = [], []
     for corners, rvec, tvec in zip(img_points, rvecs, tvecs):
-        projected, jac = cv2.projectPoints(obj, rvec, tvec, K, dist)  # jac: rvec, tvec, fx, fy, cx, cy, dist
+        projected, jac = cv2.projectPoints(obj, rvec, tvec, K, dist)  # jac: (2P, 15)
         residuals.append(projected.reshape(-1) - corners.reshape(-1))
-        focal = [jac[:, 6] * (fx / fy) + jac[:, 7]] if flags & cv2.CALIB_FIX_ASPECT_RATIO else [jac[:, 6], jac[:, 7]]
-        centre = [] if flags & cv2.CALIB_FIX_PRINCIPAL_POINT else [jac[:, 8], jac[:, 9]]
-        fixed_tangent = flags & (cv2.CALIB_ZERO_TANGENT_DIST | getattr(cv2, "CALIB_FIX_TANGENT_DIST", 0))
-        terms = [(10, cv2.CALIB_FIX_K1), (11, cv2.CALIB_FIX_K2), (12, fixed_tangent), (13, fixed_tangent),
-                 (14, cv2.CALIB_FIX_K3)]
-        lens = [jac[:, k] for k, fixed in terms if not flags & fixed]
-        shared = np.column_stack(focal + centre + lens)  # (2P, shared parameters)
+        focal_columns = jac[:, 6:7] * (fx / fy) + jac[:, 7:8] if aspect else jac[:, 6:8]
+        shared = np.hstack([focal_columns, jac[:, free]])  # (2P, shared parameters)
         pose, _ = np.linalg.qr(jac[:, :6])  # (2P, 6)
         blocks.append(shared - pose @ (pose.T @ shared))
     J, r = np.vstack(blocks), np.concatenate(residuals)
@@ -289,7 +291,7 @@ def _focal_uncertainty(obj: np.ndarray, img_points: list[np.ndarray], K: np.ndar
     with np.errstate(divide="ignore", invalid="ignore"):  # diag of (JᵀJ)⁻¹ for the focal lengths
         variance = ((vt[:, :len(focal)] / s[:, None]) ** 2).sum(axis=0) / scale[:len(focal)] ** 2
     sigma2 = float(r @ r) / max(J.shape[0] - J.shape[1] - 6 * len(img_points), 1)
-    relative = np.sqrt(sigma2 * variance) / np.array([fy] if len(focal) == 1 else [fx, fy])
+    relative = np.sqrt(sigma2 * variance) / focal
     return float(np.nan_to_num(relative, nan=np.inf).max())
 
 
