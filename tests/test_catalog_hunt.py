@@ -279,11 +279,19 @@ def _extra(spec, on):
     ("t_72", lambda s: _gun(s, barrels=()), r"turret.gun needs barrels"),
     ("t_72", lambda s: _extra(s, "hull"), r"extras\[0\].size must be positive numbers; got \(0.0, 1.0, 1.0\)"),
     ("toyota_camry", lambda s: _extra(s, "turret"), r"extras\[0\] is on the turret, which the vehicle does not have"),
+    ("t_72", lambda s: dataclasses.replace(s, extras=(dataclasses.replace(s.extras[0], xyz=(float("nan"), 0.0, 1.0)),)),
+     r"extras\[0\].xyz must be finite numbers; got \(nan, 0.0, 1.0\)"),
+    ("t_72", lambda s: _gun(s, barrels=((float("inf"), 0.0),)), r"turret.gun.barrels must be finite numbers"),
+    ("t_72", lambda s: _gun(s, trunnion=(0.5, float("nan"))), r"turret.gun.trunnion must be finite numbers"),
+    ("t_72", lambda s: _gun(s, mantlet=("0.5", 0.8, 0.4)), r"turret.gun.mantlet must be finite numbers"),
+    ("t_72", lambda s: _gun(s, elevation=(-6.0, "14")), r"turret.gun.elevation must be finite numbers"),
 ])
 def test_a_turret_gun_or_extra_that_does_not_fit_names_the_vehicle(name, make, message):
     """A turret off the hull or wider than it, a turret slope past its front, a gun whose rest pose is outside its
     elevation limits were accepted and built wrong; an extra on a turret the vehicle lacks failed in the builder
-    with a bare error, naming neither the vehicle nor the extra."""
+    with a bare error, naming neither the vehicle nor the extra. A NaN or infinite extra centre or barrel
+    position was built into the URDF as 'nan' without a word; a text mantlet or elevation raised a bare
+    TypeError."""
     with pytest.raises(ValueError, match=rf"^{name}: {message}"):
         make(_spec(name))
 

@@ -337,6 +337,10 @@ def _check_common(spec) -> None:
         if gun.length is not None and not (_number(gun.length) and gun.length > 0):
             raise ValueError(f"{spec.name}: turret.gun.length must be a positive number (metres) or None; "
                              f"got {gun.length!r}")
+        for f, values in (("trunnion", gun.trunnion), ("elevation", gun.elevation), ("mantlet", gun.mantlet),
+                          ("barrels", [v for b in gun.barrels for v in b])):
+            if not all(_number(v) for v in values):  # a NaN barrel position was written into the URDF as 'nan'
+                raise ValueError(f"{spec.name}: turret.gun.{f} must be finite numbers; got {getattr(gun, f)!r}")
 
 
 def _check_layout(spec) -> None:
@@ -414,6 +418,8 @@ def _check_layout(spec) -> None:
             raise ValueError(f"{n}: extras[{i}] is on the {e.link}, which the vehicle does not have")
         if not all(_number(v) and v > 0 for v in e.size):
             raise ValueError(f"{n}: extras[{i}].size must be positive numbers; got {e.size}")
+        if not all(_number(v) for v in e.xyz):  # a NaN centre was written into the URDF as 'nan'
+            raise ValueError(f"{n}: extras[{i}].xyz must be finite numbers; got {e.xyz}")
 
 
 def _cupola(x: float, y: float, d: float, z_top: float, h: float) -> Extra:
