@@ -44,7 +44,6 @@ TEXT_FIELDS: frozenset[str] = frozenset({"vehicle", "vehicle_class"})
 MAX_CAMERA_HEIGHT_M = 1e4  # a camera height above the ground (Sequence.camera_height_m) is in (0, this] metres
 
 
-
 def check_camera_height(where: str, height: Any) -> float:
     """A camera's height above flat ground (``Sequence.camera_height_m``): metres in (0,
     ``MAX_CAMERA_HEIGHT_M``], or NaN where unknown (given as None or NaN). InputError starting with
@@ -52,6 +51,7 @@ def check_camera_height(where: str, height: Any) -> float:
     if height is None or (isinstance(height, numbers.Real) and not isinstance(height, bool) and math.isnan(height)):
         return math.nan
     return real(where, height, lo=0, hi=MAX_CAMERA_HEIGHT_M, lo_open=True)
+
 
 @dataclass(frozen=True, eq=False)
 class FrameTruth:

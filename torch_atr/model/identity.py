@@ -135,7 +135,8 @@ def _class_block_tour(D: np.ndarray, labels: np.ndarray) -> list[int]:
     return tour
 
 
-def shortest_closed_path(D: torch.Tensor, labels: torch.Tensor | None = None, max_exact: int = MAX_EXACT) -> torch.Tensor:
+def shortest_closed_path(D: torch.Tensor, labels: torch.Tensor | None = None,
+                         max_exact: int = MAX_EXACT) -> torch.Tensor:
     """The class-constrained shortest closed path of eq. 4.10-4.11.
 
     D: (K, K) symmetric dissimilarity with the class penalty (:func:`dissimilarity`);
@@ -243,7 +244,8 @@ class IdentityManifold(nn.Module):
         closed = np.concatenate([points, points[:1]])  # (K + 1, E), back to the start
         chords = np.linalg.norm(np.diff(closed, axis=0), axis=1)  # (K,)
         if not (chords > 0).all():
-            raise ValueError("Consecutive identity vectors along the order coincide: the chord-length parameter is undefined")
+            raise ValueError("Consecutive identity vectors along the order coincide: the chord-length parameter "
+                             "is undefined")
         sites = TWO_PI * np.concatenate([[0.0], np.cumsum(chords)]) / chords.sum()  # (K + 1,), sites[K] = 2π
         spline = make_interp_spline(sites, closed, k=DEGREE, bc_type="periodic")
         module.knots.copy_(torch.from_numpy(spline.t))

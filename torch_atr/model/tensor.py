@@ -156,8 +156,8 @@ class TensorCore(nn.Module):
 
         B: (K, d, P) the per-vehicle mappings Bᵏ of eq. 4.13; pixel_rank: r or None.
         pixel_basis: (d, r) orthonormal columns to use as U₁ (give it instead of pixel_rank)
-        rather than the mode-1 singular vectors of 𝒞 (e.g. :func:`principal_basis` of the training templates, which ranks pixel
-        directions by how much of the templates they explain rather than of the RBF weights).
+        rather than the mode-1 singular vectors of 𝒞 (e.g. :func:`principal_basis` of the training templates,
+        which ranks pixel directions by how much of the templates they explain rather than of the RBF weights).
         Without it r is capped at min(d, P·K), the rank of the mode-1 unfolding, beyond which
         the truncation is exact. The view mode is not decomposed: Ψ(Θ) multiplies it.
         """
@@ -240,4 +240,3 @@ class TensorCore(nn.Module):
         if y.shape[-1:] != (self.pixels,):
             raise ValueError(f"Expected y to have shape (..., {self.pixels}); got {tuple(y.shape)}")
         return y if self.pixel_basis is None else y @ self.pixel_basis
-
