@@ -160,6 +160,34 @@ def test_a_write_failing_in_a_later_split_leaves_the_earlier_split_as_it_was(tmp
                                         lambda path: path.parent.parent.name == ".test.building")
 
 
+def test_a_failing_swap_in_a_later_split_puts_the_earlier_split_back(tmp_path, monkeypatch):
+    """When the test split's folder could not be replaced (a rename refused after the train split's had
+    been), only the test split was put back: the catalog was the new train split beside the old test split,
+    with '.train.old' left on disk. Reference: the folder tree before the build, with a file the new build
+    would not write."""
+    from pathlib import Path
+
+    from torch_atr.vehicles import build
+
+    build.build_catalog(tmp_path)
+    (tmp_path / "train" / "older_vehicle").mkdir()
+    (tmp_path / "train" / "older_vehicle" / "older_vehicle.urdf").write_text("<robot/>")
+    before = _tree(tmp_path)
+    real_rename = Path.rename
+
+    def rename(self, target):
+        if self.name == ".test.building":
+            raise PermissionError(13, "Permission denied")
+        return real_rename(self, target)
+
+    monkeypatch.setattr(Path, "rename", rename)
+    with pytest.raises(PermissionError):
+        build.build_catalog(tmp_path)
+    monkeypatch.setattr(Path, "rename", real_rename)
+    assert _tree(tmp_path) == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["test", "train"]
+
+
 # ------------------------------------------------------------------------------------------
 # Spec validation
 # ------------------------------------------------------------------------------------------

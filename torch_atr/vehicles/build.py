@@ -382,12 +382,13 @@ def build_catalog(out_dir: str | Path = CATALOG_DIR) -> list[Path]:
 
     Every vehicle is generated before anything is written, and every split is written in full into
     a staging folder beside it before any of them replaces its old split folder, so vehicles
-    removed from the specs disappear and a spec that fails to build, or a write that fails, leaves
-    the old catalog as it was.
+    removed from the specs disappear and a spec that fails to build, a write that fails, or a split
+    folder that cannot be replaced leaves the old catalog as it was.
     """
     out_dir = Path(out_dir)
     texts = {split: {spec.name: vehicle_files(spec) for spec in specs} for split, specs in SPLITS.items()}
     folders = {split: (out_dir / split, out_dir / f".{split}.building", out_dir / f".{split}.old") for split in texts}
+    swapped = []  # (final, old) of the splits whose folder is (being) replaced, the old one moved to ``old``
     try:  # every split written before any replaces its folder (a full disk in test left a new train split)
         for split, vehicles in texts.items():
             staging = folders[split][1]
@@ -399,11 +400,14 @@ def build_catalog(out_dir: str | Path = CATALOG_DIR) -> list[Path]:
             shutil.rmtree(old, ignore_errors=True)
             if final.exists():
                 final.rename(old)
+            swapped.append((final, old))
             staging.rename(final)
     except BaseException:
-        for final, staging, old in folders.values():
-            if old.exists() and not final.exists():
+        for final, old in swapped:  # a replaced split goes back too, not only the one that failed
+            shutil.rmtree(final, ignore_errors=True)
+            if old.exists():
                 old.rename(final)
+        for _, staging, _ in folders.values():
             shutil.rmtree(staging, ignore_errors=True)
         raise
     for _, _, old in folders.values():
