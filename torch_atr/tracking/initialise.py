@@ -67,6 +67,7 @@ from torch_atr.pose import camera_centre, wrap_angle
 from torch_atr.tracking.appearance import ShapeAppearance
 from torch_atr.tracking.motion import ALPHA, HEADING, SPEED, STATE_DIM, X, Z
 from torch_atr.tracking.observation import blob_windows, cut_edges, log_likelihood, observe, silhouette_boxes
+from torch_atr.validate import integer, real
 
 INIT_MODES = ("blind", "truth")
 MAX_INIT_STD = 1e3  # the bound of InitConfig's spreads (range_std, relative; the others in their units)
@@ -200,12 +201,10 @@ def truth_particles(position: torch.Tensor, heading: float, alpha: float | None,
 def ground_depth(camera: Camera, pixel: torch.Tensor, camera_height_m: float) -> float:
     """Depth (along the optical axis) at which the ray through ``pixel`` (2,) meets flat ground
     ``camera_height_m`` below the camera centre (world y = c_y − height); NaN if it never does.
-    ValueError unless the height is a finite number of metres > 0 (at 0 every ray met the ground at
+    InputError (a ValueError) unless the height is a finite number of metres > 0 (at 0 every ray met the ground at
     the camera, depth 0; below it, behind the camera)."""
-    if isinstance(camera_height_m, bool) or not (isinstance(camera_height_m, numbers.Real)
-                                                 and math.isfinite(camera_height_m) and camera_height_m > 0):
-        raise ValueError(f"Expected camera_height_m, the camera's height above the ground, to be a finite number of "
-                         f"metres > 0; got {camera_height_m!r}")
+    camera_height_m = real("camera_height_m (the camera's height above the ground, metres)", camera_height_m,
+                           lo=0, lo_open=True)
     R, t = camera.R.to(pixel), camera.t.to(pixel)
     ray = R.T @ camera.pixel_rays(camera.undistort(pixel))  # world direction
     if not float(ray[1]) < 0:
@@ -345,8 +344,7 @@ def best_hypotheses(log_lik: torch.Tensor, count: int, classes: torch.Tensor | N
     check_shape("log_lik", log_lik, ("M",))
     if log_lik.shape[0] == 0:
         raise ValueError("Expected at least one hypothesis to choose from; got none")
-    if isinstance(count, bool) or not isinstance(count, numbers.Integral) or count < 1:
-        raise ValueError(f"Expected count, the hypotheses to keep, to be a whole number >= 1; got {count!r}")
+    integer("count (the hypotheses to keep)", count, lo=1)
     order = _ranked(log_lik)[:max(1, int(log_lik.isfinite().sum()))]
     if classes is None:
         return order[:count]
