@@ -36,7 +36,7 @@ from torch_atr.config import ConfigError, check_seed, override_leaves
 from torch_atr.experiments.combined import COMBINED_FORMAT, EXPERIMENTS, write_combined_report
 from torch_atr.experiments.report import (REPORT_FORMAT, is_report_folder, mean_recognition, report_format,
                                           write_report)
-from torch_atr.experiments.sensiac_like import FULL, QUICK, SensiacLikeConfig, run_all
+from torch_atr.experiments.sensiac_like import FULL, QUICK, SensiacLikeConfig, run_all, worker_model
 from torch_atr.experiments.studies import STUDIES_FORMAT, run_studies, study_configs, write_studies_report
 from torch_atr.experiments.unseen import UNSEEN_FORMAT, unseen_fields, write_unseen_report
 from torch_atr.io import OutputExistsError, created_folders
@@ -103,7 +103,7 @@ def main(argv: list[str] | None = None) -> dict:
         return _visible(args, given, out)
     cfg = SensiacLikeConfig(**(fields | given), tracker=tuple(args.overrides), scene=tuple(args.scene))
     _check_out(out, UNSEEN_FORMAT if args.experiment == "unseen" else REPORT_FORMAT)
-    _read_checkpoint(cfg.checkpoint)
+    model = worker_model(cfg.checkpoint)  # read before the report folder is made: a bad file is named before any work
     start = time.perf_counter()
     with created_folders(out / "sequences"):  # a run that fails leaves none of the empty folders it made
         results = run_all(cfg, out, args.workers, ray_address=args.ray)
@@ -111,9 +111,7 @@ def main(argv: list[str] | None = None) -> dict:
         agg = write_unseen_report(out, cfg, results, time.perf_counter() - start)
         log.info("wrote %s: report.md, results.json; config %s", out, dataclasses.asdict(cfg))
         return agg
-    from torch_atr.experiments.sensiac_like import worker_model
-
-    agg = write_report(out, cfg, results, worker_model(cfg.checkpoint), time.perf_counter() - start)
+    agg = write_report(out, cfg, results, model, time.perf_counter() - start)
     log.info("recognition (mean over groups and ranges): %s",
              ", ".join(f"{m} {v:.0f} %" for m, v in mean_recognition(agg).items()))
     log.info("wrote %s: report.md, results.json, figures; config %s", out, dataclasses.asdict(cfg))
@@ -142,15 +140,6 @@ def check_scene_overrides(overrides: list[str]) -> None:
     override_leaves(SceneConfig, overrides, "scene override", unique=True)
 
 
-def _read_checkpoint(checkpoint: str) -> None:
-    """Load ``checkpoint`` here, before the report folder is made: a file that is not a checkpoint
-    is named before any work (the first sequence's worker read it, once OUT/sequences was made, and
-    the empty folders stayed). The model stays loaded for the report."""
-    from torch_atr.experiments.sensiac_like import worker_model
-
-    worker_model(checkpoint)
-
-
 def _check_out(out: Path, expected: str, parts=("sequences",)) -> None:
     """``OutputExistsError`` unless ``out`` is absent, empty or a folder of this experiment: its
     results.json, where there is one, of format ``expected`` (another experiment's would be replaced);
@@ -176,8 +165,8 @@ def _studies(args: argparse.Namespace, given: dict, out: Path) -> list[dict]:
         raise ConfigError(f"studies: {', '.join(fixed)} cannot be given; each study sets them itself")
     configs = study_configs(args.quick, **given, tracker=tuple(args.overrides))
     _check_out(out, STUDIES_FORMAT, configs)
-    for checkpoint in {c.checkpoint for c in configs.values()}:
-        _read_checkpoint(checkpoint)
+    for checkpoint in {c.checkpoint for c in configs.values()}:  # a bad file is named before any folder is made
+        worker_model(checkpoint)
     start = time.perf_counter()
     with ExitStack() as made:  # a run that fails leaves none of the empty folders it made
         for name in configs:
@@ -197,14 +186,11 @@ def _visible(args: argparse.Namespace, given: dict, out: Path) -> dict:
         raise ConfigError(f"visible: {', '.join(fixed)} cannot be given; the experiment sets its vehicles and scenes")
     cfg = VisibleConfig(**((dict(VISIBLE_QUICK) if args.quick else {}) | given), tracker=tuple(args.overrides))
     _check_out(out, VISIBLE_FORMAT)
-    _read_checkpoint(cfg.checkpoint)
+    model = worker_model(cfg.checkpoint)  # read before the report folder is made: a bad file is named before any work
     start = time.perf_counter()
     with created_folders(out / "sequences"):  # a run that fails leaves none of the empty folders it made
         calibration, drawn, results = run_visible(cfg, out, args.workers)
-    from torch_atr.experiments.sensiac_like import worker_model
-
-    agg = write_visible_report(out, cfg, calibration, drawn, results, worker_model(cfg.checkpoint),
-                               time.perf_counter() - start)
+    agg = write_visible_report(out, cfg, calibration, drawn, results, model, time.perf_counter() - start)
     log.info("wrote %s: report.md, results.json, figures; config %s", out, dataclasses.asdict(cfg))
     return agg
 
