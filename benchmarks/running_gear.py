@@ -33,7 +33,7 @@ from torch_atr.config import ConfigError, read_yaml
 from torch_atr.validate import InputError, real, show, vector
 from torch_atr.vehicles.catalog import HeldoutEntry
 from torch_atr.vehicles.geometry import Part, ellipse, prism_xz
-from torch_atr.vehicles.loader import Vehicle, load_vehicle, read_mesh
+from torch_atr.vehicles.loader import MAX_EXTENT_M, Vehicle, load_vehicle, read_mesh
 
 SECTIONS = 32  # polygon corners of a wheel or of a circle round which a track runs (a multiple of 4: the
 # polygon reaches the circle's top, bottom, front and back)
@@ -118,11 +118,18 @@ def _keys(where: str, value: Any, keys: set[str]) -> dict:
     return value
 
 
+def _length(where: str, value: Any, positive: bool = False) -> float:
+    """A coordinate within ±MAX_EXTENT_M, or a size in (0, MAX_EXTENT_M] when ``positive``; InputError naming
+    ``where`` otherwise (a larger one made a vehicle the loader refuses, naming only a temporary file, or
+    overflowed the prism's volume)."""
+    return real(where, value, lo=0 if positive else -MAX_EXTENT_M, hi=MAX_EXTENT_M, lo_open=positive)
+
+
 def _wheel(where: str, value: Any) -> Wheel:
     w = _keys(where, value, {"centre", "radius", "width"})
-    centre = tuple(vector(f"{where}.centre", w["centre"], 3))
-    radius = real(f"{where}.radius", w["radius"], lo=0, lo_open=True)
-    return Wheel(centre, radius, real(f"{where}.width", w["width"], lo=0, lo_open=True))
+    centre = tuple(_length(f"{where}.centre[{i}]", x) for i, x in enumerate(vector(f"{where}.centre", w["centre"], 3)))
+    radius = _length(f"{where}.radius", w["radius"], positive=True)
+    return Wheel(centre, radius, _length(f"{where}.width", w["width"], positive=True))
 
 
 def _track(where: str, value: Any) -> Track:
@@ -133,8 +140,9 @@ def _track(where: str, value: Any) -> Track:
     parsed = []
     for i, c in enumerate(circles):
         x, z, r = vector(f"{where}.circles[{i}]", c, 3)
-        parsed.append((x, z, real(f"{where}.circles[{i}][2] (radius)", r, lo=0, lo_open=True)))
-    return Track(real(f"{where}.y", t["y"]), real(f"{where}.width", t["width"], lo=0, lo_open=True), tuple(parsed))
+        parsed.append((_length(f"{where}.circles[{i}][0]", x), _length(f"{where}.circles[{i}][1]", z),
+                       _length(f"{where}.circles[{i}][2] (radius)", r, positive=True)))
+    return Track(_length(f"{where}.y", t["y"]), _length(f"{where}.width", t["width"], positive=True), tuple(parsed))
 
 
 def wheel_part(wheel: Wheel) -> Part:
@@ -173,5 +181,8 @@ def load_with_running_gear(root: str | Path, entry: HeldoutEntry, gear: RunningG
     with tempfile.TemporaryDirectory() as tmp:
         obj = Path(tmp) / f"{source.stem}.obj"
         obj.write_text(text, encoding="utf-8")
-        return load_vehicle(obj, up_axis=entry.up, forward_axis=entry.forward, scale=entry.scale, cls=entry.cls,
-                            name=source.stem, min_thickness=min_thickness)
+        try:
+            return load_vehicle(obj, up_axis=entry.up, forward_axis=entry.forward, scale=entry.scale, cls=entry.cls,
+                                name=source.stem, min_thickness=min_thickness)
+        except ValueError as exc:  # name the mesh, not the temporary file that is gone when the message is read
+            raise ValueError(str(exc).replace(str(obj), f"{source} with its running gear")) from exc

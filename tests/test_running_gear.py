@@ -129,17 +129,23 @@ def test_chrono_running_gear_sits_under_its_body():
     ("bodies: {a.obj: {wheels: [{centre: [0, 1], radius: 0.3, width: 0.2}], tracks: []}}",
      "bodies.a.obj.wheels[0].centre", "expected a list of 3 numbers"),
     ("bodies: {a.obj: {wheels: [{centre: [0, 1, 0], radius: -0.3, width: 0.2}], tracks: []}}",
-     "bodies.a.obj.wheels[0].radius", "expected a finite number > 0"),
+     "bodies.a.obj.wheels[0].radius", "expected a finite number in (0, 100]; got -0.3"),
     ("bodies: {a.obj: {wheels: [{centre: [0, 1, 0], radius: 0.3}], tracks: []}}",
      "bodies.a.obj.wheels[0]", "expected a mapping with exactly the keys ['centre', 'radius', 'width']"),
     ("bodies: {a.obj: {wheels: [], tracks: [{y: 1, width: 0.4, circles: [[0, 0, 0.3]]}]}}",
      "bodies.a.obj.tracks[0].circles", "a track runs round at least 2 circles"),
     ("bodies: {a.obj: {wheels: [], tracks: [{y: 1, width: 0.4, circles: [[0, 0, 0.3], [1, 0, 0]]}]}}",
-     "bodies.a.obj.tracks[0].circles[1][2] (radius)", "expected a finite number > 0"),
+     "bodies.a.obj.tracks[0].circles[1][2] (radius)", "expected a finite number in (0, 100]; got 0"),
     ("bodies: {a.obj: {wheels: [], tracks: [{y: .nan, width: 0.4, circles: [[0, 0, 0.3], [1, 0, 0.3]]}]}}",
      "bodies.a.obj.tracks[0].y", "expected a finite number"),
     ("bodies: {b.obj: {wheels: [{centre: [0, 1, 0], radius: 0.3, width: 0.2}], tracks: []}}",
      "bodies.b.obj", "the manifest scales this mesh by 0.01"),
+    ("bodies: {a.obj: {wheels: [{centre: [0, 1, 0], radius: 1.0e+300, width: 0.2}], tracks: []}}",
+     "bodies.a.obj.wheels[0].radius", "expected a finite number in (0, 100]; got 1e+300"),
+    ("bodies: {a.obj: {wheels: [{centre: [0, -1.0e+200, 0], radius: 0.3, width: 0.2}], tracks: []}}",
+     "bodies.a.obj.wheels[0].centre[1]", "expected a finite number in [-100, 100]; got -1e+200"),
+    ("bodies: {a.obj: {wheels: [], tracks: [{y: 1, width: 0.4, circles: [[0, 0, 0.3], [1.0e+300, 0, 0.3]]}]}}",
+     "bodies.a.obj.tracks[0].circles[1][0]", "expected a finite number in [-100, 100]"),
 ])
 def test_bad_running_gear_is_refused_naming_file_and_key(tmp_path, text, key, message):
     rg = module()
@@ -150,6 +156,20 @@ def test_bad_running_gear_is_refused_naming_file_and_key(tmp_path, text, key, me
         rg.read_running_gear(path, entries)
     assert str(info.value).startswith(f"{path}: {key}".rstrip(": ")), str(info.value)
     assert message in str(info.value), str(info.value)
+
+
+def test_a_vehicle_too_big_with_its_running_gear_names_the_mesh(tmp_path):
+    """A wheel of radius 0.5 m centred 99.8 m ahead of the unit cube's back makes a vehicle 100.3 m long, over the
+    loader's 100 m. The loader's message named the temporary OBJ (gone by the time it is read), not the mesh."""
+    rg = module()
+    cube_obj(tmp_path / "body.obj")
+    entry = HeldoutEntry("body.obj", "car", "z", "x", 1.0, "test")
+    gear = rg.RunningGear((rg.Wheel((99.8, 0.5, 0.5), 0.5, 0.4),), ())
+    with pytest.raises(ValueError) as info:
+        rg.load_with_running_gear(tmp_path, entry, gear, min_thickness=0.05)
+    message = str(info.value)
+    assert message.startswith(f"{tmp_path / 'body.obj'} with its running gear: 100 × 1 × 1 m"), message
+    assert "too big for a vehicle" in message
 
 
 def test_missing_running_gear_file_is_named(tmp_path):
