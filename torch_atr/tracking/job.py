@@ -53,11 +53,11 @@ class TrackConfig:
             raise ConfigError(f"frames must be null or in [1, 1e7]; got {self.frames!r}")
         if not self.sequence.strip():
             raise ConfigError("sequence must be a sequence spec; got an empty string")
-        for key in ("checkpoint", "out"):  # Path('') is '.': a blank out wrote the run's files into the current folder
-            if not getattr(self, key).strip():
-                raise ConfigError(f"{key} must be a path; got {show(getattr(self, key))}")
-        for key in ("checkpoint", "out"):  # ~ as a shell would, for paths from config files
-            object.__setattr__(self, key, os.path.expanduser(getattr(self, key)))
+        for key in ("checkpoint", "out"):
+            path = getattr(self, key)
+            if not path.strip():  # Path('') is '.': a blank out wrote the run's files into the current folder
+                raise ConfigError(f"{key} must be a path; got {show(path)}")
+            object.__setattr__(self, key, os.path.expanduser(path))  # ~ as a shell would, for paths from config files
 
 
 def _absolute(path: str) -> str:
