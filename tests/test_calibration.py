@@ -229,6 +229,15 @@ def test_calibrate_checkerboard_refuses_extra_distortion_terms(views, flag):
         calibrate_checkerboard([v[0] for v in views], PATTERN, SQUARE, flags=cv2.CALIB_FIX_K3 | getattr(cv2, flag))
 
 
+@pytest.mark.parametrize("flag", ["CALIB_USE_INTRINSIC_GUESS", "CALIB_FIX_FOCAL_LENGTH"])
+def test_calibrate_checkerboard_refuses_flags_that_need_a_given_camera_matrix(views, flag):
+    """No camera matrix is passed to cv2.calibrateCamera: USE_INTRINSIC_GUESS failed inside OpenCV ('the camera
+    matrix is not 3x3'), and FIX_FOCAL_LENGTH held OpenCV's own first estimate, returned as the camera."""
+    with pytest.raises(ValueError, match=rf"^Expected flags without {flag}: calibrate_checkerboard fits the camera "
+                                         r"from the images alone, with no camera matrix to start from or to hold"):
+        calibrate_checkerboard([v[0] for v in views], PATTERN, SQUARE, flags=cv2.CALIB_FIX_K3 | getattr(cv2, flag))
+
+
 def test_calibrate_checkerboard_refuses_boards_in_one_orientation():
     """Shifted boards on one floor gave fx = 122,585 for 820, the same board thrice 12,687, at rms < 0.13 px."""
     rng = np.random.default_rng(3)

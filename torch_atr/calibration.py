@@ -47,6 +47,11 @@ _EDGE_SAMPLES = 9  # points per drawn edge, so edges bend with the lens distorti
 _EXTRA_TERM_FLAGS = {"CALIB_RATIONAL_MODEL": cv2.CALIB_RATIONAL_MODEL,
                      "CALIB_THIN_PRISM_MODEL": cv2.CALIB_THIN_PRISM_MODEL,
                      "CALIB_TILTED_MODEL": cv2.CALIB_TILTED_MODEL}
+# cv2.calibrateCamera flags that start from, or hold, a camera matrix given to it; calibrate_checkerboard gives none.
+# USE_INTRINSIC_GUESS failed inside OpenCV ('the camera matrix is not 3x3'); FIX_FOCAL_LENGTH held OpenCV's own first
+# estimate (fx 607, fy 613 px on views that fit 610 free), which the focal-length checks then passed unexamined.
+_GUESS_FLAGS = {"CALIB_USE_INTRINSIC_GUESS": cv2.CALIB_USE_INTRINSIC_GUESS,
+                "CALIB_FIX_FOCAL_LENGTH": cv2.CALIB_FIX_FOCAL_LENGTH}
 # Zhang's method needs boards in different orientations: parallel boards (one floor, the same board
 # again, boards all facing the camera) gave fx 54,000-123,000 for 820 at rms 0.05-0.13 px. Their
 # normals measured (see _orientation_spread_deg) 0.003-0.18 degrees apart; 6 boards tilted 1, 2,
@@ -255,7 +260,7 @@ def _focal_uncertainty(obj: np.ndarray, img_points: list[np.ndarray], K: np.ndar
     p1, p2, k3, and each view's rvec and tvec), give the Gauss-Newton covariance σ² (JᵀJ)⁻¹ with
     σ² = |r|² / (residuals − parameters). Views that leave the focal length undetermined (the
     degenerate configurations of Sturm and Maybank, 1999) make JᵀJ (nearly) singular along the
-    directions the data cannot fix, whatever the rms; 0 when the focal length is held fixed.
+    directions the data cannot fix, whatever the rms.
 
     Each view's pose is eliminated first: with Fᵥ its rows' columns of the shared parameters and Qᵥ an
     orthonormal basis of its 6 pose columns, the shared parameters' block of (JᵀJ)⁻¹ is (Σᵥ Gᵥᵀ Gᵥ)⁻¹ for
@@ -266,8 +271,6 @@ def _focal_uncertainty(obj: np.ndarray, img_points: list[np.ndarray], K: np.ndar
         obj: (P, 3) board corners; img_points: V arrays (P, 2) of pixels; K: (3, 3); dist: OpenCV's
         coefficients; rvecs, tvecs: V poses from ``cv2.calibrateCamera``; flags: its flags.
     """
-    if flags & cv2.CALIB_FIX_FOCAL_LENGTH:
-        return 0.0
     fx, fy = K[0, 0], K[1, 1]
     aspect = flags & cv2.CALIB_FIX_ASPECT_RATIO  # one focal parameter, fy, with fx = fy · fx / fy
     focal = np.array([fy] if aspect else [fx, fy])
@@ -307,7 +310,8 @@ def calibrate_checkerboard(images: Sequence[np.ndarray], pattern: tuple[int, int
             as the MATLAB toolbox the thesis used does. Flags that add distortion terms
             (``CALIB_RATIONAL_MODEL``, ``CALIB_THIN_PRISM_MODEL``, ``CALIB_TILTED_MODEL``) are
             refused: :class:`Camera` holds only k1, k2, p1, p2, k3, and K fitted with the extra
-            terms would not match the distortion kept.
+            terms would not match the distortion kept. So are ``CALIB_USE_INTRINSIC_GUESS`` and
+            ``CALIB_FIX_FOCAL_LENGTH``: no camera matrix is given to start from or to hold.
 
     The boards must lie in different orientations (tilt the board between views, by tens of
     degrees about different axes): boards all in one plane or in parallel planes, such as several
@@ -323,8 +327,9 @@ def calibrate_checkerboard(images: Sequence[np.ndarray], pattern: tuple[int, int
         solver runs on one thread).
     Raises:
         ValueError: fewer than 3 images, an image of another size, an image without the
-            board (naming its index), a flag that adds distortion terms (naming it), boards
-            whose normals are all within 5° of each other (:func:`_orientation_spread_deg`), or
+            board (naming its index), a flag that adds distortion terms or needs a camera matrix
+            given (naming it), boards whose normals are all within 5° of each other
+            (:func:`_orientation_spread_deg`), or
             views that fit the focal length only to more than ±10 % (one standard deviation,
             :func:`_focal_uncertainty`).
     """
@@ -332,6 +337,10 @@ def calibrate_checkerboard(images: Sequence[np.ndarray], pattern: tuple[int, int
     if extra:
         raise ValueError(f"Expected flags without {' or '.join(extra)}: Camera keeps only the distortion "
                          f"(k1, k2, p1, p2, k3); got flags={flags}")
+    guess = [name for name, bit in _GUESS_FLAGS.items() if flags & bit]
+    if guess:
+        raise ValueError(f"Expected flags without {' or '.join(guess)}: calibrate_checkerboard fits the camera from "
+                         f"the images alone, with no camera matrix to start from or to hold; got flags={flags}")
     pattern = check_pattern(pattern)
     obj = _board_points(pattern, square_m)
     if len(images) < 3:
