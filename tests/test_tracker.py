@@ -31,7 +31,7 @@ from torch_atr.tracking import filter as filter_module
 from torch_atr.tracking.filter import FrameDistance, tracker_segmentation
 from torch_atr.tracking.initialise import InitConfig, blind_hypotheses, ground_row_from_contrast
 from torch_atr.tracking.job import run_summary
-from torch_atr.tracking.observation import cut_edges, observe_windows
+from torch_atr.tracking.observation import cut_edges, observe_windows, project_windows
 
 CKPT = Path(__file__).resolve().parents[1] / "checkpoints" / "default.pt"
 TWO_PI = 2 * math.pi
@@ -479,6 +479,60 @@ def test_blind_ground_row_sets_where_the_vehicle_meets_the_ground(model):
             InitConfig(camera_height_m=height)
 
 
+@pytest.mark.parametrize("method", METHODS)
+@pytest.mark.parametrize("height", ["ground", "size"])
+def test_blind_hypotheses_lay_the_methods_own_silhouette_on_the_blob(model, method, height):
+    """Each hypothesis (α, θ) places its window so that the silhouette its method compares has the
+    blob's box centre (and, without the camera height, the blob's size): Method II's nearest
+    training vehicle, III's nearest training view, IV's template (here a rectangle per vehicle and
+    view, unlike any reconstruction). Before, every method placed Method I's continuous silhouette.
+    Reference: the nearest αₖ and training view by brute force, the silhouette's box from its
+    pixels, and the window where the observation projects the hypothesis's position."""
+    seq, blob, *_ = _first_blob("bmp_2", 1000.0)
+    camera, S, (A, B) = seq.camera, model.template.size_px, (5, 7)  # θ off the views (12° apart) and their midpoints
+    K, V = model.core.num_vehicles, model.rbf.num_centres
+    templates = None
+    if method == "IV":
+        g = torch.Generator().manual_seed(3)
+        c0, r0, w, h = torch.randint(0, S // 2, (4, K, V, 1, 1), generator=g)
+        cols, rows = torch.arange(S), torch.arange(S)[:, None]
+        templates = torch.where((cols >= c0) & (cols <= c0 + w) & (rows >= r0) & (rows <= r0 + h), 1.0, -1.0)
+    states, log_lik = blind_hypotheses(torch.from_numpy(blob), signed_distance_px(blob), camera,
+                                       ShapeAppearance(model, method, 32, templates),
+                                       InitConfig(alpha_steps=A, azimuth_steps=B), 0.02,
+                                       seq.camera_height_m if height == "ground" else math.nan)
+    assert states.shape == (A * B, 6) and bool(log_lik.isfinite().all())
+    v_rows, u_cols = np.nonzero(blob)
+    blob_centre = np.array([u_cols.min() + u_cols.max(), v_rows.min() + v_rows.max()]) / 2
+    blob_size = math.sqrt((np.ptp(u_cols) + 1) * (np.ptp(v_rows) + 1))
+    K_inv, R = np.linalg.inv(camera.K.double().numpy()), camera.R.double().numpy()
+    assert not camera.dist.any()
+    ray = R.T @ K_inv @ np.append(blob_centre, 1.0)
+    phi = math.asin(-ray[1] / np.linalg.norm(ray))  # the line of sight's elevation
+    centres_u = model.rbf.centres_u.double().numpy()
+    uv, side = project_windows(camera, states[:, :3], model.template.window_m)
+    for m in range(A * B):
+        alpha, theta = TWO_PI * (m // B) / A, TWO_PI * (m % B) / B
+        k = int(np.abs((alpha - model.alphas.double().numpy() + math.pi) % TWO_PI - math.pi).argmin())
+        u = np.array([math.cos(phi) * math.cos(theta), math.cos(phi) * math.sin(theta), math.sin(phi)])
+        v = int(((centres_u - u) ** 2).sum(1).argmin())
+        if method == "IV":
+            shape = templates[k, v]
+        else:
+            a = model.alphas[k] if method == "II" else torch.tensor(alpha)
+            t, p = ((model.rbf.centres_theta[v], model.rbf.centres_phi[v]) if method == "III"
+                    else (torch.tensor(theta), torch.tensor(phi)))
+            with torch.no_grad():
+                shape = model(a.reshape(1), t.reshape(1), p.reshape(1))[0]
+        r, c = np.nonzero(shape.numpy() > 0)
+        box = np.array([c.min() + c.max(), r.min() + r.max()]) / 2 - (S - 1) / 2  # box centre − window centre
+        scale = side[m].double().numpy() / S  # image pixels per template pixel
+        np.testing.assert_allclose(uv[m].double().numpy() + box * scale, blob_centre, atol=1e-3, err_msg=str(m))
+        if height == "size":
+            size = math.sqrt((np.ptp(c) + 1) * scale[0] * (np.ptp(r) + 1) * scale[1])
+            assert size == pytest.approx(blob_size, rel=1e-5), m
+
+
 def test_no_observation_keeps_the_prediction_and_flags_the_frame(model, btr):
     """Empty, all-foreground and NaN-riddled frames never crash and never give NaN estimates."""
     tracker = Tracker(model, btr.camera, _config("filter.particles=200"), seed=0)
@@ -508,8 +562,6 @@ def test_no_observation_keeps_the_prediction_and_flags_the_frame(model, btr):
 def test_a_blob_no_particle_explains_is_lost_and_the_tracker_says_why_once(model, btr, caplog):
     """A 12 m x 4.8 m box on the particles' window, as a vehicle longer than the window would fill it
     (the semi-truck's cab: every frame lost, and nothing said why)."""
-    from torch_atr.tracking.observation import project_windows
-
     tracker = Tracker(model, btr.camera, _config("filter.particles=100"), seed=0)
     t = btr.truth(0)
     tracker.reset(torch.tensor([[t.x, t.y, t.z, t.heading, 0.0, 0.5]]).repeat(100, 1))

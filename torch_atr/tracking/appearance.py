@@ -27,6 +27,7 @@ from torch import nn
 from torch_atr._checks import check_shape
 from torch_atr.model import GenerativeShapeModel
 from torch_atr.pose import view_vectors
+from torch_atr.tracking.observation import silhouette_boxes
 
 METHODS = ("I", "II", "III", "IV")
 SPLINE_POINTS = 4  # control points carrying each α (cubic spline)
@@ -54,7 +55,8 @@ class ShapeAppearance(nn.Module):
 
     Buffers: ``windows`` (K, P, 4r), for each spline span s the control-point core
     [𝒜'_s … 𝒜'_{s+3}] arranged for one matmul; ``basis`` (L², r) the pixel basis B pooled to L;
-    ``gram`` (r, r) BᵀB; ``templates`` (K, V, L²) pooled (Method IV) or None.
+    ``gram`` (r, r) BᵀB; ``templates`` (K, V, L²) pooled and ``template_boxes`` (K, V, 4) their
+    silhouettes' boxes at full size (Method IV), or None.
     """
 
     def __init__(self, model: GenerativeShapeModel, method: str = "I", size: int = 32,
@@ -85,8 +87,11 @@ class ShapeAppearance(nn.Module):
                                  f"got {tuple(templates.shape)}")
             pooled = pool_images(templates.to(A), self.size).reshape(K, V, -1)
             self.register_buffer("templates", pooled)
+            self.register_buffer("template_boxes", silhouette_boxes(templates.to(A.device).flatten(0, 1) > 0
+                                                                    ).view(K, V, 4))
         else:
             self.register_buffer("templates", None)
+            self.register_buffer("template_boxes", None)
 
     def _queries(self, alpha: torch.Tensor, theta: torch.Tensor, phi: torch.Tensor
                  ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
@@ -113,6 +118,27 @@ class ShapeAppearance(nn.Module):
             theta, phi = (model.rbf.centres_theta[view].to(theta).where(finite, theta),
                           model.rbf.centres_phi[view].to(theta).where(finite, phi))
         return alpha, theta, phi, vehicle, view
+
+    def grid_boxes(self, alpha: torch.Tensor, theta: torch.Tensor, phi: torch.Tensor) -> torch.Tensor:
+        """The boxes of this method's full-size silhouettes (y > 0, S × S template pixels) for every α
+        at every view: the shapes it compares, snapped as :meth:`snap` snaps them (Method IV: the
+        templates' own). The blind start lays these boxes on the blob.
+
+        alpha: (A,); theta, phi: (B,) radians. Returns (A·B, 4) [c0, r0, c1, r1], α-major, float32
+        (NaN for an empty silhouette).
+        """
+        check_shape("alpha", alpha, ("A",))
+        check_shape("theta", theta, ("B",))
+        check_shape("phi", phi, tuple(theta.shape))
+        A, B = alpha.shape[0], theta.shape[0]
+        alpha, _, _, vehicle, _ = self.snap(alpha.to(self.windows), *self.windows.new_zeros(2, A))
+        _, theta, phi, _, view = self.snap(self.windows.new_zeros(B), theta.to(self.windows), phi.to(self.windows))
+        if self.method == "IV":
+            return self.template_boxes[vehicle][:, view].reshape(-1, 4)
+        S = self.model.template.size_px
+        with torch.no_grad():
+            shapes = self.model.reconstruct_grid(alpha, theta, phi)  # (A, B, S, S)
+        return silhouette_boxes(shapes.reshape(-1, S, S) > 0)
 
     def coords(self, alpha: torch.Tensor, theta: torch.Tensor, phi: torch.Tensor) -> torch.Tensor:
         """Pixel-basis coordinates c = 𝒜 ×₃ i(α) ×₂ Ψ(Θ) for (N,) queries in the model's dtype,

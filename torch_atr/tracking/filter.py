@@ -378,7 +378,7 @@ class Tracker:
         self._optimiser = (torch.optim.Adam([self.model.rbf.log_width], lr=self.cfg.adapt.lr)
                            if self.cfg.adapt.every else None)
         self._adapt_undone = 0  # adaptations undone as diverged (_adapt)
-        self._grid = HypothesisGrid(self.model, self.cfg.init, _GRID_TOLERANCE)  # blind start, re-detection
+        self._grid = HypothesisGrid(self.appearance, self.cfg.init, _GRID_TOLERANCE)  # blind start, re-detection
 
     def _begin(self) -> None:
         """A track's state before its first frame: no particles, frame 0 at 0 s, the generator seeded."""

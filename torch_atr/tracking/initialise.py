@@ -42,8 +42,8 @@ which confuses a small vehicle near with a big one far (a car at 570 m for a tan
 measured), so give the height when you know it.
 
 For every hypothesis (α, θ) of a coarse grid, at the elevation φ of the line of sight through the
-blob, the model's silhouette y(α, θ, φ) > 0 has a size and an offset from the window
-centre in template pixels; matching its box to the blob's box at the range gives the window
+blob, the silhouette y(α, θ, φ) > 0 of the tracker's method (Method II's nearest training vehicle,
+IV's template) has a size and an offset from the window centre in template pixels; matching its box to the blob's box at the range gives the window
 centre and so the position on that pixel's ray, and the heading follows from θ and the bearing of
 the camera. Every hypothesis is then scored by the observation likelihood, and the particles are
 drawn around the best ones (a mixture: equal shares, jittered by about half a grid step).
@@ -66,7 +66,7 @@ from torch_atr.data.sequence import MAX_CAMERA_HEIGHT_M
 from torch_atr.pose import camera_centre, wrap_angle
 from torch_atr.tracking.appearance import ShapeAppearance
 from torch_atr.tracking.motion import ALPHA, HEADING, SPEED, STATE_DIM, X, Z
-from torch_atr.tracking.observation import blob_windows, cut_edges, log_likelihood, observe, silhouette_boxes
+from torch_atr.tracking.observation import blob_windows, cut_edges, log_likelihood, observe
 from torch_atr.validate import integer, real
 
 INIT_MODES = ("blind", "truth")
@@ -214,19 +214,21 @@ def ground_depth(camera: Camera, pixel: torch.Tensor, camera_height_m: float) ->
 
 
 class HypothesisGrid:
-    """The blind start's (α, θ) grid and the boxes of its silhouettes y(α, θ, φ) > 0, kept for the
-    last elevation φ: a later call within ``tolerance`` radians of it reuses them (re-detection
-    searches the same grid every few frames, and at a steady elevation their cost, most of a
-    search's, need not be paid again).
+    """The blind start's (α, θ) grid and the boxes of its silhouettes, kept for the last elevation φ:
+    a later call within ``tolerance`` radians of it reuses them (re-detection searches the same grid
+    every few frames, and at a steady elevation their cost, most of a search's, need not be paid
+    again). The silhouettes are the ones the appearance's method compares
+    (:meth:`ShapeAppearance.grid_boxes`): Method II's a training vehicle's, IV's the templates.
 
     Args:
-        model: the generative shape model; cfg: the grid sizes (``alpha_steps``, ``azimuth_steps``).
+        appearance: the predicted shapes (its model and method); cfg: the grid sizes
+            (``alpha_steps``, ``azimuth_steps``).
         tolerance: radians of φ within which the boxes are reused (0: only at the same φ).
     """
 
-    def __init__(self, model, cfg: InitConfig, tolerance: float = 0.0):
-        self.model, self.tolerance = model, tolerance
-        device = model.alphas.device
+    def __init__(self, appearance: ShapeAppearance, cfg: InitConfig, tolerance: float = 0.0):
+        self.appearance, self.tolerance = appearance, tolerance
+        device = appearance.windows.device
         self.alpha = torch.arange(cfg.alpha_steps, dtype=torch.float64, device=device) * (2 * math.pi / cfg.alpha_steps)
         self.theta = torch.arange(cfg.azimuth_steps, dtype=torch.float64, device=device) * (
             2 * math.pi / cfg.azimuth_steps)
@@ -235,11 +237,9 @@ class HypothesisGrid:
     def boxes(self, phi: float) -> torch.Tensor:
         """(A·B, 4) float64 silhouette boxes [c0, r0, c1, r1] in template pixels, α-major, at ``phi``."""
         if not abs(phi - self._phi) <= self.tolerance:
-            model, S, B = self.model, self.model.template.size_px, self.theta.shape[0]
-            a, t = self.alpha.to(model.alphas), self.theta.to(model.alphas)
-            with torch.no_grad():
-                shapes = model.reconstruct_grid(a, t, t.new_full((B,), phi))
-            self._phi, self._boxes = phi, silhouette_boxes(shapes.reshape(-1, S, S) > 0).to(torch.float64)
+            t = self.theta
+            self._phi, self._boxes = phi, self.appearance.grid_boxes(self.alpha, t, t.new_full(t.shape, phi)).to(
+                torch.float64)
         return self._boxes
 
     def forget(self) -> None:
@@ -283,7 +283,7 @@ def blind_hypotheses(blob: torch.Tensor, distance: torch.Tensor, camera: Camera,
     R, t, K = (camera.R.to(device, dtype), camera.t.to(device, dtype), camera.K.to(device, dtype))
     ray = R.T @ camera.pixel_rays(camera.undistort((blob_box[:2] + blob_box[2:]) / 2))  # through the blob centre
     phi = torch.asin((-ray[1] / ray.norm()).clamp(-1, 1))  # elevation of the camera seen from the target
-    grid = HypothesisGrid(model, cfg) if grid is None else grid
+    grid = HypothesisGrid(appearance, cfg) if grid is None else grid
     alpha, theta, boxes = grid.alpha.to(device, dtype), grid.theta.to(device, dtype), grid.boxes(float(phi))
     if alpha_index is not None:
         alpha_index = alpha_index.to(device)
