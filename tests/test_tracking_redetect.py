@@ -37,9 +37,10 @@ def _box(mask: np.ndarray) -> list[float]:
 
 def test_hypothesis_grid_boxes_are_the_silhouettes_of_each_view_and_are_kept_within_the_tolerance(model):
     """Each box is that of the model's full reconstruction y(α, θ, φ) > 0 queried one view at a time
-    (α-major); a φ within the tolerance reuses them, one beyond recomputes them."""
+    (α-major; Method I's: test_tracker has each method's own); a φ within the tolerance reuses them,
+    one beyond recomputes them."""
     cfg = InitConfig(alpha_steps=4, azimuth_steps=3)
-    grid = HypothesisGrid(model, cfg, tolerance=0.01)
+    grid = HypothesisGrid(ShapeAppearance(model, "I", 32), cfg, tolerance=0.01)
 
     def reference(phi: float) -> torch.Tensor:
         boxes = []
