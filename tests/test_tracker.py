@@ -3,6 +3,7 @@ rendered templates, robustness, determinism and seeded end-to-end runs on the si
 
 import copy
 import dataclasses
+import inspect
 import json
 import logging
 import math
@@ -578,6 +579,47 @@ def test_a_blob_no_particle_explains_is_lost_and_the_tracker_says_why_once(model
     assert f"The blob spans {box.any(0).sum()} x {box.any(1).sum()} px" in said[0]
     bound = -math.log(torch.finfo(torch.float32).tiny) * 2 * 0.02 ** 2  # eq. 5.2 at the default σ, by hand
     assert f"a mean squared error above {bound:.3g} template units at filter.sigma=0.02" in said[0]
+
+
+def test_blind_hypotheses_on_a_blob_cut_by_the_edge_leave_out_the_cells_beyond_it(model, btr):
+    """A blind start or re-detection on a blob that the image's right edge cuts scores its hypotheses
+    as the filter scores particles (the per-particle reference above): the cells beyond that edge
+    left out, not the padding carried on from it, which scored them as if the vehicle went on and
+    so weighed them apart from the particles re-detection compares them with."""
+    pose, t = btr.pose(0), btr.truth(0)
+    u = float(btr.camera.project(torch.tensor([t.x, t.y, t.z], dtype=torch.float64))[0][0])
+    shift = (btr.camera.width - 1 - u) * t.z / btr.camera.fx  # metres that put the centre on the last column
+    mask = render_mask(btr.vehicle, btr.camera, dataclasses.replace(pose, x=pose.x + shift)).numpy()
+    assert cut_edges(mask) == (False, False, True, False)
+    states, log_lik = blind_hypotheses(torch.from_numpy(mask), signed_distance_px(mask), btr.camera,
+                                       ShapeAppearance(model, "I", 8), InitConfig(alpha_steps=4, azimuth_steps=3),
+                                       0.1, btr.camera_height_m, cut=cut_edges(mask))
+    uv, side = project_windows(btr.camera, states[:, :3], model.template.window_m)
+    assert bool((uv[:, 0] + side[:, 0] / 2 > btr.camera.width - 0.5).all())  # every window reaches beyond it
+    ref = torch.tensor([_reference_log_lik(model, btr.camera, mask, q, 8, 0.1) for q in states.double()],
+                       dtype=torch.float64)
+    torch.testing.assert_close(log_lik.double(), ref, atol=2e-3, rtol=0)
+
+
+def test_the_blind_start_and_re_detection_pass_the_edges_that_cut_the_blob(model, btr, monkeypatch):
+    """Wiring: both calls of ``blind_hypotheses`` in the filter give it the frame's cut edges."""
+    cuts = []
+
+    def spy(*args, **kwargs):
+        cuts.append(inspect.signature(blind_hypotheses).bind(*args, **kwargs).arguments.get("cut"))
+        return blind_hypotheses(*args, **kwargs)
+
+    monkeypatch.setattr(filter_module, "blind_hypotheses", spy)
+    pose, t = btr.pose(0), btr.truth(0)
+    u = float(btr.camera.project(torch.tensor([t.x, t.y, t.z], dtype=torch.float64))[0][0])
+    shift = (btr.camera.width - 1 - u) * t.z / btr.camera.fx
+    mask = render_mask(btr.vehicle, btr.camera, dataclasses.replace(pose, x=pose.x + shift)).numpy()
+    tracker = Tracker(model, btr.camera, _config("filter.particles=100", "init.alpha_steps=4", "init.azimuth_steps=3",
+                                                 "init.border_px=0", "redetect.every=1", "redetect.until=1",
+                                                 "redetect.margin=0", "redetect.keep_range=false"), seed=0)
+    tracker.step(mask=mask)
+    tracker.step(mask=mask)
+    assert cuts == [(False, False, True, False)] * 2
 
 
 def test_target_leaving_the_image_is_lost_not_nan(model):

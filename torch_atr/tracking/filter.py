@@ -718,7 +718,8 @@ class Tracker:
         contrast = self.segmenter.contrast(frame, mask) if wanted else math.nan
         blob = torch.from_numpy(mask).to(self.device)
         states, log_lik = blind_hypotheses(blob, distance.signed, self.camera, self.appearance, self.cfg.init,
-                                           self.cfg.filter.sigma, self.camera_height_m, contrast, grid=self._grid)
+                                           self.cfg.filter.sigma, self.camera_height_m, contrast, grid=self._grid,
+                                           cut=distance.cut)
         classes = self.model.classify(states[:, ALPHA].to(self.dtype))
         self.reset(blind_particles(states, log_lik, self.cfg.filter.particles, self.cfg.init, self.camera,
                                    self.generator, classes))
@@ -759,7 +760,7 @@ class Tracker:
         states, hyp = blind_hypotheses(torch.from_numpy(mask).to(self.device), distance.signed, self.camera,
                                        self.appearance, self.cfg.init, self.cfg.filter.sigma, self.camera_height_m,
                                        contrast, distance.origin, depth if rc.keep_range else math.nan, self._grid,
-                                       alpha_index)
+                                       alpha_index, distance.cut)
         best = float(log_lik.max())
         better = hyp > best + rc.margin
         if not bool(better.any()):

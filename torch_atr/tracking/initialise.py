@@ -66,7 +66,8 @@ from torch_atr.data.sequence import MAX_CAMERA_HEIGHT_M
 from torch_atr.pose import camera_centre, wrap_angle
 from torch_atr.tracking.appearance import ShapeAppearance
 from torch_atr.tracking.motion import ALPHA, HEADING, SPEED, STATE_DIM, X, Z
-from torch_atr.tracking.observation import blob_windows, cut_edges, log_likelihood, observe
+from torch_atr.tracking.observation import (blob_windows, cut_edges, log_likelihood, observe_windows, observed_cells,
+                                            project_windows)
 from torch_atr.validate import integer, real
 
 INIT_MODES = ("blind", "truth")
@@ -250,7 +251,8 @@ class HypothesisGrid:
 def blind_hypotheses(blob: torch.Tensor, distance: torch.Tensor, camera: Camera, appearance: ShapeAppearance,
                      cfg: InitConfig, sigma: float, camera_height_m: float = math.nan, contrast: float = math.nan,
                      origin: tuple[int, int] = (0, 0), known_depth: float = math.nan,
-                     grid: HypothesisGrid | None = None, alpha_index: torch.Tensor | None = None
+                     grid: HypothesisGrid | None = None, alpha_index: torch.Tensor | None = None,
+                     cut: tuple[bool, bool, bool, bool] = (False, False, False, False)
                      ) -> tuple[torch.Tensor, torch.Tensor]:
     """Score a grid of (α, θ) hypotheses against one blob (module docstring).
 
@@ -269,6 +271,9 @@ def blind_hypotheses(blob: torch.Tensor, distance: torch.Tensor, camera: Camera,
             a tracker's estimate; NaN: from the ground, or from the blob's size.
         grid: the (α, θ) grid's silhouette boxes, kept between calls (default: computed here).
         alpha_index: (A,) the grid's α to score (indices into ``grid.alpha``); default all of them.
+        cut: (left, top, right, bottom), the image edges that cut the blob (``observation.cut_edges``):
+            the cells of a window beyond them are left out of its likelihood, as the filter leaves
+            them out (``Tracker``'s likelihood), so that re-detection compares like with like.
     Returns:
         states: (M, 6) one particle per hypothesis (speed 0), M = A × azimuth_steps (α-major),
         float64 on the appearance's device; log_lik: (M,) their log-likelihoods (−inf for a
@@ -312,10 +317,19 @@ def blind_hypotheses(blob: torch.Tensor, distance: torch.Tensor, camera: Camera,
     states[:, ALPHA] = alpha.repeat_interleave(B)
     valid = (depth > 0) & states.isfinite().all(dim=1)  # an empty silhouette places nothing
     states = torch.where(valid[:, None], states, 0.0)
-    z = observe(distance, camera, states[:, X:Z + 1], model.template, appearance.size, origin)
+    uv, side = project_windows(camera, states[:, X:Z + 1], model.template.window_m)
+    L = appearance.size
+    z = observe_windows(distance, uv, side, model.template, L, origin)
     with torch.no_grad():
         y = appearance(states[:, ALPHA], th, phi.expand(A * B)).to(z)
-    log_lik = torch.where(valid, log_likelihood(z, y, sigma), -math.inf)
+    log_lik = log_likelihood(z, y, sigma)
+    if any(cut):  # the cells beyond an edge that cuts the blob marginalised out (eq. 5.2 over the others)
+        columns, rows = observed_cells(uv, side, L, (camera.height, camera.width), cut)
+        observed = rows[:, :, None] & columns[:, None, :]
+        partial = -(z - y).square().masked_fill(~observed, 0.0).sum(dim=(1, 2)) / (L * L * 2.0 * sigma * sigma)
+        log_lik = torch.where(observed.all(dim=(1, 2)), log_lik,
+                              torch.where(observed.any(dim=(1, 2)), partial, -math.inf))
+    log_lik = torch.where(valid, log_lik, -math.inf)
     return states, log_lik
 
 
