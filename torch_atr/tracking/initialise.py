@@ -43,10 +43,11 @@ measured), so give the height when you know it.
 
 For every hypothesis (α, θ) of a coarse grid, at the elevation φ of the line of sight through the
 blob, the silhouette y(α, θ, φ) > 0 of the tracker's method (Method II's nearest training vehicle,
-IV's template) has a size and an offset from the window centre in template pixels; matching its box to the blob's box at the range gives the window
-centre and so the position on that pixel's ray, and the heading follows from θ and the bearing of
-the camera. Every hypothesis is then scored by the observation likelihood, and the particles are
-drawn around the best ones (a mixture: equal shares, jittered by about half a grid step).
+IV's template) has a size and an offset from the window centre in template pixels; matching its
+box to the blob's box at the range gives the window centre and so the position on that pixel's
+ray, and the heading follows from θ and the bearing of the camera. Every hypothesis is then
+scored by the observation likelihood, and the particles are drawn around the best ones (a
+mixture: equal shares, jittered by about half a grid step).
 """
 
 from __future__ import annotations
