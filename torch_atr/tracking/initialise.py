@@ -319,18 +319,18 @@ def blind_hypotheses(blob: torch.Tensor, distance: torch.Tensor, camera: Camera,
     valid = (depth > 0) & states.isfinite().all(dim=1)  # an empty silhouette places nothing
     states = torch.where(valid[:, None], states, 0.0)
     uv, side = project_windows(camera, states[:, X:Z + 1], model.template.window_m)
-    L = appearance.size
+    L, phis = appearance.size, phi.expand(A * B)
     z = observe_windows(distance, uv, side, model.template, L, origin)
     with torch.no_grad():
-        y = appearance(states[:, ALPHA], th, phi.expand(A * B)).to(z)
-    log_lik = log_likelihood(z, y, sigma)
-    if any(cut):  # the cells beyond an edge that cuts the blob marginalised out (eq. 5.2 over the others)
-        columns, rows = observed_cells(uv, side, L, (camera.height, camera.width), cut)
-        observed = rows[:, :, None] & columns[:, None, :]
-        partial = -(z - y).square().masked_fill(~observed, 0.0).sum(dim=(1, 2)) / (L * L * 2.0 * sigma * sigma)
-        log_lik = torch.where(observed.all(dim=(1, 2)), log_lik,
-                              torch.where(observed.any(dim=(1, 2)), partial, -math.inf))
-    log_lik = torch.where(valid, log_lik, -math.inf)
+        y = appearance(states[:, ALPHA], th, phis).to(z)
+        log_lik = log_likelihood(z, y, sigma)
+        if any(cut):  # the cells beyond an edge that cuts the blob marginalised out, as the filter's likelihood does
+            columns, rows = observed_cells(uv, side, L, (camera.height, camera.width), cut)
+            partly = ~(columns.all(dim=1) & rows.all(dim=1))
+            observed = rows[partly, :, None] & columns[partly, None, :]
+            sse = appearance.squared_errors(z[partly], states[partly, ALPHA], th[partly], phis[partly], observed)
+            log_lik[partly] = (-sse / (L * L * 2.0 * sigma * sigma)).to(log_lik)  # NaN where no cell is observed
+    log_lik = torch.where(valid & ~log_lik.isnan(), log_lik, -math.inf)
     return states, log_lik
 
 
