@@ -599,6 +599,10 @@ def test_blind_hypotheses_on_a_blob_cut_by_the_edge_leave_out_the_cells_beyond_i
     ref = torch.tensor([_reference_log_lik(model, btr.camera, mask, q, 8, 0.1) for q in states.double()],
                        dtype=torch.float64)
     torch.testing.assert_close(log_lik.double(), ref, atol=2e-3, rtol=0)
+    with pytest.raises(ValueError, match=r"Expected cut, the edges \(left, top, right, bottom\) that cut the blob, "
+                                         r"to hold 4 flags; got \(False, True\)"):
+        blind_hypotheses(torch.from_numpy(mask), signed_distance_px(mask), btr.camera, ShapeAppearance(model, "I", 8),
+                         InitConfig(alpha_steps=4, azimuth_steps=3), 0.1, btr.camera_height_m, cut=(False, True))
 
 
 def test_the_blind_start_and_re_detection_pass_the_edges_that_cut_the_blob(model, btr, monkeypatch):

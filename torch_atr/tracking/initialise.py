@@ -281,6 +281,9 @@ def blind_hypotheses(blob: torch.Tensor, distance: torch.Tensor, camera: Camera,
         hypothesis whose silhouette is empty).
     """
     model = appearance.model
+    if len(cut) != 4:
+        raise ValueError(f"Expected cut, the edges (left, top, right, bottom) that cut the blob, to hold 4 flags; "
+                         f"got {cut!r}")
     device, dtype = appearance.windows.device, torch.float64
     rows, cols = torch.nonzero(blob, as_tuple=True)
     if rows.numel() == 0:
