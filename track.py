@@ -14,6 +14,7 @@ and last ``metrics.json``, which marks the run folder finished (README, "Command
 from __future__ import annotations
 
 import argparse
+import contextlib
 import dataclasses
 import logging
 import os
@@ -102,19 +103,19 @@ def make_tracker(cfg: TrackConfig, model: GenerativeShapeModel, catalog: str, se
 def _track(cfg: TrackConfig, model: GenerativeShapeModel, tracker: Tracker | BlobTracker, sequence, out: Path
            ) -> dict:
     """Track ``sequence`` with ``tracker`` and write the run folder ``out``; returns the metrics."""
-    # 2. Track: warm-up, initialisation and the particle filter over every frame.
-    result = tracker.run(sequence, cfg.frames)
+    # 2. Track: warm-up, initialisation and the particle filter over every frame (the video drawn as it goes).
+    with contextlib.ExitStack() as stack:
+        video = stack.enter_context(viz.OverlayVideo(out / "overlay.mp4", tracker)) if cfg.video else None
+        result = tracker.run(sequence, cfg.frames, on_frame=video)
     metrics = run_summary(result, model, SETTLE_FRAMES)
 
-    # 3. The run folder: estimates, config and figures (TensorBoard and video on request), then the
+    # 3. The run folder: estimates, config and figures (TensorBoard on request), then the
     # metrics, which mark it finished: a run that fails or is killed before reads as interrupted.
     write_run(out, cfg, result)
     figures = viz.track_figures(result, model, sequence.name)
     viz.save_figures(figures, out)
     if cfg.tensorboard:
         viz.log_track_tensorboard(out, result, figures)
-    if cfg.video:
-        viz.write_overlay_video(out / "overlay.mp4", tracker, sequence, result)
     write_metrics(out, metrics)
 
     log.info("%s: %d frames at %.1f frames/s, %d lost", sequence.name, metrics["frames"],

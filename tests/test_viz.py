@@ -191,3 +191,70 @@ def test_view_figure_plots_the_azimuth_against_time_below():
     np.testing.assert_allclose(truth.get_ydata(), [math.degrees(0.1 * i - 0.5) % 360 for i in range(10)])
     assert [t.get_text() for t in below.get_legend().get_texts()] == ["estimate", "truth"]
     assert fig.axes[2].get_ylabel() == "time (s)"  # the colour key
+
+
+class _RecordingWriter:
+    """Stands in for cv2.VideoWriter: keeps every frame written, in order."""
+
+    frames: list = []
+
+    def __init__(self, *args):
+        _RecordingWriter.frames = []
+
+    def write(self, image):
+        _RecordingWriter.frames.append(image.copy())
+
+    def release(self):
+        pass
+
+
+def test_the_overlay_video_draws_each_frame_with_the_kernel_widths_of_that_frame(tmp_path, monkeypatch):
+    """With adapt on the widths change over a run. The video was drawn after the run, every frame
+    with the end-of-run widths; it is drawn as the run steps. Reference: each frame's contour drawn
+    from the silhouette placed at the widths recorded when the tracker was at that frame."""
+    import cv2
+
+    from torch_atr.config import load_config
+    from torch_atr.data.synthetic import SceneConfig, SyntheticSequence
+    from torch_atr.tracking.filter import Tracker, TrackerConfig
+
+    seq = SyntheticSequence("t_72", SceneConfig(frames=6))
+    cfg = load_config(TrackerConfig, None, ["filter.particles=100", "init.mode=truth", "adapt.every=1",
+                                            "adapt.steps=20", "adapt.lr=0.1"])
+    tracker = Tracker(GenerativeShapeModel.from_checkpoint(CKPT), seq.camera, cfg, seed=0)
+    widths = []
+    monkeypatch.setattr(cv2, "VideoWriter", _RecordingWriter)
+    with viz.OverlayVideo(tmp_path / "overlay.mp4", tracker) as video:
+        def on_frame(i, frame, row):
+            widths.append(tracker.model.rbf.log_width.detach().clone())
+            video(i, frame, row)
+
+        result = tracker.run(seq, progress=False, on_frame=on_frame)
+    assert (tmp_path / "overlay.mp4").exists() and len(_RecordingWriter.frames) == len(result.rows) == 6
+    log_width = tracker.model.rbf.log_width
+    for i, (row, image) in enumerate(zip(result.rows, _RecordingWriter.frames)):
+        with torch.no_grad():
+            log_width.copy_(widths[i])
+        placed = tracker.silhouette_at(row, image.shape[:2]).numpy().astype(np.uint8)
+        contours, _ = cv2.findContours(placed, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+        expected = cv2.drawContours(np.zeros(image.shape[:2], np.uint8), contours, -1, 1, 1).astype(bool)
+        assert np.array_equal((image == (40, 40, 255)).all(-1), expected), i
+    with torch.no_grad():
+        log_width.copy_(widths[-1])
+    end = tracker.silhouette_at(result.rows[0], image.shape[:2])
+    with torch.no_grad():
+        log_width.copy_(widths[0])
+    assert not torch.equal(end, tracker.silhouette_at(result.rows[0], image.shape[:2]))  # the widths did move it
+
+
+def test_an_overlay_video_of_a_run_that_fails_leaves_no_file(tmp_path):
+    """The video replaces its path only when the run ends: a run that raises leaves the old file."""
+    from torch_atr.tracking.filter import Tracker
+
+    old = tmp_path / "overlay.mp4"
+    old.write_bytes(b"the user's video")
+    tracker = Tracker.__new__(Tracker)
+    with pytest.raises(RuntimeError, match="the run failed"):
+        with viz.OverlayVideo(old, tracker):
+            raise RuntimeError("the run failed")
+    assert old.read_bytes() == b"the user's video" and [p.name for p in tmp_path.iterdir()] == ["overlay.mp4"]

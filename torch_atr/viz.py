@@ -8,6 +8,7 @@ caller's business (:func:`save_figures`, or ``SummaryWriter.add_figure``).
 
 from __future__ import annotations
 
+import contextlib
 import math
 import shutil
 import tempfile
@@ -466,30 +467,56 @@ def log_track_tensorboard(folder: str | Path, result, figures: dict) -> None:
             writer.add_figure(name, fig, close=False)
 
 
-def write_overlay_video(path: str | Path, tracker, sequence, result) -> None:
-    """Every tracked frame as the segmenter sees it, with the estimate's silhouette contour (red)
-    and its class and α, as an MP4 (OpenCV's mp4v codec), written atomically."""
-    import cv2
+class OverlayVideo:
+    """A tracking run's frames as the segmenter sees them, each with its estimate's silhouette
+    contour (red) and its class and α, written to an MP4 (OpenCV's mp4v codec) as the run steps:
+    pass it as ``Tracker.run(..., on_frame=video)`` inside its ``with`` block. Each frame is drawn
+    while the tracker is at that frame, so with the kernel widths then in force (``adapt`` changes
+    them over a run), and no frame is read twice. The file appears, atomically, when the block
+    ends without an error.
 
-    fps = sequence.fps if math.isfinite(sequence.fps) else 1.0 / tracker.dt
-    with atomic_path(path, suffix=".mp4") as tmp, tempfile.TemporaryDirectory() as scratch:
-        # OpenCV picks the container by the extension; its writer cannot take every path Python can
-        video = tmp if opencv_can_open(tmp) else Path(scratch) / "overlay.mp4"
-        writer = None
-        for row in result.rows:
-            frame = sequence.frame(row["frame"])
-            image = cv2.cvtColor(tracker.segmenter.display(frame), cv2.COLOR_GRAY2BGR)
-            if writer is None:
-                writer = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"mp4v"), fps,
-                                         (image.shape[1], image.shape[0]))
-            if "alpha" in row:
-                placed = tracker.silhouette_at(row, image.shape[:2]).cpu().numpy().astype(np.uint8)
-                contours, _ = cv2.findContours(placed, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
-                cv2.drawContours(image, contours, -1, (40, 40, 255), 1)
-                cv2.putText(image, f"{row['frame']}: {row['class']} a={row['alpha']:.2f}", (8, 20),
-                            cv2.FONT_HERSHEY_SIMPLEX, 0.5, (255, 255, 255), 1)
-            writer.write(image)
-        if writer is not None:
-            writer.release()
-        if video != tmp and video.exists():
-            shutil.copyfile(video, tmp)
+    Args:
+        path: the MP4 to write; its rate is the run's (``1 / tracker.dt``: the sequence's fps).
+        tracker: the run's :class:`~torch_atr.tracking.filter.Tracker` (or ``BlobTracker``).
+    """
+
+    def __init__(self, path: str | Path, tracker):
+        self.path, self.tracker = Path(path), tracker
+
+    def __enter__(self) -> OverlayVideo:
+        with contextlib.ExitStack() as stack:  # unwound if a step fails; kept until __exit__ otherwise
+            self._tmp = stack.enter_context(atomic_path(self.path, suffix=".mp4"))
+            scratch = stack.enter_context(tempfile.TemporaryDirectory())
+            # OpenCV picks the container by the extension; its writer cannot take every path Python can
+            self._video = self._tmp if opencv_can_open(self._tmp) else Path(scratch) / "overlay.mp4"
+            self._writer = None
+            self._stack = stack.pop_all()
+        return self
+
+    def __call__(self, i: int, frame: np.ndarray, row: dict) -> None:
+        """Draw frame ``i`` (as the sequence gave it) with ``row``, the tracker's estimate at it."""
+        import cv2
+
+        image = cv2.cvtColor(self.tracker.segmenter.display(frame), cv2.COLOR_GRAY2BGR)
+        if self._writer is None:
+            self._writer = cv2.VideoWriter(str(self._video), cv2.VideoWriter_fourcc(*"mp4v"), 1.0 / self.tracker.dt,
+                                           (image.shape[1], image.shape[0]))
+        if "alpha" in row:
+            placed = self.tracker.silhouette_at(row, image.shape[:2]).cpu().numpy().astype(np.uint8)
+            contours, _ = cv2.findContours(placed, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+            cv2.drawContours(image, contours, -1, (40, 40, 255), 1)
+            cv2.putText(image, f"{i}: {row['class']} a={row['alpha']:.2f}", (8, 20), cv2.FONT_HERSHEY_SIMPLEX, 0.5,
+                        (255, 255, 255), 1)
+        self._writer.write(image)
+
+    def __exit__(self, *exc) -> bool:
+        """Close the video; it replaces ``path`` unless the block raised (the temporary file goes)."""
+        try:
+            if self._writer is not None:
+                self._writer.release()
+            if exc[0] is None and self._video != self._tmp and self._video.exists():
+                shutil.copyfile(self._video, self._tmp)
+        except BaseException as error:
+            self._stack.__exit__(type(error), error, error.__traceback__)
+            raise
+        return self._stack.__exit__(*exc)

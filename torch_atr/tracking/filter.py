@@ -51,7 +51,7 @@ import numbers
 import time
 from collections import deque
 from dataclasses import dataclass, field, replace
-from typing import NamedTuple
+from typing import Callable, NamedTuple
 
 import numpy as np
 import torch
@@ -908,8 +908,8 @@ class Tracker:
 
     # --- a whole sequence -------------------------------------------------------------------
     @torch.no_grad()
-    def run(self, sequence: Sequence, frames: int | None = None, snapshots: int = 6, progress: bool = True
-            ) -> TrackResult:
+    def run(self, sequence: Sequence, frames: int | None = None, snapshots: int = 6, progress: bool = True,
+            on_frame: Callable[[int, np.ndarray, dict], None] | None = None) -> TrackResult:
         """Track a sequence afresh: warm up the background, initialise (``cfg.init.mode``), step every
         frame. Each call starts a new track, as a new Tracker with the same seed would: what earlier
         steps or runs left (particles, frame count, clock) is dropped; kernel widths that
@@ -927,6 +927,8 @@ class Tracker:
             snapshots: frames kept for figures, evenly spread over the frames from the first
                 estimate on (and the first frame, when the track starts later).
             progress: show a tqdm bar.
+            on_frame: called as ``on_frame(i, frame, row)`` after each frame is tracked, while the
+                tracker is still at that frame (e.g. ``viz.OverlayVideo``); not timed.
         Returns:
             A :class:`TrackResult` whose rows carry the truth (``true_*``) where the sequence has it.
         """
@@ -985,6 +987,8 @@ class Tracker:
             rows.append(row)
             if i in keep:
                 shots.append(self._snapshot(i, frame, row))
+            if on_frame is not None:
+                on_frame(i, frame, row)
         return TrackResult(rows, shots, seconds)
 
     def _snapshot(self, i: int, frame: np.ndarray, row: dict) -> dict:
