@@ -4,7 +4,7 @@ Eight held-out meshes are Project Chrono vehicle bodies without wheels or tracks
 0.3-0.45 m lower than the vehicle. ``python benchmarks/bench_heldout.py --running-gear FILE``
 measures them as vehicles instead: the running gear that ``FILE`` gives for a manifest entry is
 added to that entry's mesh in the file's own frame, before the manifest's up / forward / scale
-transform, and the result goes through :func:`torch_atr.vehicles.load_vehicle` as the bare mesh
+transform, and the result goes through :func:`torch_atr.vehicles.loader.vehicle_from_mesh` as the bare mesh
 does (trimming of thin protrusions, centring). ``benchmarks/chrono_running_gear.yaml`` holds
 Chrono's own numbers for the eight, each cited there.
 
@@ -20,7 +20,6 @@ File format (YAML; lengths in metres in the file frame, so only entries of scale
 
 from __future__ import annotations
 
-import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -33,7 +32,7 @@ from torch_atr.config import ConfigError, read_yaml
 from torch_atr.validate import InputError, real, show, vector
 from torch_atr.vehicles.catalog import HeldoutEntry
 from torch_atr.vehicles.geometry import Part, ellipse, prism_xz
-from torch_atr.vehicles.loader import MAX_EXTENT_M, Vehicle, load_vehicle, read_mesh
+from torch_atr.vehicles.loader import MAX_EXTENT_M, Vehicle, read_mesh, vehicle_from_mesh
 
 SECTIONS = 32  # polygon corners of a wheel or of a circle round which a track runs (a multiple of 4: the
 # polygon reaches the circle's top, bottom, front and back)
@@ -165,24 +164,13 @@ def gear_mesh(gear: RunningGear) -> trimesh.Trimesh:
 
 
 def load_with_running_gear(root: str | Path, entry: HeldoutEntry, gear: RunningGear, min_thickness: float) -> Vehicle:
-    """``entry``'s mesh with ``gear`` added in the file frame, loaded as :func:`load_vehicle` loads a mesh file.
-
-    The body is read as the loader reads it, the running gear appended, and the union written to a
-    temporary OBJ (coordinates as Python's shortest round-trip text, so they are read back exactly)
-    that ``load_vehicle`` then transforms, trims and centres with the entry's up, forward and scale.
-    """
+    """``entry``'s mesh with ``gear`` added in the file frame, loaded as :func:`load_vehicle` loads a mesh file:
+    the body read as the loader reads it, the running gear appended, and the union turned, scaled,
+    trimmed and centred with the entry's up, forward and scale (``vehicle_from_mesh``)."""
     source = Path(root) / entry.path
     body = read_mesh(source)
     gear_part = gear_mesh(gear)
-    vertices = np.concatenate([body.vertices, gear_part.vertices])
-    faces = np.concatenate([body.faces, gear_part.faces + len(body.vertices)])
-    text = "".join([f"v {x!r} {y!r} {z!r}\n" for x, y, z in vertices.tolist()]
-                   + [f"f {a} {b} {c}\n" for a, b, c in (faces + 1).tolist()])
-    with tempfile.TemporaryDirectory() as tmp:
-        obj = Path(tmp) / f"{source.stem}.obj"
-        obj.write_text(text, encoding="utf-8")
-        try:
-            return load_vehicle(obj, up_axis=entry.up, forward_axis=entry.forward, scale=entry.scale, cls=entry.cls,
-                                name=source.stem, min_thickness=min_thickness)
-        except ValueError as exc:  # name the mesh, not the temporary file that is gone when the message is read
-            raise ValueError(str(exc).replace(str(obj), f"{source} with its running gear")) from exc
+    union = trimesh.Trimesh(np.concatenate([body.vertices, gear_part.vertices]),
+                            np.concatenate([body.faces, gear_part.faces + len(body.vertices)]), process=False)
+    return vehicle_from_mesh(union, f"{source} with its running gear", up_axis=entry.up, forward_axis=entry.forward,
+                             scale=entry.scale, cls=entry.cls, name=source.stem, min_thickness=min_thickness)

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from torch_atr.vehicles import load_catalog_folder, load_vehicle
+from torch_atr.vehicles import load_catalog_folder, load_vehicle, vehicle_from_mesh
 from torch_atr.vehicles import loader
 from torch_atr.vehicles.loader import MAX_EXTENT_M
 
@@ -285,3 +285,38 @@ def test_a_file_in_huge_units_loads_at_its_size_in_metres(tmp_path, half, size):
     cube = {v.name: v for v in load_catalog_folder(tmp_path)}["odd"]
     np.testing.assert_allclose(cube.mesh.extents, [4.5, 4.5, 4.5], rtol=1e-12)
     assert len(cube.mesh.vertices) == 8
+
+
+def test_a_mesh_built_in_python_loads_as_its_file_does(tmp_path):
+    """vehicle_from_mesh(mesh, path, ...) is load_vehicle's mesh-file path without the file: a box in
+    centimetres, +Y up and -Z forward, written as an OBJ and loaded both ways, gives the same vehicle,
+    of the box's size in metres (a 450 x 180 x 150 cm box: 4.5 m long, 1.8 m wide, 1.5 m high), centred
+    on the ground; the mesh passed in is left as it was. A mesh that no file could hold is
+    refused, naming the path given."""
+    box = trimesh.creation.box(extents=(180.0, 150.0, 450.0))  # file x: width, y: height, z: length
+    box.apply_translation((7.0, 75.0, -30.0))
+    path = tmp_path / "box.obj"
+    box.export(path)
+    args = dict(up_axis="y", forward_axis="-z", scale=0.01, cls="car", min_thickness=0.0)
+    from_file = load_vehicle(path, **args)
+    mesh = loader.read_mesh(path)
+    before = mesh.vertices.copy()
+    built = vehicle_from_mesh(mesh, path, **args)
+    assert np.array_equal(mesh.vertices, before)
+    assert (built.name, built.cls, built.source) == ("box", "car", path)
+    np.testing.assert_array_equal(built.mesh.vertices, from_file.mesh.vertices)
+    np.testing.assert_array_equal(built.mesh.faces, from_file.mesh.faces)
+    lo, hi = built.mesh.bounds
+    np.testing.assert_allclose(hi - lo, [4.5, 1.8, 1.5], rtol=1e-12)
+    np.testing.assert_allclose([*((hi + lo) / 2)[:2], lo[2]], 0.0, atol=1e-12)
+    nan = trimesh.Trimesh(np.where(np.arange(len(box.vertices))[:, None] == 2, np.nan, box.vertices), box.faces,
+                          process=False)
+    with pytest.raises(ValueError, match=r"^the mesh of .*box\.obj has 1 non-finite \(NaN or infinite\) vertices of 8"):
+        vehicle_from_mesh(nan, path)
+    outside = trimesh.Trimesh(box.vertices, np.vstack([box.faces[:11], [[0, 1, 8]]]), process=False)
+    with pytest.raises(ValueError, match=r"^the mesh of made in Python has 1 triangles of 12 indexing a vertex it"):
+        vehicle_from_mesh(outside, "made in Python")
+    with pytest.raises(ValueError, match=r"^the mesh of made in Python holds no triangles$"):
+        vehicle_from_mesh(box.vertices, "made in Python")
+    with pytest.raises(ValueError, match=r"^made in Python: unknown vehicle class 'lorry'"):
+        vehicle_from_mesh(box, "made in Python", cls="lorry")

@@ -5,7 +5,7 @@ footprint on the ground. Other modules use ``vehicle.name``, ``vehicle.cls`` and
 """
 
 from torch_atr.vehicles.catalog import load_catalog, load_catalog_folder, load_catalog_vehicle, load_heldout_meshes
-from torch_atr.vehicles.loader import CLASS_NAMES, Vehicle, load_vehicle
+from torch_atr.vehicles.loader import CLASS_NAMES, Vehicle, load_vehicle, vehicle_from_mesh
 
-__all__ = ["CLASS_NAMES", "Vehicle", "load_vehicle", "load_catalog", "load_catalog_folder", "load_catalog_vehicle",
-           "load_heldout_meshes"]
+__all__ = ["CLASS_NAMES", "Vehicle", "load_vehicle", "vehicle_from_mesh", "load_catalog", "load_catalog_folder",
+           "load_catalog_vehicle", "load_heldout_meshes"]

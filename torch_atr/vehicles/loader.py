@@ -198,19 +198,13 @@ def load_vehicle(
             zero, a scale or min_thickness that is not a number, an empty name.
     """
     path = Path(path)
-    cls = UNKNOWN if cls is None else cls
-    if cls not in CLASS_NAMES + (UNKNOWN,):
-        raise ValueError(f"{path}: unknown vehicle class {cls!r}; expected one of {CLASS_NAMES + (UNKNOWN,)}")
+    _check_class(path, cls)
     if path.is_dir():
         raise ValueError(f"{path}: is a folder; expected a URDF or mesh file")
     if not path.is_file():
         raise FileNotFoundError(f"vehicle file not found: {path}")
-    scale = real(f"{path}: scale", scale, lo=0, lo_open=True)
-    min_thickness = real(f"{path}: min_thickness", min_thickness, lo=0)
-    if name is not None and not (isinstance(name, str) and name.strip()):
-        raise ValueError(f"{path}: name must be a non-empty string (None: the file's stem); got {name!r}")
-    rotation = _file_rotation(path, up_axis, forward_axis) * scale
-    name = path.stem if name is None else name
+    cls, name, scale, min_thickness, rotation = _vehicle_args(path, cls, name, scale, min_thickness, up_axis,
+                                                              forward_axis)
     if path.suffix.lower() == ".urdf":
         rig = _load_urdf(path, rotation)
         values = _rest_pose(rig.limits)
@@ -220,7 +214,51 @@ def load_vehicle(
         return Vehicle(name, cls, mesh, path, MappingProxyType(values), rig)
     if joints:
         raise ValueError(f"{path} is a plain mesh and has no joints; got {sorted(joints)}")
-    mesh = read_mesh(path)
+    return _mesh_vehicle(read_mesh(path), path, cls, name, scale, min_thickness, rotation)
+
+
+def vehicle_from_mesh(
+    mesh: trimesh.Trimesh,
+    path: str | Path,
+    *,
+    up_axis: str = "z",
+    forward_axis: str = "x",
+    scale: float = 1.0,
+    cls: str | None = None,
+    name: str | None = None,
+    min_thickness: float = MIN_THICKNESS_M,
+) -> Vehicle:
+    """A mesh in a file's own frame and units (as :func:`read_mesh` gives it, perhaps with parts added)
+    as a :class:`Vehicle`, exactly as :func:`load_vehicle` loads a mesh file: turned, scaled, trimmed and
+    centred. ``path`` names it (in errors, and as the Vehicle's file); it is not read. Arguments and
+    errors as :func:`load_vehicle`'s."""
+    path = Path(path)
+    _check_class(path, cls)
+    args = _vehicle_args(path, cls, name, scale, min_thickness, up_axis, forward_axis)
+    return _mesh_vehicle(_check_mesh(mesh, f"the mesh of {path}").copy(), path, *args)
+
+
+def _check_class(path: Path, cls: str | None) -> None:
+    """ValueError naming the file unless ``cls`` is one of CLASS_NAMES, "unknown" or None."""
+    if cls is not None and cls not in CLASS_NAMES + (UNKNOWN,):
+        raise ValueError(f"{path}: unknown vehicle class {cls!r}; expected one of {CLASS_NAMES + (UNKNOWN,)}")
+
+
+def _vehicle_args(path: Path, cls: str | None, name: str | None, scale, min_thickness, up_axis: str,
+                  forward_axis: str) -> tuple[str, str, float, float, np.ndarray]:
+    """:func:`load_vehicle`'s arguments checked, each error naming the file, and their defaults filled in:
+    (cls, name, scale, min_thickness, the file-to-body rotation times the scale)."""
+    scale = real(f"{path}: scale", scale, lo=0, lo_open=True)
+    min_thickness = real(f"{path}: min_thickness", min_thickness, lo=0)
+    if name is not None and not (isinstance(name, str) and name.strip()):
+        raise ValueError(f"{path}: name must be a non-empty string (None: the file's stem); got {name!r}")
+    rotation = _file_rotation(path, up_axis, forward_axis) * scale
+    return UNKNOWN if cls is None else cls, path.stem if name is None else name, scale, min_thickness, rotation
+
+
+def _mesh_vehicle(mesh: trimesh.Trimesh, path: Path, cls: str, name: str, scale: float, min_thickness: float,
+                  rotation: np.ndarray) -> Vehicle:
+    """The Vehicle of a mesh in its file's frame and units (modified in place), its arguments checked."""
     _check_size(path, mesh.vertices[np.unique(mesh.faces)] @ rotation.T, scale)  # before thick_bounds (its cost
     # grows with the extent) and before merging: trimesh merges vertices on a 1e-8 grid held as int64, so it merges
     # in metres, not file units (coordinates beyond ±9e10 overflowed the grid and every vertex became one)
@@ -413,15 +451,21 @@ def read_mesh(path: str | Path) -> trimesh.Trimesh:
         if isinstance(exc, ImportError) and exc.name in ("charset_normalizer", "chardet"):  # trimesh's encoding guess
             raise ValueError(f"could not read mesh {path}: its text is not UTF-8; save it as UTF-8") from exc
         raise ValueError(f"could not read mesh {path}{note}: {exc}") from exc
+    return _check_mesh(mesh, f"mesh file {path}", note)
+
+
+def _check_mesh(mesh, what: str, note: str = "") -> trimesh.Trimesh:
+    """``mesh`` if it is a Trimesh with triangles, each indexing vertices it has, all finite; else a
+    ValueError that starts with ``what``."""
     if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
-        raise ValueError(f"mesh file {path} holds no triangles{note}")
+        raise ValueError(f"{what} holds no triangles{note}")
     outside = int(((mesh.faces < 0) | (mesh.faces >= len(mesh.vertices))).any(axis=1).sum())
     if outside:  # trimesh keeps them (PLY, glTF): an IndexError later, or a negative one wraps round
-        raise ValueError(f"mesh file {path} has {outside} triangles of {len(mesh.faces)} indexing a vertex it lacks "
+        raise ValueError(f"{what} has {outside} triangles of {len(mesh.faces)} indexing a vertex it lacks "
                          f"(it has {len(mesh.vertices)} vertices)")
     bad = int((~np.isfinite(mesh.vertices).all(axis=1)).sum())
     if bad:
-        raise ValueError(f"mesh file {path} has {bad} non-finite (NaN or infinite) vertices of {len(mesh.vertices)}")
+        raise ValueError(f"{what} has {bad} non-finite (NaN or infinite) vertices of {len(mesh.vertices)}")
     return mesh
 
 
