@@ -43,9 +43,9 @@ def test_a_single_particle_starts_blind_on_the_best_hypothesis(model):
 
 
 def test_an_uncalibrated_rows_silhouette_lies_on_its_own_frames_blob(model):
-    """The overlay video places each row's estimate after the run (tracker.silhouette_at(row)); the
-    blob tracker laid every one on the last frame's blob, 34 px from its own at the start of this SUV
-    driving by. Each row now holds its blob's box (the mask's, by NumPy) and its silhouette is the
+    """tracker.silhouette_at(row) places a row's estimate after its frame (the overlay video did so
+    after the run); the blob tracker laid every one on the last frame's blob, 34 px from its own at
+    the start of this SUV driving by. Each row now holds its blob's box (the mask's, by NumPy) and its silhouette is the
     one the run placed on that frame."""
     seq = Clip(SyntheticSequence("isuzu_rodeo", SceneConfig(frames=20)), camera=False)
     tracker = BlobTracker(model, load_config(TrackerConfig, None, ["filter.particles=100"]), seed=0)
