@@ -111,6 +111,7 @@ import logging
 import math
 import numbers
 import os
+import typing
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Iterator
@@ -305,17 +306,17 @@ class SceneConfig:
         bool (the string 'false' is truthy: night='false' ran a night scene), an integer for an int, text
         for a str, a real number (or None where the field allows it) for a float. Files and specs are
         typed by :func:`~torch_atr.config.load_config`; this catches the SceneConfig(...) of Python code."""
-        bad = []
+        bad, hints = [], typing.get_type_hints(type(self))
         for f in dataclasses.fields(self):
-            value, tp = getattr(self, f.name), str(f.type)  # the annotation's text (postponed annotations)
-            if tp == "bool":
+            value, tp = getattr(self, f.name), hints[f.name]
+            if tp is bool:
                 ok, kind = isinstance(value, (bool, np.bool_)), "true or false"
-            elif tp == "int":
+            elif tp is int:
                 ok, kind = isinstance(value, numbers.Integral) and not isinstance(value, bool), "an integer"
-            elif tp == "str":
+            elif tp is str:
                 ok, kind = isinstance(value, str), "text"
             else:  # float or float | None
-                optional = tp.endswith("| None")
+                optional = type(None) in typing.get_args(tp)
                 ok = (value is None and optional) or (isinstance(value, numbers.Real) and not isinstance(value, bool))
                 kind = "a number or null" if optional else "a number"
             if not ok:
