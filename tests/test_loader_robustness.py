@@ -317,6 +317,8 @@ def test_a_mesh_built_in_python_loads_as_its_file_does(tmp_path):
     with pytest.raises(ValueError, match=r"^the mesh of made in Python has 1 triangles of 12 indexing a vertex it"):
         vehicle_from_mesh(outside, "made in Python")
     with pytest.raises(ValueError, match=r"^the mesh of made in Python holds no triangles$"):
-        vehicle_from_mesh(box.vertices, "made in Python")
+        vehicle_from_mesh(trimesh.Trimesh(box.vertices, np.zeros((0, 3), int), process=False), "made in Python")
+    with pytest.raises(ValueError, match=r"^made in Python: expected a trimesh.Trimesh \(one mesh\); got Scene$"):
+        vehicle_from_mesh(trimesh.Scene(box), "made in Python")
     with pytest.raises(ValueError, match=r"^made in Python: unknown vehicle class 'lorry'"):
         vehicle_from_mesh(box, "made in Python", cls="lorry")

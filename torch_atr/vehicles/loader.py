@@ -235,6 +235,8 @@ def vehicle_from_mesh(
     path = Path(path)
     _check_class(path, cls)
     args = _vehicle_args(path, cls, name, scale, min_thickness, up_axis, forward_axis)
+    if not isinstance(mesh, trimesh.Trimesh):  # a Scene: trimesh.load(..., force="mesh") or scene.dump(concatenate=True)
+        raise ValueError(f"{path}: expected a trimesh.Trimesh (one mesh); got {type(mesh).__name__}")
     return _mesh_vehicle(_check_mesh(mesh, f"the mesh of {path}").copy(), path, *args)
 
 
