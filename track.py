@@ -143,13 +143,15 @@ def truth_summary(metrics: dict) -> str:
                        if metrics[key] is not None)
     parts = [errors]
     if metrics["recognition_accuracy"] is not None:
-        converged = metrics["frames_to_convergence"]
+        converged, mirrored = metrics["frames_to_convergence"], metrics["frames_to_convergence_up_to_mirror"]
         if converged is not None:
             convergence = f"converged at frame {converged}"
         elif metrics["first_frame"] + metrics["frames"] >= CONVERGED_FRAMES:
             convergence = "never converged"
         else:
             convergence = f"too short to converge ({CONVERGED_FRAMES} frames in a row)"
+        if mirrored is not None and mirrored != converged:  # a stretch on the mirror branch θ̂ ≈ π − θ
+            convergence += f" (at frame {mirrored} up to the mirror θ ↔ π − θ)"
         parts += [f"recognition {round(metrics['recognition_accuracy'], 3)}", convergence]
     return "; ".join(part for part in parts if part)
 

@@ -196,6 +196,20 @@ def test_tracking_errors_by_hand():
         tracking_errors(est, {"x": truth["x"], "z": truth["z"]})
 
 
+def test_the_aspect_error_up_to_the_mirror_counts_pi_minus_theta_right():
+    """By hand: θ = 1.0 against its mirror π − 1.0 = 2.1416 (0 off), 2.0 (0.1416 off the mirror,
+    1.0 off the truth), 1.2 (0.2 off the truth); across the wrap, θ = 3.0 against π − 3.0 = 0.1416,
+    an estimate of 6.2 lies 0.2248 from it (6.2 − 2π = −0.0832); NaN stays NaN."""
+    from torch_atr.evaluation import mirror_aspect_error
+
+    truth = np.array([1.0, 1.0, 1.0, 3.0, np.nan])
+    got = mirror_aspect_error(np.array([math.pi - 1.0, 2.0, 1.2, 6.2, 0.5]), truth)
+    np.testing.assert_allclose(got[:4], [0.0, math.pi - 3.0, 0.2, 0.1416 - (6.2 - 2 * math.pi)], atol=1e-4)
+    assert math.isnan(got[4])
+    with pytest.raises(ValueError, match=r"of one shape \(T,\); got \(2,\) and \(3,\)"):
+        mirror_aspect_error(np.zeros(2), np.zeros(3))
+
+
 def test_recognition_best_matches_and_convergence(model):
     from torch_atr.evaluation import best_matches, frames_to_convergence, recognition_accuracy
 

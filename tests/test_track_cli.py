@@ -177,10 +177,16 @@ def test_absolute_spec_makes_the_files_a_spec_reads_absolute(tmp_path, monkeypat
 
 def test_the_summary_names_what_the_truth_allows():
     full = {"horizontal_error_m": 0.371, "range_error_m": 28.46, "aspect_error_rad": 0.259,
-            "recognition_accuracy": 1.0, "frames_to_convergence": 1, "first_frame": 0, "frames": 300}
+            "recognition_accuracy": 1.0, "frames_to_convergence": 1, "frames_to_convergence_up_to_mirror": 1,
+            "first_frame": 0, "frames": 300}
     assert track.truth_summary(full) == ("horizontal 0.37 m, range 28.5 m, aspect 0.26 rad; recognition 1.0; "
                                          "converged at frame 1")  # the README's quick start
-    positions = {**full, "aspect_error_rad": None, "recognition_accuracy": None, "frames_to_convergence": None}
+    mirror = {**full, "frames_to_convergence": 126, "frames_to_convergence_up_to_mirror": 7}  # a start on π − θ
+    assert track.truth_summary(mirror).endswith("converged at frame 126 (at frame 7 up to the mirror θ ↔ π − θ)")
+    assert track.truth_summary({**mirror, "frames_to_convergence": None}).endswith(
+        "never converged (at frame 7 up to the mirror θ ↔ π − θ)")
+    positions = {**full, "aspect_error_rad": None, "recognition_accuracy": None, "frames_to_convergence": None,
+                 "frames_to_convergence_up_to_mirror": None}
     assert track.truth_summary(positions) == "horizontal 0.37 m, range 28.5 m"  # truth.csv of x, y, z only
     classes = dict.fromkeys(full) | {"recognition_accuracy": 142 / 150, "first_frame": 0, "frames": 150}
     assert track.truth_summary(classes) == "recognition 0.947; never converged"  # not 0.9466666666666667

@@ -843,6 +843,27 @@ def test_convergence_leaves_out_a_bar_no_frame_can_be_measured_on(model):
     assert run_summary(TrackResult(rows, [], 1.0), model, 60)["frames_to_convergence"] == 3
 
 
+def test_convergence_up_to_the_mirror_counts_the_frames_on_pi_minus_theta(model):
+    """An SUV whose estimate sits on the mirror θ̂ = π − θ for its first 15 frames (as the blind SUV of
+    seed 0 does for 60) and 0.05 rad off the truth after, but for frame 20, 0.5 rad short of it (1.24
+    off the mirror): by hand it converges at frame 21, the first of 10 frames in a row within 0.3 rad,
+    and at frame 0 up to the mirror."""
+    from torch_atr.data.sequence import FrameTruth
+    from torch_atr.tracking.filter import TrackResult, truth_columns
+
+    suv = float(model.alphas[[i for i, n in enumerate(model.vehicle_names)
+                              if model.class_names[int(model.identity.labels[i])] == "suv"][0]])
+    rows = []
+    for i in range(40):
+        theta = 1.0 + 0.01 * i
+        estimate = math.pi - theta if i < 15 else theta + (-0.5 if i == 20 else 0.05)
+        rows.append({"frame": i, "time_s": i / 30, "lost": 0, "x": 0.2, "z": 950.0, "alpha": suv, "class": "suv",
+                     "theta": estimate, **truth_columns(FrameTruth(vehicle="isuzu_rodeo", vehicle_class="suv",
+                                                                   x=0.0, z=952.0, aspect=theta))})
+    m = run_summary(TrackResult(rows, [], 1.0), model, 60)
+    assert (m["frames_to_convergence"], m["frames_to_convergence_up_to_mirror"]) == (21, 0)
+
+
 def test_a_second_run_is_a_new_trackers_run(model):
     """Each run starts as a new Tracker with the same seed would: a sequence without a frame rate
     takes filter.fps again, not the last sequence's period, and the blind start does not reuse the

@@ -187,6 +187,22 @@ def wrapped_abs(a: np.ndarray) -> np.ndarray:
     return np.abs(np.remainder(np.asarray(a, dtype=np.float64) + math.pi, 2 * math.pi) - math.pi)
 
 
+def mirror_aspect_error(theta: np.ndarray, true_theta: np.ndarray) -> np.ndarray:
+    """The aspect error up to the silhouette's mirror: min(|θ̂ − θ|, |θ̂ − (π − θ)|), each wrapped.
+
+    Seen at zero elevation, a vehicle symmetric left to right casts the same silhouette at θ and at
+    π − θ (its twin point at −y lands where the point at y did), and the two headings move it the
+    same way across the image, so at a grazing camera only the range rate tells them apart
+    (docs/tracking.md, "Not met"). This error counts an estimate on either branch as right.
+
+    theta, true_theta: (T,) radians (NaN where unknown). Returns (T,) in [0, π/2].
+    """
+    theta, true_theta = np.asarray(theta, dtype=np.float64), np.asarray(true_theta, dtype=np.float64)
+    if theta.ndim != 1 or theta.shape != true_theta.shape:
+        raise ValueError(f"Expected theta and true_theta of one shape (T,); got {theta.shape} and {true_theta.shape}")
+    return np.minimum(wrapped_abs(theta - true_theta), wrapped_abs(theta - (math.pi - true_theta)))
+
+
 def _mean_finite(values: np.ndarray) -> float | None:
     """Mean over the finite entries; None when there are none (JSON null)."""
     values = np.asarray(values, dtype=np.float64)

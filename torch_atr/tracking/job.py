@@ -18,8 +18,8 @@ import yaml
 
 from torch_atr.config import ConfigError, check_seed
 from torch_atr.data.sequence import SPEC_RE, parse_spec_options, read_json_object
-from torch_atr.evaluation import (best_matches, frames_to_convergence, recognition_accuracy, tracking_errors,
-                                  wrapped_abs)
+from torch_atr.evaluation import (best_matches, frames_to_convergence, mirror_aspect_error, recognition_accuracy,
+                                  tracking_errors, wrapped_abs)
 from torch_atr.io import atomic_write_csv, atomic_write_text
 from torch_atr.tracking.filter import TrackerConfig, TrackResult, column
 from torch_atr.validate import show
@@ -107,17 +107,22 @@ def track_metrics(rows: list[dict], model, first: int = 0) -> dict:
 
 def run_summary(result: TrackResult, model, settle_frames: int) -> dict:
     """``metrics.json``: the metrics over all frames, over the frames after ``settle_frames``
-    (``settled``; None for a run no longer than that), the frames to convergence and the speed."""
+    (``settled``; None for a run no longer than that), the frames to convergence (and to convergence
+    up to the silhouette's mirror θ ↔ π − θ, :func:`~torch_atr.evaluation.mirror_aspect_error`) and
+    the speed."""
     rows = result.rows
     known = [r.get("true_class", "") in model.class_names for r in rows]
     ok = np.array([r.get("class") == r.get("true_class") for r in rows]) & np.array(known)
-    for error, bound in ((np.abs(column(rows, "x") - column(rows, "true_x")), CONVERGED_HORIZONTAL_M),
-                         (wrapped_abs(column(rows, "theta") - column(rows, "true_theta")), CONVERGED_ASPECT_RAD)):
-        if np.isfinite(error).any():  # a bar no frame can be measured on (SENSIAC's truth has no x) is left out
-            ok &= error < bound
+    error = np.abs(column(rows, "x") - column(rows, "true_x"))
+    if np.isfinite(error).any():  # a bar no frame can be measured on (SENSIAC's truth has no x) is left out
+        ok &= error < CONVERGED_HORIZONTAL_M
+    theta, true_theta = column(rows, "theta"), column(rows, "true_theta")
+    aspect = {"": wrapped_abs(theta - true_theta), "_up_to_mirror": mirror_aspect_error(theta, true_theta)}
     summary = {"format": METRICS_FORMAT, **track_metrics(rows, model)}
     summary["settled"] = track_metrics(rows, model, settle_frames) if len(rows) > settle_frames else None
-    summary["frames_to_convergence"] = frames_to_convergence(ok, CONVERGED_FRAMES) if any(known) else None
+    for suffix, error in aspect.items():
+        on = ok & (error < CONVERGED_ASPECT_RAD) if np.isfinite(error).any() else ok
+        summary[f"frames_to_convergence{suffix}"] = frames_to_convergence(on, CONVERGED_FRAMES) if any(known) else None
     summary["frames_per_second"] = result.frames_per_second
     return summary
 
