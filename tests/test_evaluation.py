@@ -187,8 +187,14 @@ def test_tracking_errors_by_hand():
     assert got["range_error_m"] == pytest.approx((0 + 10 + 5 + 10) / 4)
     wrap = 2 * math.pi - 6.1  # 0.1 and 6.2 are 0.183 apart across 0, not 6.1
     assert got["aspect_error_rad"] == pytest.approx((wrap + wrap + 0.5) / 3)
+    assert got["aspect_error_up_to_mirror_rad"] == pytest.approx((wrap + wrap + 0.5) / 3)  # each mirror is farther
+    mirrored = tracking_errors({"x": np.zeros(1), "z": np.zeros(1), "theta": np.array([2.0])},
+                               {"x": np.zeros(1), "z": np.zeros(1), "theta": np.array([1.0])})
+    assert mirrored["aspect_error_rad"] == pytest.approx(1.0)
+    assert mirrored["aspect_error_up_to_mirror_rad"] == pytest.approx(math.pi - 3.0)  # 2.0 against π − 1.0
     none = tracking_errors({k: np.full(2, np.nan) for k in est}, {k: np.full(2, np.nan) for k in truth})
-    assert none == {"horizontal_error_m": None, "range_error_m": None, "aspect_error_rad": None}
+    assert none == {"horizontal_error_m": None, "range_error_m": None, "aspect_error_rad": None,
+                    "aspect_error_up_to_mirror_rad": None}
     assert tracking_errors({k: list(v) for k, v in est.items()}, truth) == got  # lists are arrays
     with pytest.raises(ValueError, match=r"arrays of one shape \(T,\); got est\['x'\] \(1,\), est\['z'\] \(4,\)"):
         tracking_errors({**est, "x": est["x"][:1]}, truth)  # broadcast to 4 frames, it gave an error of 4 m

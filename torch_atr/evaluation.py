@@ -214,8 +214,9 @@ def tracking_errors(est: dict[str, np.ndarray], truth: dict[str, np.ndarray]) ->
     """Mean absolute 3D tracking errors (Fig. 6.8) over frames where both are known.
 
     est, truth: (T,) arrays ``x`` (horizontal, m), ``z`` (range, m) and ``theta`` (aspect: the
-    view azimuth, radians). Returns ``horizontal_error_m``, ``range_error_m`` and
-    ``aspect_error_rad`` (wrapped), None where no frame has both.
+    view azimuth, radians). Returns ``horizontal_error_m``, ``range_error_m``,
+    ``aspect_error_rad`` (wrapped) and ``aspect_error_up_to_mirror_rad`` (:func:`mirror_aspect_error`),
+    None where no frame has both.
     """
     columns = {}
     for name, given in (("est", est), ("truth", truth)):
@@ -229,7 +230,9 @@ def tracking_errors(est: dict[str, np.ndarray], truth: dict[str, np.ndarray]) ->
         raise ValueError(f"Expected est and truth arrays of one shape (T,); got {got}")
     error = {key: columns["est", key] - columns["truth", key] for key in ("x", "z", "theta")}
     return {"horizontal_error_m": _mean_finite(np.abs(error["x"])), "range_error_m": _mean_finite(np.abs(error["z"])),
-            "aspect_error_rad": _mean_finite(wrapped_abs(error["theta"]))}
+            "aspect_error_rad": _mean_finite(wrapped_abs(error["theta"])),
+            "aspect_error_up_to_mirror_rad": _mean_finite(mirror_aspect_error(columns["est", "theta"],
+                                                                              columns["truth", "theta"]))}
 
 
 def recognition_accuracy(model, alpha: np.ndarray, true_class: list[str]) -> float | None:
