@@ -3,6 +3,7 @@
 import csv
 import json
 import logging
+import math
 import shutil
 import subprocess
 import sys
@@ -53,6 +54,14 @@ def test_outputs_are_written_and_consistent(run):
     err = sum(abs(float(r["x"]) - float(r["true_x"])) for r in rows) / 12
     assert saved["horizontal_error_m"] == pytest.approx(err, rel=1e-4)
     assert saved["recognition_accuracy"] == pytest.approx(sum(r["class"] == "apc" for r in rows) / 12)
+    # The per-frame errors, recomputed from the table's own estimate and truth columns (6 digits).
+    for r in rows:
+        assert float(r["error_horizontal_m"]) == pytest.approx(abs(float(r["x"]) - float(r["true_x"])), abs=2e-4)
+        assert float(r["error_range_m"]) == pytest.approx(abs(float(r["z"]) - float(r["true_z"])), abs=2e-3)
+        d = abs(float(r["theta"]) - float(r["true_theta"])) % (2 * math.pi)
+        assert float(r["error_aspect_rad"]) == pytest.approx(min(d, 2 * math.pi - d), abs=2e-5)
+        assert float(r["error_aspect_up_to_mirror_rad"]) <= float(r["error_aspect_rad"]) + 1e-6
+        assert float(r["recognised"]) == float(r["class"] == r["true_class"])
     for key in ("horizontal_error_m", "range_error_m", "aspect_error_rad", "recognition_accuracy", "best_matches",
                 "overlap_ratio", "frames_per_second", "frames"):
         assert saved[key] is not None and key in metrics

@@ -843,6 +843,26 @@ def test_convergence_leaves_out_a_bar_no_frame_can_be_measured_on(model):
     assert run_summary(TrackResult(rows, [], 1.0), model, 60)["frames_to_convergence"] == 3
 
 
+def test_error_columns_by_hand(model):
+    """A row's per-frame errors: 0.5 m across, 2.5 m in range, θ̂ = 6.2 against 0.1 (0.183 rad across
+    0, and no nearer to the mirror π − 0.1), the right class; θ̂ = 2.0 against 1.0: 1.0 rad, 0.1416 from
+    the mirror 2.1416. A row without a position (the blob tracker) or a true class the model lacks has
+    no such column; a row without an estimate is not recognised."""
+    from torch_atr.tracking.filter import error_columns
+
+    row = {"x": 1.0, "z": 950.0, "theta": 6.2, "class": "tank", "true_x": 0.5, "true_z": 952.5, "true_theta": 0.1,
+           "true_class": "tank"}
+    across = 2 * math.pi - 6.1
+    assert error_columns(row, model.class_names) == pytest.approx(
+        {"error_horizontal_m": 0.5, "error_range_m": 2.5, "error_aspect_rad": across,
+         "error_aspect_up_to_mirror_rad": across, "recognised": 1.0})
+    blob = {"theta": 2.0, "class": "car", "true_x": 0.5, "true_z": 952.5, "true_theta": 1.0, "true_class": "tank"}
+    assert error_columns(blob, model.class_names) == pytest.approx(
+        {"error_aspect_rad": 1.0, "error_aspect_up_to_mirror_rad": math.pi - 3.0, "recognised": 0.0})
+    assert error_columns({"true_theta": 1.0, "true_class": "lorry"}, model.class_names) == {}
+    assert error_columns({"true_theta": 1.0, "true_class": "tank"}, model.class_names) == {"recognised": 0.0}
+
+
 def test_convergence_up_to_the_mirror_counts_the_frames_on_pi_minus_theta(model):
     """An SUV whose estimate sits on the mirror θ̂ = π − θ for its first 15 frames (as the blind SUV of
     seed 0 does for 60) and 0.05 rad off the truth after, but for frame 20, 0.5 rad short of it (1.24

@@ -60,6 +60,7 @@ from torch_atr._checks import check_device, check_shape
 from torch_atr.camera import Camera
 from torch_atr.config import ConfigError
 from torch_atr.data.sequence import FrameTruth, Sequence, check_camera_height
+from torch_atr.evaluation import mirror_aspect_error, wrapped_abs
 from torch_atr.model import GenerativeShapeModel
 from torch_atr.model.generative import LOG_WIDTH_RANGE
 from torch_atr.pose import VehiclePose, camera_centre, check_sensor_like, view_of_pose
@@ -984,6 +985,7 @@ class Tracker:
             truth = sequence.truth(i)
             if truth is not None:
                 row.update(truth_columns(truth))
+                row.update(error_columns(row, self.model.class_names))
             rows.append(row)
             if i in keep:
                 shots.append(self._snapshot(i, frame, row))
@@ -1006,6 +1008,27 @@ def _evenly(first: int, last: int, count: int) -> set[int]:
 def column(rows: list[dict], name: str) -> np.ndarray:
     """One numeric column of estimate rows, (T,) float64 (NaN where a row lacks it)."""
     return np.array([float(row.get(name, math.nan)) for row in rows], dtype=np.float64)
+
+
+def error_columns(row: dict, class_names) -> dict:
+    """The per-frame errors of an estimate row that has its ``true_*`` columns, each only where the
+    estimate and the truth both know it (an uncalibrated run has no position; SENSIAC's truth no
+    x, z): ``error_horizontal_m`` |x̂ − x| and ``error_range_m`` |ẑ − z| (metres), ``error_aspect_rad``
+    the wrapped |θ̂ − θ| and ``error_aspect_up_to_mirror_rad`` against the nearer of θ and π − θ
+    (:func:`~torch_atr.evaluation.mirror_aspect_error`), and ``recognised``: 1 where the estimate's
+    class is the true class, 0 where it is not or there is no estimate, absent where the true class
+    is none of ``class_names`` (as metrics.json counts them)."""
+    def value(key: str) -> float:
+        got = row.get(key)
+        return float(got) if isinstance(got, numbers.Real) else math.nan
+
+    theta, true_theta = np.array([value("theta")]), np.array([value("true_theta")])
+    known = row.get("true_class") in class_names
+    errors = {"error_horizontal_m": abs(value("x") - value("true_x")), "error_range_m": abs(value("z") - value("true_z")),
+              "error_aspect_rad": float(wrapped_abs(theta - true_theta)[0]),
+              "error_aspect_up_to_mirror_rad": float(mirror_aspect_error(theta, true_theta)[0]),
+              "recognised": float(row.get("class") == row["true_class"]) if known else math.nan}
+    return {key: error for key, error in errors.items() if math.isfinite(error)}
 
 
 def truth_columns(truth: FrameTruth) -> dict:
