@@ -843,6 +843,42 @@ def test_convergence_leaves_out_a_bar_no_frame_can_be_measured_on(model):
     assert run_summary(TrackResult(rows, [], 1.0), model, 60)["frames_to_convergence"] == 3
 
 
+def test_the_estimate_row_is_its_weighted_particles_by_numpy(model):
+    """A row's estimates against NumPy on the particles and weights they were made from (resampling
+    off, filter.resample_ess=0, so the tracker keeps them after the step): weighted means, standard
+    deviations and covariances of x, y, z, v (np.cov with aweights, the population form), circular
+    means of heading and α with their mean resultant lengths, the class posterior (weights summed
+    over model.classify), the maximum-weight particle and the ESS 1 / Σ w²."""
+    seq = SyntheticSequence("t_72", SceneConfig(frames=3))
+    tracker = Tracker(model, seq.camera, _config("filter.particles=300", "init.mode=truth", "filter.resample_ess=0"),
+                      seed=0)
+    tracker.warm_up(seq.warmup_frames(20))
+    tracker.initialise(seq.truth(0))
+    for i in range(3):
+        row = tracker.step(seq.frame(i))
+    assert row["resampled"] == 0
+    p = tracker.particles.double().numpy()
+    w = tracker.log_weights.exp().double().numpy()
+    assert w.sum() == pytest.approx(1.0, abs=1e-6)  # float32 log weights
+    linear = {"x": 0, "y": 1, "z": 2, "speed": 4}
+    cov = np.cov(p[:, list(linear.values())].T, aweights=w, bias=True)
+    for i, (a, j) in enumerate(linear.items()):
+        assert row[a] == pytest.approx(float(w @ p[:, j]), abs=1e-9)
+        assert row[f"std_{a}"] == pytest.approx(math.sqrt(cov[i, i]), rel=1e-7)
+        for k, b in list(enumerate(linear))[i + 1:]:
+            assert row[f"cov_{a}_{b}"] == pytest.approx(cov[i, k], rel=1e-7, abs=1e-12)
+    for name, j in (("heading", 3), ("alpha", 5)):
+        s_, c_ = float(w @ np.sin(p[:, j])), float(w @ np.cos(p[:, j]))
+        assert row[name] == pytest.approx(math.atan2(s_, c_) % (2 * math.pi), abs=1e-9)
+        assert row[f"{name}_concentration"] == pytest.approx(math.hypot(s_, c_), abs=1e-9)
+    classes = model.classify(tracker.particles[:, 5]).numpy()
+    for c, name in enumerate(model.class_names):
+        assert row[f"p_{name}"] == pytest.approx(float(w[classes == c].sum()), abs=1e-9)
+    best = p[np.argmax(w)]
+    assert [row[f"best_{n}"] for n in ("x", "y", "z", "heading", "speed", "alpha")] == pytest.approx(best.tolist())
+    assert row["ess"] == pytest.approx(1.0 / float((w ** 2).sum()), rel=1e-9)
+
+
 def test_error_columns_by_hand(model):
     """A row's per-frame errors: 0.5 m across, 2.5 m in range, θ̂ = 6.2 against 0.1 (0.183 rad across
     0, and no nearer to the mirror π − 0.1), the right class; θ̂ = 2.0 against 1.0: 1.0 rad, 0.1416 from

@@ -826,14 +826,18 @@ class Tracker:
         alpha, alpha_r = circular_mean(p64[:, ALPHA], w)
         posterior = class_posterior(model.classify(p[:, ALPHA]), w, C)
         scalars = torch.stack([heading, heading_r, alpha, alpha_r, effective_sample_size(w)])
+        upper = torch.triu_indices(4, 4, 1)  # (x, y), (x, z), (x, v), (y, z), (y, v), (z, v)
         # One conversion to Python numbers: a float() per tensor cost a call each.
-        numbers = torch.cat([mean, cov.diagonal().sqrt(), scalars, posterior, p64[w.argmax()]]).tolist()
-        (x, y, z, speed), stds, (heading, heading_r, alpha, alpha_r, ess) = numbers[:4], numbers[4:8], numbers[8:13]
-        posterior, best = numbers[13:13 + C], numbers[13 + C:]
+        numbers = torch.cat([mean, cov.diagonal().sqrt(), cov[upper[0], upper[1]], scalars, posterior,
+                             p64[w.argmax()]]).tolist()
+        (x, y, z, speed), stds, covs = numbers[:4], numbers[4:8], numbers[8:14]
+        heading, heading_r, alpha, alpha_r, ess = numbers[14:19]
+        posterior, best = numbers[19:19 + C], numbers[19 + C:]
         theta, phi = view_of_pose(VehiclePose(x, y, z, heading), self.camera)
         nearest = model.nearest_vehicles(torch.tensor([alpha], dtype=self.dtype, device=self.device), 2)[0].tolist()
         return {"x": x, "y": y, "z": z, "heading": heading, "speed": speed, "alpha": alpha,
                 **{f"std_{name}": std for name, std in zip(("x", "y", "z", "speed"), stds)},
+                **{f"cov_{a}_{b}": c for (a, b), c in zip(_COVARIANCES, covs)},
                 "heading_concentration": heading_r, "alpha_concentration": alpha_r,
                 "theta": float(theta), "phi": float(phi),
                 "class": model.class_names[int(model.identity.labels[nearest[0]])],
@@ -1000,6 +1004,9 @@ class Tracker:
         return {"frame": i, "image": self.segmenter.display(frame), "mask": self.last_mask, "silhouette": placed}
 
 
+_COVARIANCES = (("x", "y"), ("x", "z"), ("x", "speed"), ("y", "z"), ("y", "speed"), ("z", "speed"))  # the rows' cov_*
+
+
 def _evenly(first: int, last: int, count: int) -> set[int]:
     """``count`` frames spread evenly over [first, last], both included where count >= 2."""
     return set(np.linspace(first, last, count).round().astype(int).tolist()) if count > 0 else set()
@@ -1024,7 +1031,8 @@ def error_columns(row: dict, class_names) -> dict:
 
     theta, true_theta = np.array([value("theta")]), np.array([value("true_theta")])
     known = row.get("true_class") in class_names
-    errors = {"error_horizontal_m": abs(value("x") - value("true_x")), "error_range_m": abs(value("z") - value("true_z")),
+    errors = {"error_horizontal_m": abs(value("x") - value("true_x")),
+              "error_range_m": abs(value("z") - value("true_z")),
               "error_aspect_rad": float(wrapped_abs(theta - true_theta)[0]),
               "error_aspect_up_to_mirror_rad": float(mirror_aspect_error(theta, true_theta)[0]),
               "recognised": float(row.get("class") == row["true_class"]) if known else math.nan}
