@@ -33,6 +33,10 @@ def test_api_tour_tracking(monkeypatch):
     assert x.shape == (60,) and np.isfinite(x).all()  # "(60,) metres"
     assert cls.shape == (60,) and cls.dtype.kind == "U" and (cls == "suv").mean() > 0.5  # "(60,) str: 'suv', ..."
     assert result.frames_per_second > 0
+    metrics = result.metrics(ns["model"])  # metrics.json's measures, from the rows by hand here
+    assert metrics["horizontal_error_m"] == pytest.approx(
+        np.nanmean(np.abs(result.column("x") - result.column("true_x"))), rel=1e-12)
+    assert metrics["recognition_accuracy"] == pytest.approx(np.mean(cls == "suv"))
     assert {"class", "x", "lost"} <= row.keys()
     scores = live.score(live.last_mask, live.particles)
     assert scores.shape == (live.particles.shape[0],)  # "(N,) eq. 5.2 of any (N, 6) hypotheses"

@@ -318,6 +318,15 @@ class TrackResult:
     def frames_per_second(self) -> float:
         return len(self.rows) / self.seconds if self.seconds > 0 else math.nan
 
+    def metrics(self, model: GenerativeShapeModel, settle_frames: int = 60) -> dict:
+        """What ``metrics.json`` holds for this run (README, "Command line"): the errors, recognition,
+        best matches, overlap and convergence over all frames and, as ``settled``, from frame
+        ``settle_frames`` on (track.py's 60), the frames per second; None where the truth is unknown.
+        ``model``: the run's (its classes and training vehicles)."""
+        from torch_atr.tracking.job import run_summary  # job builds on this module
+
+        return run_summary(self, model, settle_frames)
+
 
 class Tracker:
     """The joint tracker and recogniser (module docstring).
