@@ -141,6 +141,17 @@ def test_error_figure_draws_frames_without_a_neighbour():
         assert all(count > 0 for count in _drawn_pixels(viz.error_figure(rows, "t"), "C0"))
 
 
+def test_error_figure_shows_the_aspect_up_to_the_mirror():
+    """The aspect panel also draws the error against the nearer of θ and π − θ, with its mean in the
+    legend: θ̂ = 2.0 against θ = 1.0 is 1.00 rad off, 0.14 (2.1416 − 2.0) up to the mirror; by hand."""
+    rows = [{"frame": i, "time_s": i / 30, "lost": 0, "x": 0.8, "z": 905.0, "theta": 2.0, "true_x": 0.5,
+             "true_z": 900.0, "true_theta": 1.0} for i in range(3)]
+    aspect = viz.error_figure(rows, "mirror").axes[2]
+    labels = [t.get_text() for t in aspect.get_legend().get_texts()]
+    assert labels == ["aspect |θ̂ − θ|: mean 1.00 rad", "up to the mirror θ ↔ π − θ: mean 0.14 rad"]
+    np.testing.assert_allclose(aspect.get_lines()[1].get_ydata(), math.pi - 3.0)
+
+
 def test_view_figure_legend_shows_the_estimate_of_a_late_start():
     """A run whose first frames have no estimate (a blind start on a vehicle driving in): the
     legend's 'estimate' took the colour of frame 0, transparent, and showed nothing."""

@@ -323,23 +323,28 @@ def alpha_figure(rows: list[dict], model, title: str):
 
 
 def error_figure(rows: list[dict], title: str):
-    """Horizontal, range and aspect errors over time (Fig. 6.8), with their means. Returns a Figure
-    (None when no row has both an estimate and its truth)."""
-    from torch_atr.evaluation import wrapped_abs
+    """Horizontal, range and aspect errors over time (Fig. 6.8), with their means; the aspect also
+    against the nearer of θ and π − θ, the silhouette's mirror at a grazing view (dashed). Returns a
+    Figure (None when no row has both an estimate and its truth)."""
+    from torch_atr.evaluation import mirror_aspect_error, wrapped_abs
     from torch_atr.tracking.filter import column
 
     t = column(rows, "time_s")
-    errors = [("horizontal |x̂ − x|", "m", np.abs(column(rows, "x") - column(rows, "true_x"))),
-              ("range |ẑ − z|", "m", np.abs(column(rows, "z") - column(rows, "true_z"))),
-              ("aspect |θ̂ − θ|", "rad", wrapped_abs(column(rows, "theta") - column(rows, "true_theta")))]
+    theta, true_theta = column(rows, "theta"), column(rows, "true_theta")
+    errors = [("horizontal |x̂ − x|", "m", np.abs(column(rows, "x") - column(rows, "true_x")), None),
+              ("range |ẑ − z|", "m", np.abs(column(rows, "z") - column(rows, "true_z")), None),
+              ("aspect |θ̂ − θ|", "rad", wrapped_abs(theta - true_theta), mirror_aspect_error(theta, true_theta))]
     errors = [error for error in errors if np.isfinite(error[2]).any()]  # no x, z without a camera
     if not errors:
         return None
     plt = pyplot()
     fig, axes = plt.subplots(len(errors), 1, figsize=(9, 1.2 + 1.9 * len(errors)), sharex=True, squeeze=False)
     axes = axes[:, 0]
-    for ax, (name, unit, e) in zip(axes, errors):
+    for ax, (name, unit, e, mirrored) in zip(axes, errors):
         ax.plot(t, e, ".-", lw=1.0, ms=2.5, label=f"{name}: mean {np.nanmean(e):.2f} {unit}")  # a lone frame too
+        if mirrored is not None:
+            ax.plot(t, mirrored, "--", lw=1.0, color="tab:orange",
+                    label=f"up to the mirror θ ↔ π − θ: mean {np.nanmean(mirrored):.2f} {unit}")
         ax.set(ylabel=f"error ({unit})")
         ax.legend(loc="best", fontsize=8)  # errors often grow late: upper right hid their end
         ax.grid(alpha=0.3)
