@@ -72,11 +72,19 @@ def test_outputs_are_written_and_consistent(run):
     events = EventAccumulator(str(out)).Reload()
     tags = set(events.Tags()["scalars"])
     assert {"estimate/x_m", "estimate/alpha_rad", "estimate/lost", "recognition/p_apc", "recognition/correct",
-            "error/horizontal_m", "error/aspect_rad"} <= tags
+            "error/horizontal_m", "error/aspect_rad", "error/aspect_up_to_mirror_rad"} <= tags
     logged = [e.value for e in events.Scalars("estimate/x_m")]
     assert logged == pytest.approx([float(r["x"]) for r in rows], rel=1e-5)
     correct = [e.value for e in events.Scalars("recognition/correct")]
     assert correct == [float(r["class"] == r["true_class"]) for r in rows]
+    def wrapped(d):
+        d = abs(d) % (2 * math.pi)
+        return min(d, 2 * math.pi - d)
+
+    mirrored = [e.value for e in events.Scalars("error/aspect_up_to_mirror_rad")]
+    assert mirrored == pytest.approx([min(wrapped(float(r["theta"]) - float(r["true_theta"])),
+                                          wrapped(float(r["theta"]) - math.pi + float(r["true_theta"])))
+                                      for r in rows], abs=2e-5)
 
 
 def test_an_existing_run_is_kept_unless_overwrite(run, tmp_path):

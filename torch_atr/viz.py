@@ -444,10 +444,11 @@ def log_track_tensorboard(folder: str | Path, result, figures: dict) -> None:
     view; ESS, overlap, lost; the class posterior ``recognition/p_<class>`` and, where the true
     class is one of the model's and the row has an estimate, ``recognition/correct`` (metrics.json's
     recognition also counts a frame without an estimate, as wrong);
-    the errors where the truth is known) and the figures, to TensorBoard event files in ``folder``."""
+    the errors where the truth is known, the aspect's also up to the mirror θ ↔ π − θ) and the
+    figures, to TensorBoard event files in ``folder``."""
     from torch.utils.tensorboard import SummaryWriter
 
-    from torch_atr.evaluation import wrapped_abs
+    from torch_atr.evaluation import mirror_aspect_error, wrapped_abs
 
     with SummaryWriter(str(folder)) as writer:
         for row in result.rows:
@@ -461,10 +462,11 @@ def log_track_tensorboard(folder: str | Path, result, figures: dict) -> None:
                     writer.add_scalar(f"recognition/{name}", row[name], step)
             if "class" in row and f"p_{row.get('true_class')}" in row:  # a true class of the model's (metrics.json's)
                 writer.add_scalar("recognition/correct", float(row["class"] == row["true_class"]), step)
+            theta, true_theta = np.array([row.get("theta", math.nan)]), np.array([row.get("true_theta", math.nan)])
             errors = {"error/horizontal_m": abs(row.get("x", math.nan) - row.get("true_x", math.nan)),
                       "error/range_m": abs(row.get("z", math.nan) - row.get("true_z", math.nan)),
-                      "error/aspect_rad": float(wrapped_abs(row.get("theta", math.nan)
-                                                            - row.get("true_theta", math.nan)))}
+                      "error/aspect_rad": float(wrapped_abs(theta - true_theta)[0]),
+                      "error/aspect_up_to_mirror_rad": float(mirror_aspect_error(theta, true_theta)[0])}
             for tag, error in errors.items():
                 if math.isfinite(error):  # where the truth and the estimate are known (SENSIAC's have no x, z)
                     writer.add_scalar(tag, error, step)
