@@ -30,13 +30,11 @@ from torch_atr.model import GenerativeShapeModel
 from torch_atr.model.generative import load_checkpoint
 from torch_atr.tracking.blob import BlobTracker
 from torch_atr.tracking.filter import Tracker
-from torch_atr.tracking.job import (CONVERGED_FRAMES, TrackConfig, absolute_spec, is_track_run, run_summary,
-                                    write_metrics, write_run)
+from torch_atr.tracking.job import CONVERGED_FRAMES, TrackConfig, absolute_spec, is_track_run, write_metrics, write_run
 from torch_atr.training import trained_catalog, training_templates
 from torch_atr.validate import cut
 
 log = logging.getLogger("track")
-SETTLE_FRAMES = 60  # metrics.json's "settled" block: the frames after a blind start's first 2 s
 OUTPUTS = ("metrics.json", "estimates.csv", "config.yaml", *(f"{name}.png" for name in viz.TRACK_FIGURES),
            "overlay.mp4")  # a run's files, all replaced; the folder's other files stay
 # The summary line's errors: label, metrics.json key, format, unit.
@@ -107,7 +105,7 @@ def _track(cfg: TrackConfig, model: GenerativeShapeModel, tracker: Tracker | Blo
     with contextlib.ExitStack() as stack:
         video = stack.enter_context(viz.OverlayVideo(out / "overlay.mp4", tracker)) if cfg.video else None
         result = tracker.run(sequence, cfg.frames, on_frame=video)
-    metrics = run_summary(result, model, SETTLE_FRAMES)
+    metrics = result.metrics(model)  # its "settled" block from frame SETTLE_FRAMES (60) on
 
     # 3. The run folder: estimates, config and figures (TensorBoard on request), then the
     # metrics, which mark it finished: a run that fails or is killed before reads as interrupted.

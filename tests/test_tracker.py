@@ -985,3 +985,17 @@ def test_a_diverged_kernel_width_adaptation_is_undone(btr, caplog):
             undone.append(i)
             assert torch.equal(widths, before)
     assert undone  # the scenario: some frame's steps diverged
+
+
+def test_run_and_metrics_refuse_arguments_that_are_not_what_they_name(model):
+    """on_frame that cannot be called failed only after the first frame's work (a TypeError); a
+    negative settle_frames sliced the rows from the end."""
+    from torch_atr.tracking.filter import TrackResult
+
+    seq = SyntheticSequence("t_72", SceneConfig(frames=2))
+    tracker = Tracker(model, seq.camera, _config("filter.particles=20"), seed=0)
+    with pytest.raises(ValueError, match=r"Expected on_frame to be a function f\(i, frame, row\), or None; got 5"):
+        tracker.run(seq, progress=False, on_frame=5)
+    for bad in (-1, 2.5, True):
+        with pytest.raises(ValueError, match=r"settle_frames: expected an integer >= 0"):
+            TrackResult([], [], 1.0).metrics(model, bad)

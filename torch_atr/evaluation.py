@@ -210,13 +210,13 @@ def _mean_finite(values: np.ndarray) -> float | None:
     return float(finite.mean()) if finite.size else None
 
 
-def tracking_errors(est: dict[str, np.ndarray], truth: dict[str, np.ndarray]) -> dict[str, float | None]:
-    """Mean absolute 3D tracking errors (Fig. 6.8) over frames where both are known.
+def frame_errors(est: dict[str, np.ndarray], truth: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """Per-frame 3D tracking errors (Fig. 6.8), NaN where the estimate or the truth is unknown.
 
     est, truth: (T,) arrays ``x`` (horizontal, m), ``z`` (range, m) and ``theta`` (aspect: the
-    view azimuth, radians). Returns ``horizontal_error_m``, ``range_error_m``,
-    ``aspect_error_rad`` (wrapped) and ``aspect_error_up_to_mirror_rad`` (:func:`mirror_aspect_error`),
-    None where no frame has both.
+    view azimuth, radians). Returns (T,) arrays ``horizontal_error_m`` |x̂ − x|, ``range_error_m``
+    |ẑ − z|, ``aspect_error_rad`` the wrapped |θ̂ − θ| and ``aspect_error_up_to_mirror_rad``
+    (:func:`mirror_aspect_error`).
     """
     columns = {}
     for name, given in (("est", est), ("truth", truth)):
@@ -228,11 +228,17 @@ def tracking_errors(est: dict[str, np.ndarray], truth: dict[str, np.ndarray]) ->
     if len(shapes) != 1 or len(shapes.pop()) != 1:
         got = ", ".join(f"{name}[{key!r}] {a.shape}" for (name, key), a in columns.items())
         raise ValueError(f"Expected est and truth arrays of one shape (T,); got {got}")
-    error = {key: columns["est", key] - columns["truth", key] for key in ("x", "z", "theta")}
-    return {"horizontal_error_m": _mean_finite(np.abs(error["x"])), "range_error_m": _mean_finite(np.abs(error["z"])),
-            "aspect_error_rad": _mean_finite(wrapped_abs(error["theta"])),
-            "aspect_error_up_to_mirror_rad": _mean_finite(mirror_aspect_error(columns["est", "theta"],
-                                                                              columns["truth", "theta"]))}
+    theta, true_theta = columns["est", "theta"], columns["truth", "theta"]
+    return {"horizontal_error_m": np.abs(columns["est", "x"] - columns["truth", "x"]),
+            "range_error_m": np.abs(columns["est", "z"] - columns["truth", "z"]),
+            "aspect_error_rad": wrapped_abs(theta - true_theta),
+            "aspect_error_up_to_mirror_rad": mirror_aspect_error(theta, true_theta)}
+
+
+def tracking_errors(est: dict[str, np.ndarray], truth: dict[str, np.ndarray]) -> dict[str, float | None]:
+    """The means of :func:`frame_errors` (same arguments and keys) over the frames where both are
+    known, None where no frame has both."""
+    return {key: _mean_finite(error) for key, error in frame_errors(est, truth).items()}
 
 
 def recognition_accuracy(model, alpha: np.ndarray, true_class: list[str]) -> float | None:

@@ -326,14 +326,13 @@ def error_figure(rows: list[dict], title: str):
     """Horizontal, range and aspect errors over time (Fig. 6.8), with their means; the aspect also
     against the nearer of θ and π − θ, the silhouette's mirror at a grazing view (dashed). Returns a
     Figure (None when no row has both an estimate and its truth)."""
-    from torch_atr.evaluation import mirror_aspect_error, wrapped_abs
-    from torch_atr.tracking.filter import column
+    from torch_atr.tracking.filter import column, row_errors
 
     t = column(rows, "time_s")
-    theta, true_theta = column(rows, "theta"), column(rows, "true_theta")
-    errors = [("horizontal |x̂ − x|", "m", np.abs(column(rows, "x") - column(rows, "true_x")), None),
-              ("range |ẑ − z|", "m", np.abs(column(rows, "z") - column(rows, "true_z")), None),
-              ("aspect |θ̂ − θ|", "rad", wrapped_abs(theta - true_theta), mirror_aspect_error(theta, true_theta))]
+    by_frame = row_errors(rows)
+    errors = [("horizontal |x̂ − x|", "m", by_frame["horizontal_error_m"], None),
+              ("range |ẑ − z|", "m", by_frame["range_error_m"], None),
+              ("aspect |θ̂ − θ|", "rad", by_frame["aspect_error_rad"], by_frame["aspect_error_up_to_mirror_rad"])]
     errors = [error for error in errors if np.isfinite(error[2]).any()]  # no x, z without a camera
     if not errors:
         return None
@@ -448,7 +447,7 @@ def log_track_tensorboard(folder: str | Path, result, figures: dict) -> None:
     figures, to TensorBoard event files in ``folder``."""
     from torch.utils.tensorboard import SummaryWriter
 
-    from torch_atr.evaluation import mirror_aspect_error, wrapped_abs
+    from torch_atr.tracking.filter import error_columns
 
     with SummaryWriter(str(folder)) as writer:
         for row in result.rows:
@@ -462,14 +461,8 @@ def log_track_tensorboard(folder: str | Path, result, figures: dict) -> None:
                     writer.add_scalar(f"recognition/{name}", row[name], step)
             if "class" in row and f"p_{row.get('true_class')}" in row:  # a true class of the model's (metrics.json's)
                 writer.add_scalar("recognition/correct", float(row["class"] == row["true_class"]), step)
-            theta, true_theta = np.array([row.get("theta", math.nan)]), np.array([row.get("true_theta", math.nan)])
-            errors = {"error/horizontal_m": abs(row.get("x", math.nan) - row.get("true_x", math.nan)),
-                      "error/range_m": abs(row.get("z", math.nan) - row.get("true_z", math.nan)),
-                      "error/aspect_rad": float(wrapped_abs(theta - true_theta)[0]),
-                      "error/aspect_up_to_mirror_rad": float(mirror_aspect_error(theta, true_theta)[0])}
-            for tag, error in errors.items():
-                if math.isfinite(error):  # where the truth and the estimate are known (SENSIAC's have no x, z)
-                    writer.add_scalar(tag, error, step)
+            for name, error in error_columns(row).items():  # where the truth and the estimate are known
+                writer.add_scalar(name.replace("error_", "error/", 1), error, step)  # error_range_m: error/range_m
         for name, fig in figures.items():
             writer.add_figure(name, fig, close=False)
 

@@ -45,6 +45,7 @@ run over frames and over the ≤ K spline spans of the appearance model.
 
 from __future__ import annotations
 
+import itertools
 import logging
 import math
 import numbers
@@ -60,7 +61,7 @@ from torch_atr._checks import check_device, check_shape
 from torch_atr.camera import Camera
 from torch_atr.config import ConfigError
 from torch_atr.data.sequence import FrameTruth, Sequence, check_camera_height
-from torch_atr.evaluation import mirror_aspect_error, wrapped_abs
+from torch_atr.evaluation import frame_errors
 from torch_atr.model import GenerativeShapeModel
 from torch_atr.model.generative import LOG_WIDTH_RANGE
 from torch_atr.pose import VehiclePose, camera_centre, check_sensor_like, view_of_pose
@@ -106,7 +107,7 @@ from torch_atr.tracking.observation import (
     sees_image,
 )
 from torch_atr.tracking.resampling import SCHEMES, effective_sample_size, resample
-from torch_atr.validate import show
+from torch_atr.validate import integer, show
 
 log = logging.getLogger(__name__)
 
@@ -287,6 +288,11 @@ class TrackerConfig:
     redetect: RedetectConfig = field(default_factory=RedetectConfig)
 
 
+_LINEAR = ("x", "y", "z", "speed")  # the estimate's linear quantities (std_*, cov_*), in weighted_mean_cov's order
+_PAIRS = tuple(map(list, zip(*itertools.combinations(range(4), 2))))  # (rows, columns) of cov's upper triangle
+SETTLE_FRAMES = 60  # TrackResult.metrics' and metrics.json's "settled" block: after a blind start's first 2 s
+
+
 @dataclass
 class TrackResult:
     """What :meth:`Tracker.run` returns.
@@ -318,14 +324,14 @@ class TrackResult:
     def frames_per_second(self) -> float:
         return len(self.rows) / self.seconds if self.seconds > 0 else math.nan
 
-    def metrics(self, model: GenerativeShapeModel, settle_frames: int = 60) -> dict:
+    def metrics(self, model: GenerativeShapeModel, settle_frames: int = SETTLE_FRAMES) -> dict:
         """What ``metrics.json`` holds for this run (README, "Command line"): the errors, recognition,
         best matches, overlap and convergence over all frames and, as ``settled``, from frame
-        ``settle_frames`` on (track.py's 60), the frames per second; None where the truth is unknown.
-        ``model``: the run's (its classes and training vehicles)."""
+        ``settle_frames`` on, the frames per second; None where the truth is unknown. ``model``: the
+        run's (its classes and training vehicles)."""
         from torch_atr.tracking.job import run_summary  # job builds on this module
 
-        return run_summary(self, model, settle_frames)
+        return run_summary(self, model, integer("settle_frames", settle_frames, lo=0))
 
 
 class Tracker:
@@ -835,18 +841,16 @@ class Tracker:
         alpha, alpha_r = circular_mean(p64[:, ALPHA], w)
         posterior = class_posterior(model.classify(p[:, ALPHA]), w, C)
         scalars = torch.stack([heading, heading_r, alpha, alpha_r, effective_sample_size(w)])
-        upper = torch.triu_indices(4, 4, 1)  # (x, y), (x, z), (x, v), (y, z), (y, v), (z, v)
         # One conversion to Python numbers: a float() per tensor cost a call each.
-        numbers = torch.cat([mean, cov.diagonal().sqrt(), cov[upper[0], upper[1]], scalars, posterior,
-                             p64[w.argmax()]]).tolist()
+        numbers = torch.cat([mean, cov.diagonal().sqrt(), cov[_PAIRS], scalars, posterior, p64[w.argmax()]]).tolist()
         (x, y, z, speed), stds, covs = numbers[:4], numbers[4:8], numbers[8:14]
         heading, heading_r, alpha, alpha_r, ess = numbers[14:19]
         posterior, best = numbers[19:19 + C], numbers[19 + C:]
         theta, phi = view_of_pose(VehiclePose(x, y, z, heading), self.camera)
         nearest = model.nearest_vehicles(torch.tensor([alpha], dtype=self.dtype, device=self.device), 2)[0].tolist()
         return {"x": x, "y": y, "z": z, "heading": heading, "speed": speed, "alpha": alpha,
-                **{f"std_{name}": std for name, std in zip(("x", "y", "z", "speed"), stds)},
-                **{f"cov_{a}_{b}": c for (a, b), c in zip(_COVARIANCES, covs)},
+                **{f"std_{name}": std for name, std in zip(_LINEAR, stds)},
+                **{f"cov_{_LINEAR[i]}_{_LINEAR[j]}": c for i, j, c in zip(*_PAIRS, covs)},
                 "heading_concentration": heading_r, "alpha_concentration": alpha_r,
                 "theta": float(theta), "phi": float(phi),
                 "class": model.class_names[int(model.identity.labels[nearest[0]])],
@@ -954,6 +958,8 @@ class Tracker:
             raise ValueError(f"Expected frames to be a whole number >= 1, or None for all; got {frames!r}")
         if isinstance(snapshots, bool) or not isinstance(snapshots, numbers.Integral) or snapshots < 0:
             raise ValueError(f"Expected snapshots to be a whole number >= 0; got {snapshots!r}")
+        if on_frame is not None and not callable(on_frame):
+            raise ValueError(f"Expected on_frame to be a function f(i, frame, row), or None; got {on_frame!r}")
         n = len(sequence) if frames is None else min(int(frames), len(sequence))
         if n < 1:
             raise ValueError(f"{sequence.name}: nothing to track ({n} frames)")
@@ -1013,9 +1019,6 @@ class Tracker:
         return {"frame": i, "image": self.segmenter.display(frame), "mask": self.last_mask, "silhouette": placed}
 
 
-_COVARIANCES = (("x", "y"), ("x", "z"), ("x", "speed"), ("y", "z"), ("y", "speed"), ("z", "speed"))  # the rows' cov_*
-
-
 def _evenly(first: int, last: int, count: int) -> set[int]:
     """``count`` frames spread evenly over [first, last], both included where count >= 2."""
     return set(np.linspace(first, last, count).round().astype(int).tolist()) if count > 0 else set()
@@ -1026,25 +1029,33 @@ def column(rows: list[dict], name: str) -> np.ndarray:
     return np.array([float(row.get(name, math.nan)) for row in rows], dtype=np.float64)
 
 
-def error_columns(row: dict, class_names) -> dict:
+def estimate_and_truth(rows: list[dict]) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
+    """The ``x``, ``z`` and ``theta`` columns of estimate rows and of their ``true_*`` columns, as
+    :func:`~torch_atr.evaluation.frame_errors` takes them: (T,) arrays, NaN where a row lacks one."""
+    return ({k: column(rows, k) for k in ("x", "z", "theta")},
+            {k: column(rows, f"true_{k}") for k in ("x", "z", "theta")})
+
+
+def row_errors(rows: list[dict]) -> dict[str, np.ndarray]:
+    """:func:`~torch_atr.evaluation.frame_errors` of estimate rows against their truth."""
+    return frame_errors(*estimate_and_truth(rows))
+
+
+ERROR_COLUMNS = {"horizontal_error_m": "error_horizontal_m", "range_error_m": "error_range_m",
+                 "aspect_error_rad": "error_aspect_rad",
+                 "aspect_error_up_to_mirror_rad": "error_aspect_up_to_mirror_rad"}  # frame_errors' key -> column
+
+
+def error_columns(row: dict, class_names=None) -> dict:
     """The per-frame errors of an estimate row that has its ``true_*`` columns, each only where the
     estimate and the truth both know it (an uncalibrated run has no position; SENSIAC's truth no
-    x, z): ``error_horizontal_m`` |x̂ − x| and ``error_range_m`` |ẑ − z| (metres), ``error_aspect_rad``
-    the wrapped |θ̂ − θ| and ``error_aspect_up_to_mirror_rad`` against the nearer of θ and π − θ
-    (:func:`~torch_atr.evaluation.mirror_aspect_error`), and ``recognised``: 1 where the estimate's
-    class is the true class, 0 where it is not or there is no estimate, absent where the true class
-    is none of ``class_names`` (as metrics.json counts them)."""
-    def value(key: str) -> float:
-        got = row.get(key)
-        return float(got) if isinstance(got, numbers.Real) else math.nan
-
-    theta, true_theta = np.array([value("theta")]), np.array([value("true_theta")])
-    known = row.get("true_class") in class_names
-    errors = {"error_horizontal_m": abs(value("x") - value("true_x")),
-              "error_range_m": abs(value("z") - value("true_z")),
-              "error_aspect_rad": float(wrapped_abs(theta - true_theta)[0]),
-              "error_aspect_up_to_mirror_rad": float(mirror_aspect_error(theta, true_theta)[0]),
-              "recognised": float(row.get("class") == row["true_class"]) if known else math.nan}
+    x, z): ``error_horizontal_m``, ``error_range_m``, ``error_aspect_rad`` and
+    ``error_aspect_up_to_mirror_rad`` (:func:`row_errors`); and with ``class_names``, ``recognised``:
+    1 where the estimate's class is the true class, 0 where it is not or there is no estimate,
+    absent where the true class is none of ``class_names`` (as metrics.json counts them)."""
+    errors = {ERROR_COLUMNS[key]: float(error[0]) for key, error in row_errors([row]).items()}
+    if class_names is not None and row.get("true_class") in class_names:
+        errors["recognised"] = float(row.get("class") == row["true_class"])
     return {key: error for key, error in errors.items() if math.isfinite(error)}
 
 

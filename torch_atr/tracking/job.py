@@ -18,10 +18,9 @@ import yaml
 
 from torch_atr.config import ConfigError, check_seed
 from torch_atr.data.sequence import SPEC_RE, parse_spec_options, read_json_object
-from torch_atr.evaluation import (best_matches, frames_to_convergence, mirror_aspect_error, recognition_accuracy,
-                                  tracking_errors, wrapped_abs)
+from torch_atr.evaluation import best_matches, frames_to_convergence, recognition_accuracy, tracking_errors
 from torch_atr.io import atomic_write_csv, atomic_write_text
-from torch_atr.tracking.filter import TrackerConfig, TrackResult, column
+from torch_atr.tracking.filter import TrackerConfig, TrackResult, column, estimate_and_truth, row_errors
 from torch_atr.validate import show
 
 DEFAULT_SEQUENCE = "synthetic:vehicle=t_72,range=1000,frames=300,seed=0"
@@ -94,10 +93,8 @@ def track_metrics(rows: list[dict], model, first: int = 0) -> dict:
     """Errors, recognition, best matches and overlap of estimate rows from frame ``first`` on;
     null where the sequence has no truth."""
     rows = rows[first:]
-    est = {"x": column(rows, "x"), "z": column(rows, "z"), "theta": column(rows, "theta")}
-    truth = {"x": column(rows, "true_x"), "z": column(rows, "true_z"), "theta": column(rows, "true_theta")}
     overlap = column(rows, "overlap")
-    return {**tracking_errors(est, truth),
+    return {**tracking_errors(*estimate_and_truth(rows)),
             "recognition_accuracy": recognition_accuracy(model, column(rows, "alpha"),
                                                          [r.get("true_class", "") for r in rows]),
             "best_matches": best_matches(model, column(rows, "alpha")),
@@ -113,15 +110,14 @@ def run_summary(result: TrackResult, model, settle_frames: int) -> dict:
     rows = result.rows
     known = [r.get("true_class", "") in model.class_names for r in rows]
     ok = np.array([r.get("class") == r.get("true_class") for r in rows]) & np.array(known)
-    error = np.abs(column(rows, "x") - column(rows, "true_x"))
-    if np.isfinite(error).any():  # a bar no frame can be measured on (SENSIAC's truth has no x) is left out
-        ok &= error < CONVERGED_HORIZONTAL_M
-    theta, true_theta = column(rows, "theta"), column(rows, "true_theta")
-    aspect = {"": wrapped_abs(theta - true_theta), "_up_to_mirror": mirror_aspect_error(theta, true_theta)}
+    errors = row_errors(rows)
+    if np.isfinite(errors["horizontal_error_m"]).any():  # a bar no frame can be measured on (SENSIAC's truth
+        ok &= errors["horizontal_error_m"] < CONVERGED_HORIZONTAL_M  # has no x) is left out
     summary = {"format": METRICS_FORMAT, **track_metrics(rows, model)}
     summary["settled"] = track_metrics(rows, model, settle_frames) if len(rows) > settle_frames else None
-    for suffix, error in aspect.items():
-        on = ok & (error < CONVERGED_ASPECT_RAD) if np.isfinite(error).any() else ok
+    for suffix, key in (("", "aspect_error_rad"), ("_up_to_mirror", "aspect_error_up_to_mirror_rad")):
+        aspect = errors[key]
+        on = ok & (aspect < CONVERGED_ASPECT_RAD) if np.isfinite(aspect).any() else ok
         summary[f"frames_to_convergence{suffix}"] = frames_to_convergence(on, CONVERGED_FRAMES) if any(known) else None
     summary["frames_per_second"] = result.frames_per_second
     return summary
