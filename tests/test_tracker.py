@@ -574,11 +574,57 @@ def test_a_blob_no_particle_explains_is_lost_and_the_tracker_says_why_once(model
     with caplog.at_level("WARNING", logger="torch_atr.tracking.filter"):
         rows = [tracker.step(mask=box) for _ in range(12)]
     assert all(row["lost"] == 1 for row in rows)
+    # Weights no frame changed are not resampled: that would only lose particles (frame 10's re-detection redraws some).
+    assert [row["resampled"] for row in rows[:10]] == [0] * 10
     said = [r.getMessage() for r in caplog.records if "no particle explains the blob" in r.getMessage()]
     assert len(said) == 1 and said[0].startswith("frames 0-9: ")
     assert f"The blob spans {box.any(0).sum()} x {box.any(1).sum()} px" in said[0]
     bound = -math.log(torch.finfo(torch.float32).tiny) * 2 * 0.02 ** 2  # eq. 5.2 at the default σ, by hand
     assert f"a mean squared error above {bound:.3g} template units at filter.sigma=0.02" in said[0]
+
+
+def test_a_frame_only_weightless_particles_explain_is_lost_not_nan(model, btr):
+    """Particle A on the vehicle, B 300 m to its left, out of the image, both driving 30 m/s to the
+    right; without resampling (resample_ess 0) frame 1 gives B weight 0. Over the next 10 s A leaves
+    the image and B arrives on the vehicle: only B, of weight 0, has a likelihood, so the posterior
+    is 0 everywhere. The gate looked at the likelihoods alone, let the frame in, and log-softmax
+    made every weight NaN: that step and every later one raised."""
+    still = ("motion.sigma2_x=0", "motion.sigma2_y=0", "motion.sigma2_z=0", "motion.sigma2_heading=0",
+             "motion.sigma2_speed=0", "motion.sigma2_alpha=0")
+    tracker = Tracker(model, btr.camera, _config("filter.particles=2", "filter.resample_ess=0", "redetect.every=0",
+                                                 "redetect.restart=0", "init.speed_frames=0", *still), seed=0)
+    t, dt, v = btr.truth(0), 10.0, 30.0
+    tracker.reset(torch.tensor([[t.x, t.y, t.z, math.pi / 2, v, 0.5], [t.x - v * dt, t.y, t.z, math.pi / 2, v, 0.5]]))
+    mask = render_mask(btr.vehicle, btr.camera, btr.pose(0)).numpy()
+    first = tracker.step(mask=mask)
+    assert first["lost"] == 0 and tracker.log_weights.tolist() == [0.0, -math.inf]
+    _, side = project_windows(btr.camera, tracker.particles[:, :3] + torch.tensor([v * dt, 0, 0]),
+                              model.template.window_m)
+    score = tracker.score(mask, tracker.particles + torch.tensor([v * dt, 0, 0, 0, 0, 0]))
+    assert score[0] == -math.inf and score[1] > filter_module.LOST_LOG_LIKELIHOOD  # as the case says
+    row = tracker.step(mask=mask, dt=dt)
+    assert row["lost"] == 1 and tracker.log_weights.tolist() == [0.0, -math.inf]
+    assert row["x"] == pytest.approx(t.x + v * dt) and all(math.isfinite(x) for x in row.values() if
+                                                           isinstance(x, float))
+    assert tracker.step(mask=mask, dt=dt / 1000)["lost"] == 1  # and the next step runs
+
+
+def test_a_frame_is_lost_at_the_same_bound_whatever_the_models_dtype(model, btr):
+    """The bound is float32's underflow, −87.3, not the model's: a float64 model took every frame
+    down to −708, a mean squared error 8 times the float32 model's, as explained."""
+    t = btr.truth(0)
+    particles = torch.tensor([[t.x, t.y, t.z, t.heading, 5.0, float(a)] for a in model.alphas[::9]],
+                             dtype=torch.float64)
+    mask = render_mask(btr.vehicle, btr.camera, btr.pose(0)).numpy()
+    lost = []
+    for dtype in (torch.float32, torch.float64):
+        tracker = Tracker(copy.deepcopy(model).to(dtype), btr.camera,
+                          _config("filter.particles=4", "filter.sigma=0.01", "redetect.every=0"), seed=0)
+        tracker.reset(particles)
+        best = float(tracker.score(mask, particles).max())
+        assert math.log(torch.finfo(torch.float64).tiny) < best < math.log(torch.finfo(torch.float32).tiny)
+        lost.append(tracker.step(mask=mask)["lost"])
+    assert lost == [1, 1]
 
 
 def test_blind_hypotheses_on_a_blob_cut_by_the_edge_leave_out_the_cells_beyond_it(model, btr):

@@ -14,7 +14,8 @@ Per frame (Table 5.1, with the segmentation of chapter 3.1 in front):
 4. estimate (Table 5.1 step 3): weighted means, circular means of h and α, the maximum-weight
    particle, the class posterior, the two nearest training vehicles, the ESS and the view Θ;
 5. resample (step 4) when the ESS falls below ``resample_ess`` · N (1.0: every frame, the
-   thesis's SIR filter).
+   thesis's SIR filter), on frames whose weights changed: a frame lost or without a blob leaves
+   them as they were, and resampling those would only lose particles.
 
 After a blind start the speeds are unknown: once the blob's track spans ``init.speed_frames``
 frames (10 by default) every particle's speed is set from the blob's motion across the line of
@@ -24,9 +25,10 @@ blob's centre lags the vehicle), from the start on and the frames in a row befor
 after ``redetect.restart`` missed frames has them, and sets the speeds at once.
 
 A frame gives no observation when its mask is empty or covers more than ``max_foreground`` of the
-image, and is lost when every particle's likelihood underflows (max log w below log of the
-smallest normal float; a particle whose window sees nothing of the image, behind the camera or
-wholly outside it, has none), or (``redetect.restart``) when its blob is clear of the image's
+image, and is lost when no particle of nonzero weight reaches a log-likelihood of
+:data:`LOST_LOG_LIKELIHOOD` (where the likelihood underflows in float32, whatever the model's dtype;
+a particle whose window sees nothing of the image, behind the camera or wholly outside it, has
+none), or (``redetect.restart``) when its blob is clear of the image's
 edge and lies outside the box of the particles' predicted windows: the filter then keeps its prediction,
 leaves the weights as they are (normalised again if a re-detection redrew particles on that frame)
 and flags the frame ``lost``. Estimates are never NaN once the filter is
@@ -126,6 +128,7 @@ class FrameDistance(NamedTuple):
 _BLOCK_CPU = 2048
 _BLOCK_ACCELERATOR = 65536
 _GRID_TOLERANCE = 0.01  # rad: re-detection reuses the grid's silhouette boxes within this of their elevation
+LOST_LOG_LIKELIHOOD = math.log(torch.finfo(torch.float32).tiny)  # ≈ −87.3: a frame none reaches is lost
 _UNEXPLAINED_WARNING = 10  # frames in a row whose blob no particle explains before the tracker says why
 
 
@@ -138,7 +141,7 @@ class FilterConfig:
     sigma: float = 0.02  # σ of the likelihood eq. 5.2, in template units (signed distances in [−1, 1])
     likelihood_px: int = 32  # L: the L x L grid compared per particle (divides the template size)
     resample: str = "systematic"  # systematic, stratified, residual or multinomial
-    resample_ess: float = 1.0  # resample when ESS < resample_ess · N; 1.0: every frame (the thesis's SIR)
+    resample_ess: float = 1.0  # resample when ESS < resample_ess · N; 1.0: every frame it weighs (the thesis's SIR)
     max_foreground: float = 0.5  # a mask covering more of the frame is no observation (a global change)
     ground_contact: bool = False  # y = ground + H(α)/2 when the camera's height is known (tracking.ground)
     fps: float = 30.0  # frame rate for a sequence that states none
@@ -510,7 +513,7 @@ class Tracker:
             if self.initialised:  # a restart: the whole frame's distance, as at the first start
                 distance = self._frame_distance(mask, math.inf)
             self._initialise_blind(mask, distance, frame)
-        lost = True
+        lost, weighed = True, False  # weighed: the weights took this frame's likelihoods or a redraw
         if self.initialised and observed and not self._missed:
             log_lik = self._log_likelihood(distance, self.particles)
             k = self._frames - self._start  # never searched at the start itself
@@ -519,16 +522,19 @@ class Tracker:
                 log_lik, redrawn = self._redetect(mask, distance, frame, log_lik)
             elif self.cfg.redetect.view_searches(k):
                 log_lik, redrawn = self._redetect(mask, distance, frame, log_lik, views_only=True)
-            floor = math.log(torch.finfo(self.dtype).tiny)  # below it every weight underflows
-            if log_lik.max() >= floor:
+            # Only particles of nonzero weight count: had one of weight 0 (resample_ess < 1) alone a likelihood,
+            # every posterior weight would be 0 and log_softmax NaN.
+            best = torch.where(self.log_weights > -math.inf, log_lik, -math.inf).max()
+            if best >= LOST_LOG_LIKELIHOOD:
                 self.log_weights = torch.log_softmax(self.log_weights + log_lik, dim=0)
-                lost, self._unexplained = False, 0
+                lost, weighed, self._unexplained = False, True, 0
             else:
                 if redrawn:  # the weights stay, normalised again: the redrawn particles came in at 1/N
                     self.log_weights = torch.log_softmax(self.log_weights, dim=0)
+                    weighed = True
                 self._unexplained += 1
                 if self._unexplained == _UNEXPLAINED_WARNING:
-                    self._warn_unexplained(mask, float(log_lik.max()), floor, side)
+                    self._warn_unexplained(mask, float(best), side)
         row = {"frame": self._frames, "time_s": self._clock, "lost": int(lost), "mask_area_px": area}
         if self.initialised:
             row.update(self._estimate())
@@ -539,7 +545,8 @@ class Tracker:
             if self._track is not None:
                 self._measure_speed(point, row)
             threshold = self.cfg.filter.resample_ess
-            row["resampled"] = int(threshold >= 1 or row["ess"] < threshold * self.particles.shape[0])
+            # Weights a frame left as they were carry nothing new: resampling them would only lose particles.
+            row["resampled"] = int(weighed and (threshold >= 1 or row["ess"] < threshold * self.particles.shape[0]))
             if row["resampled"]:
                 ancestors = resample(self.log_weights.exp(), self.cfg.filter.resample, self.generator)
                 self.particles = self.particles[ancestors]
@@ -578,11 +585,10 @@ class Tracker:
         return self._log_likelihood(self._frame_distance(mask, float(side.max()) if side.numel() else math.inf),
                                     particles)
 
-    def _warn_unexplained(self, mask: np.ndarray, best: float, floor: float, side: float) -> None:
+    def _warn_unexplained(self, mask: np.ndarray, best: float, side: float) -> None:
         """Say why the last ``_UNEXPLAINED_WARNING`` frames were lost although they had a blob: ``best``
-        the best particle's log-likelihood, ``floor`` the one below which a frame is lost, ``side``
-        the largest predicted window in pixels."""
-        sigma = self.cfg.filter.sigma
+        the best particle's log-likelihood, ``side`` the largest predicted window in pixels."""
+        sigma, floor = self.cfg.filter.sigma, LOST_LOG_LIKELIHOOD
         log.warning("frames %d-%d: no particle explains the blob (best log-likelihood %.0f; a frame is lost below "
                     "%.0f, a mean squared error above %.3g template units at filter.sigma=%g), so the track keeps its "
                     "prediction. %s; a smaller sigma makes that bound stricter (the default %g allows %.3g)",
