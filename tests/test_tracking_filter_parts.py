@@ -78,6 +78,14 @@ def test_residual_keeps_the_integer_parts_and_schemes_are_seeded():
     assert counts.sum() == 3 and (counts >= torch.tensor([1, 1, 0])).all()  # ⌊N w⌋ = 1, 1, 0 kept
     w10 = torch.full((10,), 0.1, dtype=torch.float64)
     assert torch.equal(resample(w10, "residual"), torch.arange(10))  # N w_j = 1: exactly one copy each
+    # The filter's float32 weights, exp of a log-softmax: N w_j rounds to 0.9999998, which gave no copy at all
+    # and drew every ancestor multinomially (619 of 1000 particles kept).
+    for log_w, copies in ((torch.zeros(1000), torch.ones(1000)), (torch.tensor([0.0, 0.0, -math.inf, -math.inf]),
+                                                                   torch.tensor([2, 2, 0, 0]))):
+        w = torch.log_softmax(log_w, 0).exp()
+        assert w.dtype == torch.float32
+        got = torch.bincount(resample(w, "residual", torch.Generator().manual_seed(0)), minlength=len(w))
+        assert torch.equal(got, copies.long())
     for scheme in SCHEMES:
         a = resample(w, scheme, torch.Generator().manual_seed(9))
         assert torch.equal(a, resample(w, scheme, torch.Generator().manual_seed(9)))

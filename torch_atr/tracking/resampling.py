@@ -19,6 +19,7 @@ import torch
 from torch_atr._checks import check_shape
 
 SCHEMES = ("systematic", "stratified", "residual", "multinomial")
+_COPY_TOLERANCE = 1e-9  # residual: N wⱼ this short of an integer counts as that integer (float64 rounding)
 WEIGHT_SUM_TOLERANCE = 1e-3  # |Σ w − 1| allowed: float32 rounding over 10⁷ particles stays far below
 
 
@@ -76,8 +77,10 @@ def residual_resample(weights: torch.Tensor, generator: torch.Generator | None =
     residuals N wⱼ − ⌊N wⱼ⌋. weights: (N,) summing to 1. Returns (N,) int64, sorted."""
     _check_weights(weights)
     n = weights.shape[0]
-    scaled = weights / weights.sum() * n
-    copies = scaled.floor().long()
+    # In float64 and with a tolerance: in float32, N wⱼ of uniform weights rounds to 0.9999998 and no
+    # particle would get its certain copy.
+    scaled = weights.double() / weights.double().sum() * n
+    copies = (scaled + _COPY_TOLERANCE).floor().long()
     deterministic = torch.repeat_interleave(torch.arange(n, device=weights.device), copies)[:n]
     rest = n - deterministic.shape[0]
     if rest == 0:
