@@ -41,3 +41,19 @@ def test_a_non_finite_query_predicts_nan_in_every_method(model, method):
     assert y[:4].isnan().all(dim=(1, 2)).all() and errors[:4].isnan().all()
     assert finite.isfinite().all() and errors[4].isfinite()
     torch.testing.assert_close(y[4:], finite, atol=1e-6, rtol=0)  # a matmul's rows vary in the last bit with N
+
+
+@pytest.mark.parametrize("method", ["I", "II", "III"])
+def test_the_squared_error_of_a_perfect_fit_is_not_below_zero(model, method):
+    """‖z − y‖² of z = y, against the direct sum: the pooled-basis expansion ‖z‖² − 2 (Bᵀz)·c + cᵀGc
+    cancelled to −1e-3 in float32, a log-likelihood above 0 that grows as 1/σ²."""
+    app = ShapeAppearance(model, method, 32)
+    g = torch.Generator().manual_seed(0)
+    alpha, theta, phi = (torch.rand(2000, generator=g) * 2 * math.pi, torch.rand(2000, generator=g) * 2 * math.pi,
+                         torch.rand(2000, generator=g) * 0.6)
+    with torch.no_grad():
+        z = app(alpha, theta, phi)
+        errors = app.squared_errors(z, alpha, theta, phi)
+    direct = (z.double() - app(alpha, theta, phi).double()).square().sum(dim=(1, 2))
+    assert bool((errors >= 0).all())
+    torch.testing.assert_close(errors.double(), direct, atol=5e-3, rtol=0)

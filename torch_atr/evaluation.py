@@ -134,9 +134,11 @@ def fit_alpha(model, signed: torch.Tensor, theta, phi, grid: int = 360) -> tuple
     grid = integer("grid", grid, 3)  # 360.5 searched 361 α spaced 2π/360.5, unevenly across the wrap
     theta, phi = _views(model, signed, theta, phi, 0)
     target = signed.to(model.alphas)
-    # In pixel-basis coordinates: ‖y − t‖² = ‖c − Uᵀt‖² + (‖t‖² − ‖Uᵀt‖²), the last term fixed.
+    # In pixel-basis coordinates: ‖y − t‖² = ‖c − Uᵀt‖² + ‖t − UUᵀt‖², the last term fixed. Formed as a
+    # residual, not as ‖t‖² − ‖Uᵀt‖²: that difference of two sums of ~10⁴ cancels in float32.
     coords = model.project(target)  # (V, r)
-    outside = (target.square().sum() - coords.square().sum()).clamp_min(0)
+    basis = model.core.pixel_basis  # None: the coordinates are the pixels, nothing outside
+    outside = 0.0 if basis is None else (target.flatten(1) - coords @ basis.T).square().sum()
     count = target.numel()
 
     def loss_of(alpha: torch.Tensor) -> torch.Tensor:  # alpha (A,) -> (A,)
@@ -195,7 +197,8 @@ def mirror_aspect_error(theta: np.ndarray, true_theta: np.ndarray) -> np.ndarray
     same way across the image, so at a grazing camera only the range rate tells them apart
     (docs/tracking.md, "Not met"). This error counts an estimate on either branch as right.
 
-    theta, true_theta: (T,) radians (NaN where unknown). Returns (T,) in [0, π/2].
+    theta, true_theta: (T,) radians (NaN where unknown). Returns (T,) in [0, π] (π only where θ = π/2, the
+    branches one: θ̂ = θ + π).
     """
     theta, true_theta = np.asarray(theta, dtype=np.float64), np.asarray(true_theta, dtype=np.float64)
     if theta.ndim != 1 or theta.shape != true_theta.shape:
@@ -275,7 +278,8 @@ def best_matches(model, alpha: np.ndarray, k: int = 2) -> list[str]:
     if alpha.size == 0:
         return []
     mean = math.atan2(np.sin(alpha).mean(), np.cos(alpha).mean()) % (2 * math.pi)
-    nearest = model.nearest_vehicles(torch.tensor([mean]).to(model.alphas), k)[0].tolist()
+    like = model.alphas
+    nearest = model.nearest_vehicles(torch.tensor([mean], dtype=like.dtype, device=like.device), k)[0].tolist()
     return [model.vehicle_names[i] for i in nearest]
 
 
