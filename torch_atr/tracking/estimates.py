@@ -31,7 +31,8 @@ def weighted_mean_cov(values: torch.Tensor, weights: torch.Tensor) -> tuple[torc
     w = weights[:, None]
     mean = (w * values).sum(0)  # sums, not BLAS: bitwise reproducible (module docstring)
     centred = values - mean
-    return mean, (w[:, :, None] * centred[:, :, None] * centred[:, None, :]).sum(0)
+    weighted = w * centred  # one (N, D) column of products at a time, not an (N, D, D) temporary: 10⁷ particles
+    return mean, torch.stack([(weighted * centred[:, j:j + 1]).sum(0) for j in range(values.shape[1])], dim=1)
 
 
 def circular_mean(angles: torch.Tensor, weights: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
