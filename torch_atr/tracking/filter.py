@@ -363,7 +363,7 @@ class Tracker:
                              f"path)); got {type(model).__name__}")
         if self.needs_camera and not isinstance(camera, Camera):
             raise ValueError(f"Expected camera to be a Camera; got {type(camera).__name__} (an uncalibrated sequence: "
-                             f"track its blob with BlobTracker)")
+                             f"track its blob with torch_atr.tracking.BlobTracker)")
         if self.needs_camera:
             check_sensor_like(camera)  # before any work: it was found only once the first blob was placed
         if config is not None and not isinstance(config, TrackerConfig):
@@ -941,9 +941,10 @@ class Tracker:
         :meth:`step`.)
 
         The background is learned from the sequence's target-free ``warmup_frames`` where it has
-        them (the simulator), else from frames spread evenly over the frames tracked, with what
+        them (the simulator), else from frames spread evenly over the whole sequence, with what
         moves taken out (``segmentation.static_background_frames``; docs/sequences.md, "The
-        background of your own sequences").
+        background of your own sequences"); so ``frames`` changes only how far the track goes, and
+        the first rows are those of the whole run.
 
         Args:
             sequence: an opened sequence with a camera (``data.open_sequence``).
@@ -985,11 +986,12 @@ class Tracker:
         count = self.cfg.segmentation.warmup_frames
         if hasattr(sequence, "warmup_frames"):
             self.warm_up(sequence.warmup_frames(count))
-        else:  # no target-free frames: frames spread over the track, with what moves taken out
-            picks = sorted(set(np.linspace(0, n - 1, min(n, count)).round().astype(int).tolist()))
-            log.info("%s: no target-free frames; the background is learned from %d frames spread over the %d "
-                     "tracked, with moving parts taken out (segmentation.static_background_frames)", sequence.name,
-                     len(picks), n)
+        else:  # no target-free frames: frames spread over the clip (not only those tracked), what moves taken out
+            total = len(sequence)
+            picks = sorted(set(np.linspace(0, total - 1, min(total, count)).round().astype(int).tolist()))
+            log.info("%s: no target-free frames; the background is learned from %d frames spread over its %d, with "
+                     "moving parts taken out (segmentation.static_background_frames)", sequence.name, len(picks),
+                     total)
             self.warm_up(static_background_frames(sequence.frame(i) for i in picks))
         if self.cfg.init.mode == "truth":
             first = sequence.truth(0)
