@@ -12,7 +12,7 @@ from torch_atr.config import load_config
 from torch_atr.data.synthetic import SceneConfig, SyntheticSequence
 from torch_atr.evaluation import wrapped_abs
 from torch_atr.model import GenerativeShapeModel
-from torch_atr.tracking import TrackerConfig
+from torch_atr.tracking import Tracker, TrackerConfig
 from torch_atr.tracking.blob import BlobTracker, predict_views, wrap_views
 from torch_atr.tracking.motion import MotionConfig
 
@@ -161,3 +161,12 @@ def test_the_frames_distance_widened_for_one_scoring_covers_the_next(model):
         for _ in range(2):
             torch.testing.assert_close(tracker._log_likelihood(distance, views.to(tracker.dtype)),
                                        expected.to(tracker.dtype), atol=1e-3, rtol=0)
+
+
+def test_the_blob_tracker_is_where_the_trackers_error_sends_a_user(model):
+    """An uncalibrated sequence given to Tracker names the class to use, importable from where it says."""
+    import torch_atr.tracking
+
+    with pytest.raises(ValueError, match=r"track its blob with torch_atr\.tracking\.BlobTracker\)$"):
+        Tracker(model, None)
+    assert torch_atr.tracking.BlobTracker is BlobTracker and "BlobTracker" in torch_atr.tracking.__all__
