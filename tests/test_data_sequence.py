@@ -504,6 +504,20 @@ def test_the_camera_height_travels_with_the_folder(tmp_path):
     assert math.isnan(FolderSequence(tmp_path / "s").camera_height_m)
 
 
+def test_meta_json_refuses_unknown_keys(tmp_path):
+    """A misspelt camera_hieght_m was ignored: the blind start had no ground plane and the range was off by 1000 m.
+    Every key save_sequence writes (source and source_meta too) still reads."""
+    scene = SceneConfig(frames=2, camera_height_m=7.25)
+    folder = save_sequence(SyntheticSequence("btr_70", scene), tmp_path / "s", progress=False)
+    meta = json.loads((folder / "meta.json").read_text())
+    assert {"source", "source_meta", "camera_height_m"} <= set(meta) and FolderSequence(folder).camera_height_m == 7.25
+    meta["camera_hieght_m"] = meta.pop("camera_height_m")
+    (folder / "meta.json").write_text(json.dumps({**meta, "Notes": "x"}))
+    with pytest.raises(InputError, match=re.escape(f"{folder / 'meta.json'}: unknown key(s) Notes, camera_hieght_m")
+                       + "$"):
+        FolderSequence(folder)
+
+
 @pytest.mark.parametrize("edit, message", [
     (lambda m: {**m, "fps": True}, r"key 'fps' \(or null\): expected a finite number > 0; got True"),
     (lambda m: {**m, "camera_height_m": -2.0}, r"key 'camera_height_m' \(or null\): expected a finite number in "

@@ -129,12 +129,16 @@ class FolderSequence(Sequence):
 def _read_meta(path: Path) -> dict:
     """meta.json, checked: our format and version, a name, fps null or > 0, camera_height_m absent,
     null or in (0, MAX_CAMERA_HEIGHT_M], frames >= 1 and a frame shape and dtype we store within the image bounds of
-    :mod:`torch_atr.validate`."""
+    :mod:`torch_atr.validate`; no key but these and what :func:`save_sequence` writes (source, source_meta)."""
     meta = read_json_object(path, f"Not a sequence folder: {path} is missing (a folder of plain images opens "
                                   f"with 'video:{path.parent}')")
-    missing = [k for k in ("format", "format_version", "name", "fps", "frames", "dtype", "shape") if k not in meta]
+    required = ("format", "format_version", "name", "fps", "frames", "dtype", "shape")
+    missing = [k for k in required if k not in meta]
     if missing:
         raise InputError(f"{path}: missing key(s) {', '.join(missing)}")
+    unknown = sorted(set(meta) - set(required) - {"camera_height_m", "source", "source_meta"})
+    if unknown:  # a misspelt camera_height_m would leave the height unknown unnoticed
+        raise InputError(f"{path}: unknown key(s) {', '.join(unknown)}")
     if meta["format"] != FORMAT:
         raise InputError(f"{path}: format is {show(meta['format'])}; expected {FORMAT!r}")
     integer(f"{path}, key 'format_version' (this reader knows 1..{FORMAT_VERSION})", meta["format_version"], 1,
