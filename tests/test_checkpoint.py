@@ -10,6 +10,7 @@ import zipfile
 import pytest
 import torch
 
+from torch_atr.cli import error_text
 from torch_atr.config import ModelConfig, TemplateConfig
 from torch_atr.io import OutputExistsError
 from torch_atr.model import GenerativeShapeModel, load_checkpoint
@@ -228,6 +229,20 @@ def test_text_and_folders_are_not_checkpoints(tmp_path):
     with pytest.raises(InputError, match="expected a checkpoint file"):
         load_checkpoint(tmp_path)
     assert not is_checkpoint(notes) and not is_checkpoint(tmp_path) and not is_checkpoint(tmp_path / "none.pt")
+
+
+def test_a_checkpoint_we_may_not_read_is_not_called_corrupt(saved, monkeypatch):
+    """A file the user may not read was reported as "not a readable checkpoint (corrupt, truncated or another kind
+    of file)"; the reason is the permission, said as a config file's is."""
+    saved.chmod(0)
+    if os.access(saved, os.R_OK):  # root reads it anyway: the open fails as it would for another user
+        def refuse(*args, **kwargs):
+            raise PermissionError(13, "Permission denied", str(saved))
+
+        monkeypatch.setattr(zipfile, "ZipFile", refuse)
+    with pytest.raises(PermissionError) as info:
+        load_checkpoint(saved)
+    assert error_text(info.value) == f"{saved}: cannot read it: Permission denied"
 
 
 def test_a_device_this_machine_lacks_is_named_not_blamed_on_the_file(saved):

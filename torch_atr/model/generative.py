@@ -530,6 +530,8 @@ def _check_archive(path: Path) -> None:
     try:
         with zipfile.ZipFile(path) as archive:
             entries = archive.infolist()
+    except OSError as exc:  # the file system's refusal (permission, I/O error): corrupt bytes raise other kinds
+        raise OSError(exc.errno, f"{path}: cannot read it: {exc.strerror}") from None
     except Exception as exc:  # zipfile raises many kinds on corrupt bytes
         raise InputError(f"{path}: not a readable checkpoint (corrupt, truncated or another kind of file): not a "
                          f"zip archive as torch.save writes ({type(exc).__name__}: {show(str(exc))})") from None
@@ -561,8 +563,9 @@ def load_checkpoint(path: str | os.PathLike, map_location=None) -> tuple[Generat
     format and version, the content checksum (version 2; a version-1 file has none and loads
     with a warning), ``model_args`` (:func:`check_model_args`) and the state_dict against them
     (keys, shapes, dtypes, finite values, ``identity.order`` a permutation). Raises
-    FileNotFoundError for a missing file, InputError naming the file and the problem, and
-    ValueError where ``map_location`` names a device this machine lacks.
+    FileNotFoundError for a missing file, OSError (PermissionError, ...) naming a file it cannot
+    read, InputError naming the file and the problem, and ValueError where ``map_location`` names
+    a device this machine lacks.
     """
     path = Path(path)
     if not path.exists():
