@@ -97,6 +97,21 @@ def test_a_checkpoint_that_is_not_one_is_named_before_the_report_folder_is_made(
     assert not (tmp_path / "out").exists()
 
 
+@pytest.mark.parametrize("experiment", ["sensiac-like", "unseen", "studies", "visible"])
+def test_a_checkpoint_that_is_a_folder_is_named_as_track_py_names_it(tmp_path, no_work, experiment):
+    """``--checkpoint DIR`` said "checkpoint not found: DIR" where track.py says what is wrong with it."""
+    from torch_atr.model.generative import load_checkpoint
+
+    folder = tmp_path / "models"
+    folder.mkdir()
+    with pytest.raises(ValueError) as tracks:
+        load_checkpoint(folder)
+    with pytest.raises(ValueError) as info:
+        experiments.main([experiment, "--out", str(tmp_path / "out"), "--quick", "--checkpoint", str(folder)])
+    assert str(info.value) == str(tracks.value) == f"{folder}: expected a checkpoint file; it is a folder or a device"
+    assert not (tmp_path / "out").exists()
+
+
 @pytest.mark.parametrize("key", ["out", "checkpoint", "sequence", "device"])
 def test_a_nul_byte_in_a_text_value_is_named_with_its_key(tmp_path, key):
     """No path, spec or device holds a NUL byte; Python refused one as "embedded null byte", naming neither

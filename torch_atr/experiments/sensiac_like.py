@@ -164,12 +164,15 @@ def check_vehicle(name: str) -> None:
 def resolve_checkpoint(checkpoint: str) -> Path:
     """The checkpoint file: a relative path as given if it exists from here, else from the
     repository root (so the default, ``checkpoints/default.pt``, is found from any folder), as
-    ``track.py`` resolves it. ``FileNotFoundError`` where neither place holds the file."""
+    ``track.py`` resolves it. ``FileNotFoundError`` where neither place holds it, InputError for a
+    folder or a device, as ``track.py`` names them."""
+    from torch_atr.model.generative import checkpoint_file
+
     path = in_repo(checkpoint)
-    if not path.is_file():
+    if not path.exists():
         where = "" if Path(checkpoint).is_absolute() else f" (neither from {Path.cwd()} nor from {REPO})"
         raise FileNotFoundError(f"checkpoint not found: {checkpoint}{where}")
-    return path
+    return checkpoint_file(path)
 
 
 _WORKER: dict = {}  # per worker process: the model and Method IV's templates, loaded once

@@ -556,6 +556,17 @@ def _load_error(path: Path, exc: Exception) -> InputError:
     return InputError(f"{path}: not a readable checkpoint (corrupt or truncated?): {detail}")
 
 
+def checkpoint_file(path: str | os.PathLike) -> Path:
+    """``path`` as a Path, where it names a file: FileNotFoundError where nothing is there, InputError
+    for a folder or a device (what :func:`load_checkpoint` checks before reading)."""
+    path = Path(path)
+    if not path.exists():
+        raise FileNotFoundError(f"checkpoint not found: {path}")
+    if not path.is_file():
+        raise InputError(f"{path}: expected a checkpoint file; it is a folder or a device")
+    return path
+
+
 def load_checkpoint(path: str | os.PathLike, map_location=None) -> tuple[GenerativeShapeModel, dict | None]:
     """Load a model and its ``extra`` data from a checkpoint written by :meth:`GenerativeShapeModel.save`.
 
@@ -567,11 +578,7 @@ def load_checkpoint(path: str | os.PathLike, map_location=None) -> tuple[Generat
     read, InputError naming the file and the problem, and ValueError where ``map_location`` names
     a device this machine lacks.
     """
-    path = Path(path)
-    if not path.exists():
-        raise FileNotFoundError(f"checkpoint not found: {path}")
-    if not path.is_file():
-        raise InputError(f"{path}: expected a checkpoint file; it is a folder or a device")
+    path = checkpoint_file(path)
     _check_archive(path)
     if isinstance(map_location, (str, int, torch.device)):  # a missing device is not a corrupt file; 0 is cuda:0
         map_location = check_device(map_location)
