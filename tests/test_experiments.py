@@ -7,6 +7,7 @@ import os
 import re
 import sys
 import types
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -14,7 +15,7 @@ import torch
 
 from torch_atr.data.synthetic import SyntheticSequence
 from torch_atr.experiments.__main__ import main
-from torch_atr.experiments.report import THESIS_TABLE_6_1
+from torch_atr.experiments.report import EXPERIMENT_CLAIM, REPORT_FORMAT, THESIS_TABLE_6_1
 from torch_atr.experiments.sensiac_like import FULL, RANGES_M, TEST_VEHICLES, SensiacLikeConfig, scene
 from torch_atr.pose import body_to_world
 
@@ -114,31 +115,56 @@ def test_another_experiment_is_refused_a_runs_folder_finished_or_not(run, tmp_pa
     finished = shutil.copytree(out, tmp_path / "finished")
     with pytest.raises(OSError, match="holds another experiment's report .*format torch_atr.sensiac_like_report"):
         main([*visible, "--out", str(finished)])
-    interrupted = shutil.copytree(out / "sequences", tmp_path / "interrupted" / "sequences").parent
-    with pytest.raises(ValueError, match="t_72_1000m_blind_seed0.json holds a result of another configuration"):
+    interrupted = _interrupted(out, tmp_path / "interrupted")
+    with pytest.raises(OSError, match="holds another experiment's unfinished run .*torch_atr.sensiac_like_report"):
         main([*visible, "--out", str(interrupted)])
     for folder in (finished, interrupted):
         assert sorted(os.listdir(folder / "sequences")) == sorted(os.listdir(out / "sequences"))
-    assert sorted(os.listdir(finished)) == sorted(os.listdir(out)) and os.listdir(interrupted) == ["sequences"]
+    assert sorted(os.listdir(finished)) == sorted(os.listdir(out))
+    assert sorted(os.listdir(interrupted)) == [EXPERIMENT_CLAIM, "sequences"]
     assert (finished / "report.md").read_text() == (out / "report.md").read_text()
+
+
+def _interrupted(run: Path, folder: Path) -> Path:
+    """A copy of a finished run as its interruption left it: the claim and sequences/, no report."""
+    import shutil
+
+    shutil.copytree(run / "sequences", folder / "sequences")
+    shutil.copy(run / EXPERIMENT_CLAIM, folder)
+    return folder
+
+
+def test_a_users_folder_holding_sequences_is_not_taken_for_an_interrupted_run(tmp_path):
+    """Any folder with a sequences/ subfolder passed for an experiment's interrupted run: a user's
+    report.md and results.json beside their own sequences/ were replaced without a word."""
+    mine = tmp_path / "mydata"
+    (mine / "sequences").mkdir(parents=True)
+    (mine / "report.md").write_text("my notes")
+    (mine / "results.json").write_text('{"mine": 1}')
+    with pytest.raises(OSError, match=re.escape(f"{mine} exists and is not an experiment's folder")):
+        main([*QUICK, "--out", str(mine)])
+    assert sorted(os.listdir(mine)) == ["report.md", "results.json", "sequences"]
+    assert (mine / "report.md").read_text() == "my notes" and not any((mine / "sequences").iterdir())
 
 
 def test_an_interrupted_run_is_not_claimed_by_an_experiment_of_another_layout(run, tmp_path):
     """The studies run into an interrupted SENSIAC-like folder (sequences/, no results.json) ran,
     wrote its report there, and the SENSIAC-like run was then refused its own folder; so did
     sensiac-like into an interrupted studies folder and all into either."""
-    import shutil
+    from torch_atr.experiments.studies import STUDIES_FORMAT
 
     out, _ = run
-    sensiac = shutil.copytree(out / "sequences", tmp_path / "sensiac" / "sequences").parent
+    sensiac = _interrupted(out, tmp_path / "sensiac")
     studies = tmp_path / "studies"
     (studies / "baseline" / "sequences").mkdir(parents=True)
-    cases = [(["studies", "--quick"], sensiac, "sequences"), (["all", "--quick"], sensiac, "sequences"),
-             (QUICK, studies, "baseline"), (["all", "--quick"], studies, "baseline")]
-    for argv, folder, part in cases:
-        with pytest.raises(OSError, match=re.escape(f"unfinished run ({folder / part})")):
+    (studies / EXPERIMENT_CLAIM).write_text(json.dumps({"format": EXPERIMENT_CLAIM, "report": STUDIES_FORMAT}))
+    cases = [(["studies", "--quick"], sensiac, REPORT_FORMAT), (["all", "--quick"], sensiac, REPORT_FORMAT),
+             (QUICK, studies, STUDIES_FORMAT), (["all", "--quick"], studies, STUDIES_FORMAT)]
+    for argv, folder, theirs in cases:
+        with pytest.raises(OSError, match=re.escape(f"unfinished run ({folder / EXPERIMENT_CLAIM}: {theirs})")):
             main([*argv, "--out", str(folder)])
-    assert os.listdir(sensiac) == ["sequences"] and os.listdir(studies) == ["baseline"]
+    assert sorted(os.listdir(sensiac)) == [EXPERIMENT_CLAIM, "sequences"]
+    assert sorted(os.listdir(studies)) == [EXPERIMENT_CLAIM, "baseline"]
     assert sorted(os.listdir(sensiac / "sequences")) == sorted(os.listdir(out / "sequences"))
 
 

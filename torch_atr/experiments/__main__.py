@@ -28,18 +28,17 @@ import dataclasses
 import logging
 import os
 import time
-from contextlib import ExitStack
 from pathlib import Path
 
 from torch_atr.cli import console_logging, run_main
 from torch_atr.config import ConfigError, check_seed, override_leaves
 from torch_atr.experiments.combined import COMBINED_FORMAT, EXPERIMENTS, write_combined_report
-from torch_atr.experiments.report import (REPORT_FORMAT, is_report_folder, mean_recognition, report_format,
-                                          write_report)
+from torch_atr.experiments.report import (EXPERIMENT_CLAIM, REPORT_FORMAT, claim_format, claimed_report_folder,
+                                          is_report_folder, mean_recognition, report_format, write_report)
 from torch_atr.experiments.sensiac_like import FULL, QUICK, SensiacLikeConfig, run_all, worker_model
 from torch_atr.experiments.studies import STUDIES_FORMAT, run_studies, study_configs, write_studies_report
 from torch_atr.experiments.unseen import UNSEEN_FORMAT, unseen_fields, write_unseen_report
-from torch_atr.io import OutputExistsError, created_folders
+from torch_atr.io import OutputExistsError
 from torch_atr.tracking import TrackerConfig
 from torch_atr.validate import show
 
@@ -102,10 +101,11 @@ def main(argv: list[str] | None = None) -> dict:
     if args.experiment == "visible":
         return _visible(args, given, out)
     cfg = SensiacLikeConfig(**(fields | given), tracker=tuple(args.overrides), scene=tuple(args.scene))
-    _check_out(out, UNSEEN_FORMAT if args.experiment == "unseen" else REPORT_FORMAT)
+    expected = UNSEEN_FORMAT if args.experiment == "unseen" else REPORT_FORMAT
+    _check_out(out, expected)
     model = worker_model(cfg.checkpoint)  # read before the report folder is made: a bad file is named before any work
     start = time.perf_counter()
-    with created_folders(out / "sequences"):  # a run that fails leaves none of the empty folders it made
+    with claimed_report_folder(out, expected):  # a run that fails leaves none of the empty folders it made
         results = run_all(cfg, out, args.workers, ray_address=args.ray)
     if args.experiment == "unseen":
         agg = write_unseen_report(out, cfg, results, time.perf_counter() - start)
@@ -140,23 +140,21 @@ def check_scene_overrides(overrides: list[str]) -> None:
     override_leaves(SceneConfig, overrides, "scene override", unique=True)
 
 
-def _check_out(out: Path, expected: str, parts=("sequences",)) -> None:
+def _check_out(out: Path, expected: str) -> None:
     """``OutputExistsError`` unless ``out`` is absent, empty or a folder of this experiment: its
     results.json, where there is one, of format ``expected`` (another experiment's would be replaced);
-    where there is none (an interrupted run), its run folders (``sequences/`` and folders holding one)
-    among ``parts``, those this experiment makes (another experiment's interrupted run would be claimed)."""
+    its claim (an interrupted run) naming ``expected`` (another experiment's run would be claimed)."""
     if out.exists() and (not out.is_dir() or (any(out.iterdir()) and not is_report_folder(out))):
-        raise OutputExistsError(f"{out} exists and is not an experiment's folder; choose another --out")
+        raise OutputExistsError(f"{out} exists and is not an experiment's folder (it has no results.json or "
+                                f"{EXPERIMENT_CLAIM} of ours); choose another --out")
     written = report_format(out)
     if written is not None and written != expected:
         raise OutputExistsError(f"{out} holds another experiment's report ({out / 'results.json'}: format "
                                 f"{written}); choose another --out")
-    if written is None and out.is_dir():
-        other = [p for p in sorted(out.iterdir()) if p.name not in parts
-                 and ((p / "sequences").is_dir() or (p.name == "sequences" and p.is_dir()))]
-        if other:
-            raise OutputExistsError(f"{out} holds another experiment's unfinished run ({other[0]}); choose another "
-                                    "--out, or resume that experiment there")
+    claimed = claim_format(out)
+    if written is None and claimed is not None and claimed != expected:
+        raise OutputExistsError(f"{out} holds another experiment's unfinished run ({out / EXPERIMENT_CLAIM}: "
+                                f"{claimed}); choose another --out, or resume that experiment there")
 
 
 def _studies(args: argparse.Namespace, given: dict, out: Path) -> list[dict]:
@@ -164,13 +162,11 @@ def _studies(args: argparse.Namespace, given: dict, out: Path) -> list[dict]:
     if fixed:
         raise ConfigError(f"studies: {', '.join(fixed)} cannot be given; each study sets them itself")
     configs = study_configs(args.quick, **given, tracker=tuple(args.overrides))
-    _check_out(out, STUDIES_FORMAT, configs)
+    _check_out(out, STUDIES_FORMAT)
     for checkpoint in {c.checkpoint for c in configs.values()}:  # a bad file is named before any folder is made
         worker_model(checkpoint)
     start = time.perf_counter()
-    with ExitStack() as made:  # a run that fails leaves none of the empty folders it made
-        for name in configs:
-            made.enter_context(created_folders(out / name / "sequences"))
+    with claimed_report_folder(out, STUDIES_FORMAT, tuple(f"{name}/sequences" for name in configs)):
         results = run_studies(out, configs, args.workers, ray_address=args.ray)
     rows = write_studies_report(out, configs, results, time.perf_counter() - start)
     log.info("wrote %s: report.md, results.json", out)
@@ -188,7 +184,7 @@ def _visible(args: argparse.Namespace, given: dict, out: Path) -> dict:
     _check_out(out, VISIBLE_FORMAT)
     model = worker_model(cfg.checkpoint)  # read before the report folder is made: a bad file is named before any work
     start = time.perf_counter()
-    with created_folders(out / "sequences"):  # a run that fails leaves none of the empty folders it made
+    with claimed_report_folder(out, VISIBLE_FORMAT):  # a run that fails leaves none of the empty folders it made
         calibration, drawn, results = run_visible(cfg, out, args.workers)
     agg = write_visible_report(out, cfg, calibration, drawn, results, model, time.perf_counter() - start)
     log.info("wrote %s: report.md, results.json, figures; config %s", out, dataclasses.asdict(cfg))
@@ -201,11 +197,12 @@ def _all(args: argparse.Namespace, out: Path) -> dict:
              if getattr(args, k)] + (["tracker overrides (key=value)"] if args.overrides else [])
     if given:
         raise ConfigError(f"all: {', '.join(given)} cannot be given; run that experiment alone to change it")
-    _check_out(out, COMBINED_FORMAT, EXPERIMENTS)
+    _check_out(out, COMBINED_FORMAT)
     common = ["--workers", str(args.workers), *(["--quick"] if args.quick else []),
               *(a for k, v in passed.items() if v is not None for a in (k, str(v)))]
     start = time.perf_counter()
-    outcomes = {name: main([name, "--out", str(out / name), *common]) for name in EXPERIMENTS}
+    with claimed_report_folder(out, COMBINED_FORMAT, runs=()):
+        outcomes = {name: main([name, "--out", str(out / name), *common]) for name in EXPERIMENTS}
     write_combined_report(out, EXPERIMENTS, time.perf_counter() - start)
     log.info("wrote %s: report.md, results.json over %s", out, ", ".join(EXPERIMENTS))
     return outcomes
