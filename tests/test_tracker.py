@@ -1059,3 +1059,23 @@ def test_a_shorter_run_of_a_clip_without_target_free_frames_learns_the_whole_cli
     assert len(short) == 6
     for a, b in zip(short, whole):
         assert {k: v for k, v in a.items() if k != "step_ms"} == {k: v for k, v in b.items() if k != "step_ms"}
+
+
+def test_a_truth_start_on_a_class_no_training_vehicle_has_spreads_alpha(model, btr, caplog):
+    """A model trained on one's own catalog keeps all six class names but may have no APC: a truth
+    start on the BTR-70 (an APC) stopped at max() of its class's arcs, none ("max() arg is an empty
+    sequence"). Its α is then unknown to the start, as for a class the model lacks: spread."""
+    from torch_atr.tracking.initialise import truth_alpha
+
+    no_apc = copy.deepcopy(model)
+    labels = no_apc.identity.labels
+    labels[labels == no_apc.class_names.index("apc")] = no_apc.class_names.index("tank")
+    assert all(label != no_apc.class_names.index("apc") for label, _, _ in no_apc.identity.class_arcs())
+    with caplog.at_level("WARNING", logger="torch_atr.tracking.initialise"):
+        assert truth_alpha(no_apc, "btr_70", "apc", "class") is None
+    assert "class 'apc', which no training vehicle of the model has" in caplog.text
+    assert truth_alpha(no_apc, "t_72", "tank", "class") is not None
+    tracker = Tracker(no_apc, btr.camera, _config("filter.particles=200", "init.mode=truth"), seed=0)
+    tracker.initialise(btr.truth(0))
+    assert float(tracker.particles[:, 5].max() - tracker.particles[:, 5].min()) > math.pi  # spread over the manifold
+    assert len(tracker.run(btr, frames=3, progress=False, snapshots=0).rows) == 3

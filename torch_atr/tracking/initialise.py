@@ -160,17 +160,19 @@ def blob_column(mask: np.ndarray) -> float:
 
 def truth_alpha(model, vehicle: str, vehicle_class: str, mode: str = "vehicle") -> float | None:
     """α₀ of the thesis's initialisation: the vehicle's αₖ (``mode="vehicle"`` and a training
-    vehicle) or the centre of its class's arc; None for a class the model lacks (a truck, an
-    "unknown" target: its identity is not part of the truth the start can use)."""
+    vehicle) or the centre of its class's arc; None for a class the model lacks or has no training
+    vehicle of (a truck, an "unknown" target, a model trained on one's own catalog without tanks:
+    its identity is not part of the truth the start can use)."""
     if mode == "vehicle" and vehicle in model.vehicle_names:
         return float(model.alphas[model.vehicle_names.index(vehicle)])
-    if vehicle_class not in model.class_names:  # a misspelt class ("Tank") is said louder than "unknown"
-        level = logging.INFO if vehicle_class in ("", "unknown") else logging.WARNING
-        log.log(level, "truth start: vehicle %r of class %r, not one of the model's %s: α spread over the whole "
-                "manifold", vehicle, vehicle_class, model.class_names)
-        return None
-    c = model.class_names.index(vehicle_class)
+    c = model.class_names.index(vehicle_class) if vehicle_class in model.class_names else None
     arcs = [(start, end) for label, start, end in model.identity.class_arcs() if label == c]
+    if not arcs:  # a misspelt class ("Tank") is said louder than "unknown"
+        level = logging.INFO if vehicle_class in ("", "unknown") else logging.WARNING
+        why = "not one of the model's" if c is None else "which no training vehicle of the model has; its classes:"
+        log.log(level, "truth start: vehicle %r of class %r, %s %s: α spread over the whole manifold", vehicle,
+                vehicle_class, why, model.class_names)
+        return None
     start, end = max(arcs, key=lambda arc: arc[1] - arc[0])  # its longest arc (classes are contiguous)
     return (start + end) / 2 % (2 * math.pi)
 
