@@ -243,6 +243,21 @@ def test_unwritable_outputs_are_named_before_the_work(tmp_path):
     assert (tmp_path / "new").is_dir() and not any((tmp_path / "new").iterdir())
 
 
+@pytest.mark.parametrize("below", ["model.pt", "sub/model.pt"])
+def test_a_file_where_the_output_folder_should_be_is_named(tmp_path, below):
+    """train.py checkpoint=FILE/model.pt said "cannot write FILE/model.pt: File exists": the reason is the
+    one track.py's --out gives for a file in the way (Not a directory), and the file in the way is named."""
+    blocker = tmp_path / "file"
+    blocker.write_text("x")
+    with pytest.raises(NotADirectoryError) as info:
+        check_writable(blocker / below)
+    assert str(info.value) == (f"[Errno {errno.ENOTDIR}] cannot write {blocker / below}: Not a directory "
+                               f"({blocker} is a file)")
+    with pytest.raises(NotADirectoryError, match=f"^.*cannot write the run into {blocker}/run: Not a directory$"):
+        with claimed_output_dir(blocker / "run", "run"):  # track.py's --out
+            pass
+
+
 def test_a_run_that_fails_before_writing_leaves_the_earlier_run_as_it_was(tmp_path):
     run = tmp_path / "run"
     with claimed_output_dir(run, "run", replaces=("report.json",)):

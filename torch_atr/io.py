@@ -372,4 +372,8 @@ def check_writable(path: str | os.PathLike) -> None:
         with tempfile.TemporaryFile(dir=path.parent):
             pass
     except OSError as exc:
+        there = next(p for p in path.parents if os.path.exists(p))  # the nearest: a file where a folder must be?
+        if isinstance(exc, (FileExistsError, NotADirectoryError)) and not os.path.isdir(there):
+            raise NotADirectoryError(errno.ENOTDIR, f"cannot write {path}: {os.strerror(errno.ENOTDIR)} ({there} is "
+                                                    f"a file)") from None  # mkdir's "File exists" named neither
         raise OSError(exc.errno, f"cannot write {path}: {exc.strerror}") from None
