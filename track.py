@@ -22,7 +22,7 @@ import shlex
 from pathlib import Path
 
 from torch_atr import viz
-from torch_atr.cli import REPO, console_logging, in_repo, run_main
+from torch_atr.cli import REPO, ArgumentParser, console_logging, in_repo, run_main
 from torch_atr.config import load_config
 from torch_atr.data import open_sequence
 from torch_atr.io import check_output_dir, claimed_output_dir
@@ -56,7 +56,7 @@ FLAGS = {
 
 
 def main(argv: list[str] | None = None) -> dict:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--config", default=str(REPO / "configs" / "track.yaml"), metavar="YAML",
                         help="the config whose keys the flags and overrides set (default: configs/track.yaml)")
     for flag, (key, metavar, meaning) in FLAGS.items():

@@ -28,7 +28,7 @@ from pathlib import Path
 import torch
 
 from torch_atr import viz
-from torch_atr.cli import REPO, console_logging, run_main
+from torch_atr.cli import REPO, ArgumentParser, console_logging, run_main
 from torch_atr.config import load_config
 from torch_atr.evaluation import (fit_alpha, identity_distances, per_class_mean, rbf_mapping_iou,
                                   reconstruction_iou)
@@ -48,7 +48,7 @@ RUN_FILES = ("report.json", *FIGURES, RUN_CLAIM, "events.out.tfevents.*")
 
 
 def main(argv: list[str] | None = None) -> dict:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--config", default=str(REPO / "configs" / "default.yaml"),
                         help="YAML config (default: the repository's configs/default.yaml)")
     parser.add_argument("--overwrite", action="store_true",

@@ -121,3 +121,16 @@ def test_a_bar_in_the_frames_of_the_error_a_user_error_arose_from_closes_before_
     result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
     assert result.returncode == 2
     assert result.stderr.endswith("\ndemo.py: error: vehicle 3 has no mesh\n") and "30%" in result.stderr, result.stderr
+
+
+@pytest.mark.parametrize("script, argv, message", [
+    ("track.py", ["--bogus"], "unrecognized arguments: --bogus"),
+    ("track.py", ["--particles"], "argument --particles: expected one argument"),
+    ("train.py", ["--bogus"], "unrecognized arguments: --bogus"),
+    ("-m torch_atr.experiments", ["sensiac-like"], "the following arguments are required: --out")])
+def test_a_bad_argument_is_one_line_and_status_2(script, argv, message):
+    """argparse printed its five-line usage block above the error line; run_main's user errors are one line."""
+    prog = "python -m torch_atr.experiments" if script.startswith("-m") else script
+    result = subprocess.run([sys.executable, *script.split(), *argv], capture_output=True, text=True, cwd=REPO)
+    assert result.returncode == 2
+    assert result.stderr == f"{prog}: error: {message} ({prog} --help: the options)\n"

@@ -3,18 +3,20 @@
 :func:`run_main` runs an entry point's ``main(argv)`` and turns a user error (a bad config,
 file, spec or checkpoint; an output that may not be replaced) into one line on stderr,
 ``PROG: error: MESSAGE``, and exit status 2, the way ``argparse`` reports a bad argument. Other
-exceptions are bugs and keep their traceback. :func:`console_logging` sets up their log lines,
+exceptions are bugs and keep their traceback; :class:`ArgumentParser` reports a bad flag the same
+way. :func:`console_logging` sets up their log lines,
 which never land inside a progress bar. :func:`in_repo` finds the repository's defaults
 (``checkpoints/default.pt``) from any folder.
 """
 
 from __future__ import annotations
 
+import argparse
 import logging
 import os
 import sys
 from pathlib import Path
-from typing import Callable
+from typing import Callable, NoReturn
 
 from tqdm import tqdm
 
@@ -42,6 +44,15 @@ def error_text(exc: BaseException) -> str:
     else:
         text = str(exc)
     return " ".join(text.split()) or type(exc).__name__
+
+
+class ArgumentParser(argparse.ArgumentParser):
+    """argparse's parser whose bad argument is one line, as :func:`run_main` reports a user error:
+    ``PROG: error: MESSAGE (PROG --help: the options)`` and status 2, without the usage block that
+    argparse prints above it."""
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(2, f"{self.prog}: error: {' '.join(message.split())} ({self.prog} --help: the options)\n")
 
 
 def run_main(main: Callable[[list[str] | None], object], argv: list[str] | None = None,

@@ -30,7 +30,7 @@ import os
 import time
 from pathlib import Path
 
-from torch_atr.cli import console_logging, run_main
+from torch_atr.cli import ArgumentParser, console_logging, run_main
 from torch_atr.config import ConfigError, check_seed, override_leaves
 from torch_atr.experiments.combined import COMBINED_FORMAT, EXPERIMENTS, write_combined_report
 from torch_atr.experiments.report import (EXPERIMENT_CLAIM, REPORT_FORMAT, claim_format, claimed_report_folder,
@@ -48,8 +48,8 @@ SET_BY_OPTIONS = {"filter.particles": "--particles", "filter.method": "--methods
 
 
 def main(argv: list[str] | None = None) -> dict:
-    parser = argparse.ArgumentParser(prog="python -m torch_atr.experiments", description=__doc__,
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = ArgumentParser(prog="python -m torch_atr.experiments", description=__doc__,
+                            formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("experiment", choices=["all", *EXPERIMENTS])
     parser.add_argument("--out", required=True, help="the report folder (resumed when it holds a run of ours)")
     size = parser.add_mutually_exclusive_group()
