@@ -213,3 +213,22 @@ def test_frame_distance_is_the_whole_frames_near_the_blob():
     for bad in (math.nan, -1.0):
         with pytest.raises(ValueError, match="margin"):
             frame_distance(mask, bad)
+
+
+def test_the_window_functions_refuse_vectors_of_the_wrong_shape():
+    """An (N, 1) image_px broadcast against the (N, L, L) samples to (N, N, L, L) without a word; a
+    (1, 2) window, a blob box of 3 numbers or a position of 2 failed deep inside, or not at all."""
+    from torch_atr.tracking.initialise import InitConfig, truth_particles
+    from torch_atr.tracking.observation import blob_windows, observe_windows, place_silhouette
+
+    template, uv, side = TemplateConfig(size_px=8, window_m=10.0, tau_px=2.0), torch.zeros(3, 2), torch.ones(3, 2)
+    with pytest.raises(ValueError, match=r"image_px to have shape \(3\); got \(3, 1\)"):
+        observe_windows(torch.zeros(5, 5), uv, side, template, 4, image_px=torch.ones(3, 1))
+    with pytest.raises(ValueError, match=r"uv to have shape \(2\); got \(1, 2\)"):
+        place_silhouette(torch.zeros(8, 8), torch.zeros(1, 2), torch.ones(2), (5, 5))
+    with pytest.raises(ValueError, match=r"side to have shape \(2\); got \(1, 2\)"):
+        place_silhouette(torch.zeros(8, 8), torch.zeros(2), torch.ones(1, 2), (5, 5))
+    with pytest.raises(ValueError, match=r"blob_box to have shape \(4\); got \(3,\)"):
+        blob_windows(torch.zeros(2, 4), torch.zeros(3), 8)
+    with pytest.raises(ValueError, match=r"position to have shape \(3\); got \(2,\)"):
+        truth_particles(torch.zeros(2), 0.0, 0.0, 4, InitConfig())

@@ -193,6 +193,7 @@ def truth_particles(position: torch.Tensor, heading: float, alpha: float | None,
     the particles'); heading, alpha: radians (alpha None: unknown, drawn uniformly on [0, 2π));
     n: N. Returns (N, 6).
     """
+    check_shape("position", position, (3,))
     noise = torch.randn(n, STATE_DIM, generator=generator, dtype=position.dtype, device=position.device)
     std = torch.tensor([cfg.position_std_m] * 3 + [cfg.heading_std_rad, cfg.speed_std_mps, 0.0]).to(position)
     out = torch.cat([position, position.new_tensor([heading, cfg.speed_mps, 0.0])]) + noise * std

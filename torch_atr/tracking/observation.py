@@ -147,6 +147,7 @@ def blob_windows(boxes: torch.Tensor, blob_box: torch.Tensor, size: int, side: t
         silhouette); the dtype and device of ``boxes``.
     """
     check_shape("boxes", boxes, ("M", 4))
+    check_shape("blob_box", blob_box, (4,))
     blob_box = blob_box.to(boxes)
     size_t = boxes[:, 2:] - boxes[:, :2] + 1  # (M, 2) template pixels
     if side is None:
@@ -254,6 +255,8 @@ def observe_windows(distance: torch.Tensor, uv: torch.Tensor, side: torch.Tensor
     if size < 1 or template.size_px % size:
         raise ValueError(f"Expected a likelihood size L dividing the template size {template.size_px}; got {size}")
     samples = sample_windows(distance.to(uv.device), uv, side, size, origin)  # image pixels
+    if image_px is not None:  # an (N, 1) broadcast against the samples to (N, N, L, L)
+        check_shape("image_px", image_px, (uv.shape[0],))
     if image_px is None:
         image_px = side.prod(dim=1).sqrt() / template.size_px
     per_tau = 1.0 / (image_px * template.tau_px)  # (N,) τ-units per image px
@@ -281,6 +284,8 @@ def place_silhouette(y: torch.Tensor, uv: torch.Tensor, side: torch.Tensor, shap
         all False for a non-finite window.
     """
     check_shape("y", y, ("S", "S"))
+    check_shape("uv", uv, (2,))
+    check_shape("side", side, (2,))
     H, W = int(shape[0]), int(shape[1])
     out = torch.zeros(H, W, dtype=torch.bool, device=y.device)
     if not bool(uv.isfinite().all() and side.isfinite().all() and (side > 0).all()):
