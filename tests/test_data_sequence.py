@@ -661,6 +661,21 @@ def test_open_sequence_errors(tmp_path):
         open_sequence(f"video:{tmp_path / 'clip.avi'},fps=3,fps=4")
 
 
+def test_a_path_with_a_comma_is_said_to_need_another_route(tmp_path):
+    """``video:/tmp/a,b.avi`` said "expected key=value; got 'b.avi'", as if the user had written an option."""
+    clip = tmp_path / "a,b.avi"
+    clip.write_bytes(b"x")
+    for scheme in ("video", "sensiac"):
+        with pytest.raises(InputError) as info:
+            open_sequence(f"{scheme}:{clip},fps=3")
+        assert str(info.value) == (
+            f"Sequence spec '{clip},fps=3': expected key=value; got 'b.avi': commas separate a spec's key=value "
+            f"options, so a path with a comma cannot be given in a spec; rename or link it, or open it in Python with "
+            f"its reader, torch_atr.data.VideoSequence(PATH) or torch_atr.data.SensiacSequence(PATH)")
+    with pytest.raises(InputError, match=r"expected key=value; got 'color'$"):  # an option without its value
+        open_sequence(f"video:{tmp_path / 'clip.avi'},color")
+
+
 def test_register_scheme(monkeypatch, tmp_path):
     monkeypatch.setattr(sequence_module, "_SCHEMES", dict(sequence_module._SCHEMES))
     made = []

@@ -270,7 +270,8 @@ def parse_spec_options(spec: str, allowed: tuple[str, ...] | None = None,
     ``allowed``: the option names accepted, or None for any. ``has_target=False`` parses
     ``"key=value,..."`` (a blank spec: no options) and returns ``""`` as the target. Raises
     ``InputError`` naming the spec for an empty target, an option without ``=`` (an empty part
-    included), a repeated option or one not in ``allowed``.
+    included; after a target, saying that a path cannot hold a comma), a repeated option or one not in
+    ``allowed``.
     """
     parts = spec.split(",")
     if has_target:
@@ -285,7 +286,12 @@ def parse_spec_options(spec: str, allowed: tuple[str, ...] | None = None,
         key, sep, value = part.partition("=")
         key = key.strip()
         if not sep or not key:
-            raise InputError(f"Sequence spec {show(spec)}: expected key=value; got {show(part)}")
+            # A part after the file that names no option: most likely the rest of a path the comma split.
+            path = has_target and bool(key) and key not in (allowed or ())
+            raise InputError(f"Sequence spec {show(spec)}: expected key=value; got {show(part)}" + (
+                ": commas separate a spec's key=value options, so a path with a comma cannot be given in a spec; "
+                "rename or link it, or open it in Python with its reader, torch_atr.data.VideoSequence(PATH) or "
+                "torch_atr.data.SensiacSequence(PATH)" if path else ""))
         if allowed is not None and key not in allowed:
             raise InputError(f"Sequence spec {show(spec)}: unknown option {show(key)}; "
                              f"allowed: {', '.join(sorted(allowed))}")
