@@ -50,6 +50,33 @@ def test_kernel_tail_is_truncated_not_denormal():
 def test_rbf_features_rejects_bad_widths():
     with pytest.raises(ValueError, match=r"widths to have shape \(4\)"):
         rbf_features(torch.zeros(2, 3), torch.zeros(4, 3), torch.ones(3))
+    u = view_vectors(torch.tensor([0.3, 1.0]), torch.tensor([0.1, 0.2]))
+    c = view_vectors(torch.zeros(2), torch.zeros(2))
+    for widths in ([0.0, 0.5], [-0.2, 0.5]):  # NaN features; a negative width acted as its absolute value
+        with pytest.raises(ValueError, match=r"Expected widths > 0; got min"):
+            rbf_features(u, c, torch.tensor(widths))
+    with pytest.raises(ValueError, match=r"Expected u to be unit vectors .* got norms from 2 to 2"):
+        rbf_features(2 * u, c, torch.ones(2))  # the kernel's 2 − 2 u·c gave 1.0 where exp(−‖2u − c‖²/2) is 3.7e-6
+    with pytest.raises(ValueError, match=r"Expected centres_u to be unit vectors"):
+        rbf_features(u, 0.5 * c, torch.ones(2))
+
+
+@pytest.mark.parametrize("ridge", [1e-4, 0.0])
+def test_ridge_hat_of_float32_features_is_the_svd_filter_solution(ridge):
+    """W = U diag(s / (s² + λ)) Vᵀ of Ψ's SVD, in float64, for the shipped model's float32 features at
+    its training views: the Gram ΨΨᵀ squares Ψ's condition number (2.9e5), and solved in float32 W was
+    0.8 % off at λ = 1e-4 and 177 % at λ = 0."""
+    from torch_atr.model import GenerativeShapeModel
+    from conftest import SHIPPED_CHECKPOINT
+
+    rbf = GenerativeShapeModel.from_checkpoint(SHIPPED_CHECKPOINT).rbf
+    with torch.no_grad():
+        psi = rbf(rbf.centres_theta, rbf.centres_phi)  # (V, P) float32
+    U, S, Vh = torch.linalg.svd(psi.double(), full_matrices=False)
+    want = U @ torch.diag(S / (S ** 2 + ridge)) @ Vh
+    got = ridge_hat(psi, ridge)
+    assert got.dtype == torch.float32
+    assert float((got.double() - want).norm() / want.norm()) < 1e-5
 
 
 def test_default_width_is_mean_nearest_chord():

@@ -10,6 +10,7 @@ recognised (Table 6.1), the two best-matching training vehicles (Fig. 6.10); the
 
 from __future__ import annotations
 
+import copy
 import logging
 import math
 
@@ -75,10 +76,13 @@ def rbf_mapping_iou(rbf, signed: torch.Tensor, theta, phi, masks_out: torch.Tens
     rbf: an RBFViewMapping; signed: (K, V, H, W) templates at theta, phi (V,); masks_out: (K, Vo, H, W)
     bool silhouettes at theta_out, phi_out (Vo,); ridge: λ. Returns (K, Vo). Measures the kernel
     widths by themselves: the prediction Bᵏ Ψ_out with Bᵏ = Yᵏᵀ W is Yᵏᵀ (W Ψ_outᵀ), so B is never formed.
+    In float64 whatever ``rbf``'s dtype: train.py measured the initial widths in float64 and the tuned
+    ones (the fitted float32 model's) in float32, where Ψ's rounding alone moves the IoU.
     """
     check_shape("signed", signed, ("K", "V", None, None))
     check_shape("masks_out", masks_out, (signed.shape[0], "Vo", *signed.shape[2:]))
     check_finite("signed", signed, "signed distances")  # a NaN pixel scored as outside, lowering the IoU unseen
+    rbf = copy.deepcopy(rbf).to(torch.float64)
     like = rbf.log_width
     theta, phi, theta_out, phi_out = _as_views(like, theta=theta, phi=phi, theta_out=theta_out, phi_out=phi_out)
     W = ridge_hat(rbf(theta, phi), ridge)  # (V, P)
