@@ -285,3 +285,15 @@ def test_files_and_opencv_results_with_absurd_magnitudes_are_refused_naming_them
         Camera.from_opencv(K_CV, DIST_CV, RVEC, [0.0, 1e300, 1.0], 640, 512)
     with pytest.raises(ValueError, match=r"got width=1e\+30"):
         Camera.from_opencv(K_CV, DIST_CV, RVEC, TVEC, 1e30, 512)
+
+
+def test_the_image_size_travels_in_the_state_dict():
+    """Only K, dist, R and t were buffers: a 640 x 512 camera's state loaded into a 10 x 10 one kept
+    10 x 10, and render_mask rasterised into that."""
+    big, small = Camera(1000.0, 1000.0, 320.0, 256.0, 640, 512), Camera(5.0, 5.0, 5.0, 5.0, 10, 10)
+    small.load_state_dict(big.state_dict())
+    assert (small.width, small.height, small.fx) == (640, 512, 1000.0)
+    state = big.state_dict()
+    state["_extra_state"] = {"width": 0, "height": 512}
+    with pytest.raises(ValueError, match="whole image size of 1 to 16384 px a side; got width=0"):
+        small.load_state_dict(state)

@@ -199,6 +199,16 @@ def test_principal_basis_randomised_error_is_near_optimal():
     assert torch.equal(U, U2)  # seeded: deterministic
 
 
+def test_principal_basis_error_of_float32_data_is_its_residual():
+    """Rank 20 plus 1e-4 noise: the error, ‖Y‖² − ‖YU‖² in float32, read 0 for a true 2e-5."""
+    rng = np.random.default_rng(5)
+    Y = rng.standard_normal((2000, 20)) @ rng.standard_normal((20, 256)) + 1e-4 * rng.standard_normal((2000, 256))
+    U, error = principal_basis(torch.from_numpy(Y).float(), 20)
+    U64 = U.double().numpy()
+    direct = np.linalg.norm(Y - Y @ U64 @ U64.T) / np.linalg.norm(Y)
+    assert error.item() == pytest.approx(direct, rel=0.05) and direct > 1e-5
+
+
 def test_project_gives_basis_coordinates_and_the_distance_identity():
     core = TensorCore.from_mappings(_random_mappings(seed=4), 5)
     g = torch.Generator().manual_seed(2)

@@ -60,6 +60,15 @@ def _check_entries(name: str, value: torch.Tensor, bound: float, unit: str) -> N
                          f"got {name}[{i}]={value[i].item()!r}")
 
 
+def _image_size(width, height) -> tuple[int, int]:
+    """(width, height) as whole pixels in [1, MAX_IMAGE_SIDE], or ValueError naming the bad one."""
+    width, height = _number("width", width), _number("height", height)
+    for name, value in (("width", width), ("height", height)):
+        if not (1 <= value <= MAX_IMAGE_SIDE and value.is_integer()):
+            raise ValueError(f"Expected a whole image size of 1 to {MAX_IMAGE_SIDE} px a side; got {name}={value!r}")
+    return int(width), int(height)
+
+
 class Camera(nn.Module):
     """A pinhole camera with intrinsics, distortion and a world -> sensor pose.
 
@@ -94,12 +103,7 @@ class Camera(nn.Module):
             if not abs(value) <= MAX_PRINCIPAL_PX:
                 raise ValueError(f"Expected a principal point with coordinates in [-{MAX_PRINCIPAL_PX:g}, "
                                  f"{MAX_PRINCIPAL_PX:g}] px; got {name}={value!r}")
-        width, height = _number("width", width), _number("height", height)
-        for name, value in (("width", width), ("height", height)):
-            if not (1 <= value <= MAX_IMAGE_SIDE and value.is_integer()):
-                raise ValueError(f"Expected a whole image size of 1 to {MAX_IMAGE_SIDE} px a side; "
-                                 f"got {name}={value!r}")
-        self.width, self.height = int(width), int(height)
+        self.width, self.height = _image_size(width, height)
         K = torch.tensor([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]], dtype=dtype)
         dist = torch.zeros(5, dtype=dtype) if dist is None else torch.as_tensor(dist, dtype=dtype).flatten()
         R = torch.eye(3, dtype=dtype) if R is None else torch.as_tensor(R, dtype=dtype)
@@ -114,6 +118,16 @@ class Camera(nn.Module):
         self.register_buffer("dist", dist)
         self.register_buffer("R", R)
         self.register_buffer("t", t)
+
+    def get_extra_state(self) -> dict:
+        """The image size, which is no tensor, in ``state_dict`` with K, dist, R and t: loaded into a
+        camera of another size, a state kept that camera's size and rendered into it."""
+        return {"width": self.width, "height": self.height}
+
+    def set_extra_state(self, state: dict) -> None:
+        if not (isinstance(state, dict) and set(state) == {"width", "height"}):
+            raise ValueError(f"Expected a camera's extra state {{'width': W, 'height': H}}; got {state!r}")
+        self.width, self.height = _image_size(state["width"], state["height"])
 
     @property
     def fx(self) -> float:

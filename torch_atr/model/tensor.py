@@ -94,9 +94,9 @@ def principal_basis(Y: torch.Tensor, rank: int, oversample: int = 32, power_iter
         torch.manual_seed(seed)
         _, _, V = torch.svd_lowrank(Y, q=min(r + oversample, *Y.shape), niter=power_iters)
     U = _fix_signs(V[:, :r])
-    total = Y.square().sum()
-    kept = (Y @ U).square().sum()
-    error = ((total - kept).clamp_min(0) / total.clamp_min(torch.finfo(Y.dtype).tiny)).sqrt()
+    # The residual itself, not ‖Y‖² − ‖YU‖²: that difference cancels in float32 (2e-5 read as 0).
+    residual = (Y - (Y @ U) @ U.T).square().sum()
+    error = (residual / Y.square().sum().clamp_min(torch.finfo(Y.dtype).tiny)).sqrt()
     return U, error
 
 
