@@ -234,3 +234,6 @@ def test_given_pixel_basis_core_and_error_against_numpy():
     assert core.relative_error.item() == pytest.approx(np.linalg.norm(residual) / np.linalg.norm(C), rel=1e-10)
     with pytest.raises(ValueError, match="not both"):
         TensorCore.from_mappings(B, 4, pixel_basis=U1)
+    # Columns of norm 2: project's coordinates and fit_alpha's split of ‖y − t‖² would be wrong without a word.
+    with pytest.raises(ValueError, match=r"pixel_basis to have orthonormal columns; \|UᵀU − I\| reaches 3"):
+        TensorCore.from_mappings(B, pixel_basis=2 * U1)

@@ -20,6 +20,7 @@ from torch import nn
 from torch_atr._checks import check_shape
 
 log = logging.getLogger(__name__)
+_ORTHONORMAL_TOLERANCE = 1e-4  # |UᵀU − I| allowed of a given pixel basis (float32 QR stays near 1e-6)
 
 
 def _check_mode(T: torch.Tensor, mode: int) -> None:
@@ -174,6 +175,9 @@ class TensorCore(nn.Module):
         if pixel_basis is not None:
             check_shape("pixel_basis", pixel_basis, (d, None))
             U1 = pixel_basis.to(B)
+            off = (U1.T @ U1 - torch.eye(U1.shape[1], dtype=U1.dtype, device=U1.device)).abs().max()
+            if not off <= _ORTHONORMAL_TOLERANCE:  # project() and fit_alpha's ‖y − t‖² split rest on UᵀU = I
+                raise ValueError(f"Expected pixel_basis to have orthonormal columns; |UᵀU − I| reaches {float(off):.3g}")
         elif pixel_rank is not None:
             U1, _ = mode_basis(C, 0)  # (d, R), R = min(d, P·K)
             if pixel_rank > U1.shape[1]:
