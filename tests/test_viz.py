@@ -148,8 +148,30 @@ def test_error_figure_shows_the_aspect_up_to_the_mirror():
              "true_z": 900.0, "true_theta": 1.0} for i in range(3)]
     aspect = viz.error_figure(rows, "mirror").axes[2]
     labels = [t.get_text() for t in aspect.get_legend().get_texts()]
-    assert labels == ["aspect |θ̂ − θ|: mean 1.00 rad", "up to the mirror θ ↔ π − θ: mean 0.14 rad"]
+    assert labels == ["aspect |θ̂ − θ|: mean 1.00 rad",
+                      "up to the mirror θ ↔ π − θ (same silhouette at φ = 0): mean 0.14 rad"]
     np.testing.assert_allclose(aspect.get_lines()[1].get_ydata(), math.pi - 3.0)
+
+
+def test_error_figure_titles_a_run_by_what_it_holds_and_keeps_the_silhouettes_mirror():
+    """A run without a camera (the blob tracker's rows: θ, φ, α, no x, z) has no 3D estimate: its one
+    panel is the view error, and the title said '3D tracking errors'. Its dashed line is the mirror
+    θ ↔ π − θ, the same silhouette at φ = 0; θ ↔ 2π − θ is the image flipped left to right, which the
+    blob tracker tells apart. θ̂ = 5.0 against θ = 1.0 (by hand): 2.28 rad off (2π − 4.0), 2.28 up to
+    π − θ (5.0 − 2.14 = 2.86 is further), where 2π − θ = 5.28 would have given 0.28."""
+    truth = {"true_x": 0.5, "true_z": 900.0, "true_theta": 1.0, "true_phi": 0.01, "true_class": "apc"}
+    blob = [{"frame": i, "time_s": i / 30, "lost": 0, "theta": 5.0, "phi": 0.05, "alpha": 0.3, **truth}
+            for i in range(3)]
+    fig = viz.error_figure(blob, "nocam")
+    assert len(fig.axes) == 1 and fig.axes[0].get_title() == "nocam: view error over time (no camera: no 3D)"
+    labels = [t.get_text() for t in fig.axes[0].get_legend().get_texts()]
+    assert labels == ["aspect |θ̂ − θ|: mean 2.28 rad",
+                      "up to the mirror θ ↔ π − θ (same silhouette at φ = 0): mean 2.28 rad"]
+    np.testing.assert_allclose(fig.axes[0].get_lines()[1].get_ydata(), 2 * math.pi - 4.0)
+    calibrated = [{**row, "x": 0.8, "z": 905.0} for row in blob]
+    assert viz.error_figure(calibrated, "3d").axes[0].get_title() == "3d: 3D tracking errors over time"
+    sensiac = viz.error_figure(_sensiac_like_rows(), "sensiac")
+    assert [ax.get_title() for ax in sensiac.axes] == ["sensiac: aspect error over time (truth: no position)"]
 
 
 def test_view_figure_legend_shows_the_estimate_of_a_late_start():

@@ -324,8 +324,9 @@ def alpha_figure(rows: list[dict], model, title: str):
 
 def error_figure(rows: list[dict], title: str):
     """Horizontal, range and aspect errors over time (Fig. 6.8), with their means; the aspect also
-    against the nearer of θ and π − θ, the silhouette's mirror at a grazing view (dashed). Returns a
-    Figure (None when no row has both an estimate and its truth)."""
+    against the nearer of θ and π − θ, the silhouette's mirror at a grazing view (dashed). The title
+    says what the panels hold: a run without a camera has no 3D estimate, only its view's error.
+    Returns a Figure (None when no row has both an estimate and its truth)."""
     from torch_atr.tracking.filter import column, row_errors
 
     t = column(rows, "time_s")
@@ -336,6 +337,12 @@ def error_figure(rows: list[dict], title: str):
     errors = [error for error in errors if np.isfinite(error[2]).any()]  # no x, z without a camera
     if not errors:
         return None
+    if len(errors) == 3:
+        what = "3D tracking errors over time"
+    elif not any("x" in row for row in rows):
+        what = "view error over time (no camera: no 3D)"
+    else:  # a 3D estimate against a truth without a position (SENSIAC's)
+        what = " and ".join(name.split(" ")[0] for name, *_ in errors) + " error over time (truth: no position)"
     plt = pyplot()
     fig, axes = plt.subplots(len(errors), 1, figsize=(9, 1.2 + 1.9 * len(errors)), sharex=True, squeeze=False)
     axes = axes[:, 0]
@@ -343,13 +350,14 @@ def error_figure(rows: list[dict], title: str):
         ax.plot(t, e, ".-", lw=1.0, ms=2.5, label=f"{name}: mean {np.nanmean(e):.2f} {unit}")  # a lone frame too
         if mirrored is not None:
             ax.plot(t, mirrored, "--", lw=1.0, color="tab:orange",
-                    label=f"up to the mirror θ ↔ π − θ: mean {np.nanmean(mirrored):.2f} {unit}")
+                    label=f"up to the mirror θ ↔ π − θ (same silhouette at φ = 0): mean {np.nanmean(mirrored):.2f} "
+                          f"{unit}")
         ax.set(ylabel=f"error ({unit})")
         ax.legend(loc="best", fontsize=8)  # errors often grow late: upper right hid their end
         ax.grid(alpha=0.3)
     axes[-1].set(xlabel="time (s)")
     _span_run(axes[-1], t)
-    axes[0].set_title(f"{title}: 3D tracking errors over time")
+    axes[0].set_title(f"{title}: {what}")
     fig.tight_layout()
     return fig
 
