@@ -226,6 +226,30 @@ def test_view_figure_plots_the_azimuth_against_time_below():
     assert fig.axes[2].get_ylabel() == "time (s)"  # the colour key
 
 
+def test_view_figure_draws_the_estimate_over_the_truth_and_fits_the_elevation():
+    """A grazing camera: truth and estimate both at φ ≈ 0.2°. The truth was drawn over the estimate
+    and hid it, and the elevation axis was forced to −5°..50° (the run a 1-px line). The estimate is
+    above the truth (hollow rings), the axis spans the run's elevations (0.2°-3°, by hand) with a
+    little room, and the training elevations are shaded and keyed (the checkpoint's 0°-40°)."""
+    rows = [{"frame": i, "time_s": i / 30, "lost": 0, "theta": 1.0 + 0.01 * i, "phi": math.radians(0.2 + 0.3 * i),
+             "true_theta": 1.0 + 0.01 * i, "true_phi": math.radians(0.2)} for i in range(11)]
+    model = GenerativeShapeModel.from_checkpoint(CKPT)
+    lowest, highest = np.degrees(model.rbf.centres_phi.min().item()), np.degrees(model.rbf.centres_phi.max().item())
+    assert (round(lowest), round(highest)) == (0, 40)
+    fig = viz.view_figure(rows, "grazing", (math.radians(lowest), math.radians(highest)))
+    above, below = fig.axes[:2]
+    for ax in (above, below):
+        truth, estimate = ax.lines[0], ax.collections[0]
+        assert truth.get_zorder() < estimate.get_zorder() and truth.get_markerfacecolor() == "none"
+    low, high = above.get_ylim()
+    assert -2.0 < low < 0.2 and 3.2 < high < 5.0
+    assert [t.get_text() for t in above.get_legend().get_texts()] == ["estimate", "truth",
+                                                                     "training elevations (0°–40°)"]
+    shade = above.patches[0]  # the span, from the lowest to the highest training elevation, under the points
+    assert shade.get_zorder() < above.lines[0].get_zorder()
+    np.testing.assert_allclose([shade.get_y(), shade.get_y() + shade.get_height()], [lowest, highest])
+
+
 class _RecordingWriter:
     """Stands in for cv2.VideoWriter: keeps every frame written, in order."""
 

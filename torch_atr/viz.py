@@ -362,11 +362,12 @@ def error_figure(rows: list[dict], title: str):
     return fig
 
 
-def view_figure(rows: list[dict], title: str):
+def view_figure(rows: list[dict], title: str, training_phi: tuple[float, float] | None = None):
     """The view Θ = (θ, φ) over the run: above, on the view manifold (Fig. 6.15), azimuth against
-    elevation in degrees, coloured by time; below, the azimuth against time, where a grazing
-    camera's views (φ near 0) are told apart. The truth where known, drawn over the estimate.
-    Returns a Figure."""
+    elevation in degrees, coloured by time, the elevation axis fitted to the run's views and the
+    training elevations (``training_phi``: lowest, highest, radians) shaded; below, the azimuth
+    against time, where a grazing camera's views (φ near 0) are told apart. The truth where known,
+    as hollow rings under the estimate (at a grazing camera both lie on φ ≈ 0). Returns a Figure."""
     from torch_atr.tracking.filter import column
 
     plt = pyplot()
@@ -376,26 +377,33 @@ def view_figure(rows: list[dict], title: str):
     phi = np.degrees(column(rows, "phi"))
     theta = np.degrees(column(rows, "theta")) % 360
     est = np.isfinite(theta) & np.isfinite(phi)  # a frame without an estimate is a transparent point (and the legend's)
-    sc = ax.scatter(theta[est], phi[est], c=t[est], s=10, cmap="viridis", label="estimate")
-    ax_time.scatter(t[est], theta[est], c=t[est], s=10, cmap="viridis", label="estimate")
+    sc = ax.scatter(theta[est], phi[est], c=t[est], s=10, cmap="viridis", label="estimate", zorder=3)
+    ax_time.scatter(t[est], theta[est], c=t[est], s=10, cmap="viridis", label="estimate", zorder=3)
+    truth = {"ls": "none", "marker": "o", "ms": 4.5, "mfc": "none", "mec": "crimson", "mew": 0.6, "zorder": 2}
     if np.isfinite(true_phi).any():
-        ax.plot(true_theta, true_phi, ".", ms=3, color="crimson", label="truth")
+        ax.plot(true_theta, true_phi, label="truth", **truth)
     elif np.isfinite(true_theta).any():  # an aspect without an elevation (SENSIAC's truth): ticks along the bottom
         ax.plot(true_theta, np.full(true_theta.shape, 0.02), "|", ms=8, color="crimson",
                 transform=ax.get_xaxis_transform(), label="true azimuth (elevation unknown)")
     if np.isfinite(true_theta).any():
-        ax_time.plot(t, true_theta, ".", ms=3, color="crimson", label="truth")
+        ax_time.plot(t, true_theta, label="truth", **truth)
     if not est.any():
         _note_no_estimate(ax)
-    shown = np.concatenate([phi[np.isfinite(phi)], true_phi[np.isfinite(true_phi)], [-5.0, 50.0]])  # training: 0°-40°
-    ax.set(xlim=(0, 360), xticks=range(0, 361, 45), ylim=(shown.min() - 1, shown.max() + 1),
+    shown = np.concatenate([phi[np.isfinite(phi)], true_phi[np.isfinite(true_phi)]])
+    low, high = (shown.min(), shown.max()) if shown.size else np.degrees(training_phi or (0.0, math.pi / 2))
+    pad = max(1.0, 0.08 * (high - low))
+    if training_phi is not None:
+        lowest, highest = np.degrees(training_phi)
+        ax.axhspan(lowest, highest, color="0.88", lw=0, zorder=0,
+                   label=f"training elevations ({lowest:.0f}°–{highest:.0f}°)")
+    ax.set(xlim=(0, 360), xticks=range(0, 361, 45), ylim=(low - pad, high + pad),
            xlabel="azimuth θ from the vehicle's front (degrees)", ylabel="elevation φ (degrees)",
            title=f"{title}: the view over the run")
     ax_time.set(ylim=(0, 360), yticks=range(0, 361, 90), xlabel="time (s)", ylabel="azimuth θ (degrees)")
     _span_run(ax_time, t)
     for a in (ax, ax_time):
         a.grid(alpha=0.3)
-        a.legend(loc="upper right", fontsize=8)
+        a.legend(loc="best", fontsize=8)  # upper right hid the views of a run ending at θ near 360°
     fig.colorbar(sc, ax=[ax, ax_time], label="time (s)")
     return fig
 
@@ -436,7 +444,8 @@ def track_figures(result, model, title: str) -> dict:
     ``view_trajectory`` and ``frames``. Returns name -> Figure."""
     figures = {"alpha_over_time": alpha_figure(result.rows, model, title),
                "errors_over_time": error_figure(result.rows, title),
-               "view_trajectory": view_figure(result.rows, title),
+               "view_trajectory": view_figure(result.rows, title, (model.rbf.centres_phi.min().item(),
+                                                                   model.rbf.centres_phi.max().item())),
                "frames": frame_strip_figure(result.snapshots, result.rows, title) if result.snapshots else None}
     return {name: fig for name, fig in figures.items() if fig is not None}
 
