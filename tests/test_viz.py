@@ -250,6 +250,40 @@ def test_view_figure_draws_the_estimate_over_the_truth_and_fits_the_elevation():
     np.testing.assert_allclose([shade.get_y(), shade.get_y() + shade.get_height()], [lowest, highest])
 
 
+def test_alpha_figure_draws_the_matches_over_the_dots_keys_the_bands_as_drawn_and_keeps_the_first_dot_whole():
+    """α̂ sitting on the best match (the quick start's t_55): the dashed line was drawn under the dots and
+    hidden; the legend's class swatches were darker (alpha 0.35) than the bands (0.18); the first
+    frame's dot, at t = 0 on the axis's edge, was cut in half. The reference: the checkpoint's classes
+    in order, their tab10 colours, and the dot's pixels left of the axes' edge."""
+    from matplotlib.colors import to_rgb
+
+    model = GenerativeShapeModel.from_checkpoint(CKPT)
+    a = model.alphas[model.vehicle_names.index("t_55")].item()
+    rows = [{"frame": i, "time_s": i / 30, "lost": 0, "alpha": a, "class": "tank"} for i in range(30)]
+    fig = viz.alpha_figure(rows, model, "on the match")
+    ax = fig.axes[0]
+    dots = next(line for line in ax.lines if line.get_label() == "estimated α")
+    matches = [line for line in ax.lines if line.get_label().startswith("best match")]
+    assert matches[0].get_label() == "best match 1: t_55"
+    assert all(match.get_zorder() > dots.get_zorder() for match in matches)
+    legend = ax.get_legend()
+    texts = [t.get_text() for t in legend.get_texts()]
+    assert texts[:len(model.class_names)] == [f"{name} arc" for name in model.class_names]
+    for c, handle in enumerate(legend.legend_handles[:len(model.class_names)]):
+        bands = [p for p in ax.patches if np.allclose(p.get_facecolor()[:3], to_rgb(f"C{c}"))]
+        assert bands and np.allclose(to_rgb(handle.get_color()), to_rgb(f"C{c}"))
+        assert {band.get_alpha() for band in bands} == {handle.get_alpha()}
+    assert ax.get_xlim()[0] == 0.0  # no negative time: the dot is drawn whole across the edge
+    legend.remove()
+    fig.set_dpi(300)  # the dot 12 px across
+    fig.canvas.draw()
+    image = np.asarray(fig.canvas.buffer_rgba())[..., :3].astype(int)
+    x, y = np.round(ax.transData.transform((0.0, a))).astype(int)
+    row = image.shape[0] - y
+    left_of_edge = image[:, x - 5:x - 2].max(axis=(1, 2))  # the lightest of three columns just outside the axes
+    assert left_of_edge[row] < 80 and left_of_edge[row + 20] > 240  # the dot's left half, black, only there
+
+
 class _RecordingWriter:
     """Stands in for cv2.VideoWriter: keeps every frame written, in order."""
 

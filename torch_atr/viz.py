@@ -283,7 +283,8 @@ def _note_no_estimate(ax) -> None:
 def _span_run(ax, t: np.ndarray) -> None:
     """Set the time axis of ``ax`` to the whole run, frames with an estimate or not, and half a frame
     after the last (whose marker the edge cut in half); t: (T,) seconds. A one-frame run gets half a
-    second either side, cut at 0 s (matplotlib's ±0.05 s ran through negative time)."""
+    second either side, cut at 0 s (matplotlib's ±0.05 s ran through negative time). The first frame
+    sits on the edge: draw its marker with ``clip_on=False`` (the edge cut it in half)."""
     times = np.unique(t[np.isfinite(t)])
     if times.size == 1:
         ax.set_xlim(times[0] - 0.5 if times[0] < 0 else max(times[0] - 0.5, 0.0), times[0] + 0.5)
@@ -291,26 +292,37 @@ def _span_run(ax, t: np.ndarray) -> None:
         ax.set_xlim(times[0], times[-1] + 0.5 * np.median(np.diff(times)))
 
 
+def class_arc_bands(ax, model, alpha: float = 0.18) -> None:
+    """The model's class arcs as bands across ``ax`` over its α axis (radians), keyed in the order
+    of the model's classes, each key as pale as its band. Used by every figure of α over time."""
+    colours = pyplot().get_cmap("tab10")
+    for c, start, end in model.identity.class_arcs():
+        for lo, hi in ((start, min(end, 2 * math.pi)), (0.0, end - 2 * math.pi)):
+            if hi > lo:
+                ax.axhspan(lo, hi, color=colours(c % 10), alpha=alpha, lw=0)
+    for c, name in enumerate(model.class_names):
+        ax.plot([], [], lw=8, color=colours(c % 10), alpha=alpha, label=f"{name} arc")
+
+
 def alpha_figure(rows: list[dict], model, title: str):
     """α over time with the class arcs as coloured bands and the two nearest training vehicles
-    of the sequence as dashed lines (Fig. 6.10). rows: estimate rows. Returns a Figure."""
+    of the sequence as dashed lines over the estimates (Fig. 6.10). rows: estimate rows. Returns a Figure."""
+    from matplotlib import patheffects
+
     from torch_atr.evaluation import best_matches
     from torch_atr.tracking.filter import column
 
     plt = pyplot()
-    colours = plt.get_cmap("tab10")
     t, alpha = column(rows, "time_s"), column(rows, "alpha")
     fig, ax = plt.subplots(figsize=(9, 4.5))
-    for c, start, end in model.identity.class_arcs():
-        for lo, hi in ((start, min(end, 2 * math.pi)), (0.0, end - 2 * math.pi)):
-            if hi > lo:
-                ax.axhspan(lo, hi, color=colours(c % 10), alpha=0.18, lw=0)
-    for c, name in enumerate(model.class_names):
-        ax.plot([], [], lw=8, color=colours(c % 10), alpha=0.35, label=f"{name} arc")
-    for k, name in enumerate(best_matches(model, alpha)):
+    class_arc_bands(ax, model)
+    for k, name in enumerate(best_matches(model, alpha)):  # above the α̂ dots (haloed), which hid the match they sat on
         a = float(model.alphas[model.vehicle_names.index(name)])
-        ax.axhline(a, ls="--", lw=1.2, color="0.25" if k == 0 else "0.55", label=f"best match {k + 1}: {name}")
-    ax.plot(t, alpha, ".", ms=3, color="k", label="estimated α")
+        ax.axhline(a, ls="--", lw=1.2, color="0.25" if k == 0 else "0.55", zorder=3,
+                   path_effects=[patheffects.withStroke(linewidth=3, foreground="white")],
+                   label=f"best match {k + 1}: {name}")
+    ax.plot(t, alpha, ".", ms=3, color="k", zorder=2, clip_on=False,  # α in [0, 2π): the first frame's dot whole
+            label="estimated α")
     _span_run(ax, t)
     if not np.isfinite(alpha).any():
         _note_no_estimate(ax)
@@ -347,7 +359,8 @@ def error_figure(rows: list[dict], title: str):
     fig, axes = plt.subplots(len(errors), 1, figsize=(9, 1.2 + 1.9 * len(errors)), sharex=True, squeeze=False)
     axes = axes[:, 0]
     for ax, (name, unit, e, mirrored) in zip(axes, errors):
-        ax.plot(t, e, ".-", lw=1.0, ms=2.5, label=f"{name}: mean {np.nanmean(e):.2f} {unit}")  # a lone frame too
+        ax.plot(t, e, ".-", lw=1.0, ms=2.5, clip_on=False,  # a lone frame too; the first frame's dot whole
+                label=f"{name}: mean {np.nanmean(e):.2f} {unit}")
         if mirrored is not None:
             ax.plot(t, mirrored, "--", lw=1.0, color="tab:orange",
                     label=f"up to the mirror θ ↔ π − θ (same silhouette at φ = 0): mean {np.nanmean(mirrored):.2f} "
