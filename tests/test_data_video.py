@@ -135,6 +135,25 @@ def test_glob_and_16_bit(tmp_path):
         np.testing.assert_array_equal(got, frames[i])
 
 
+def test_a_16_bit_grey_video_stays_16_bit(tmp_path):
+    """Lossless IR video (FFV1, GRAY16LE) frame i holding 1000 + 300 i: OpenCV's default conversion to
+    8-bit BGR read frame 3's 1900 as 7; random reads after seeks, and colour, as for 8-bit video."""
+    path = str(tmp_path / "ir16.mkv")
+    writer = cv2.VideoWriter(path, cv2.CAP_FFMPEG, cv2.VideoWriter_fourcc(*"FFV1"), 30.0, (48, 32),
+                             [cv2.VIDEOWRITER_PROP_DEPTH, cv2.CV_16U, cv2.VIDEOWRITER_PROP_IS_COLOR, 0])
+    if not writer.isOpened():
+        pytest.skip("this OpenCV build writes no 16-bit FFV1")
+    for i in range(8):
+        writer.write(np.full((32, 48), 1000 + 300 * i, np.uint16))
+    writer.release()
+    seq = VideoSequence(path)
+    for i in (3, 0, 7, 4, 5):
+        frame = seq.frame(i)
+        assert frame.dtype == np.uint16 and frame.shape == (32, 48) and (frame == 1000 + 300 * i).all()
+    colour = VideoSequence(path, color=True).frame(3)
+    assert colour.dtype == np.uint8 and colour.shape == (32, 48, 3) and (colour == 1900 >> 8).all()
+
+
 def test_image_order_across_folders_ties_and_hidden_files(tmp_path):
     """A glob over several folders keeps each folder's frames together, in natural order; names
     that sort alike (img1, img01) come in a fixed order; a folder's hidden files (macOS's ._img

@@ -1,7 +1,8 @@
 """Video files (any codec OpenCV reads) and image folders or glob patterns as sequences.
 
 Frames come out grey uint8 (``color=False``, the default) or RGB uint8 (``color=True``); a
-16-bit grey image (an IR frame saved as PNG or TIFF) stays uint16 when read grey. Image files
+16-bit grey image (an IR frame saved as PNG or TIFF) or video (GRAY16LE, e.g. FFV1) stays uint16
+when read grey. Image files
 are ordered naturally (``frame2`` before ``frame10``), folder by folder for a glob; hidden files are
 not frames. These sources carry no ground truth.
 Frame sizes are checked against the bounds of :mod:`torch_atr.validate` before any decoding
@@ -26,6 +27,7 @@ from torch_atr.validate import InputError, image_size, opencv_can_open, read_ima
 
 logger = logging.getLogger(__name__)
 
+_GRAY16 = "Y1\x00\x10"  # FFmpeg's tag of GRAY16LE (16-bit grey, as lossless IR video is stored: FFV1)
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".pgm", ".ppm", ".pnm", ".webp")
 
 
@@ -81,7 +83,7 @@ class VideoSequence(Sequence):
             fps = check_fps(fps, self.path)
         self.color = bool(color)
         self.camera = camera
-        self._cap = None
+        self._cap, self._raw = None, False
         self._files: list[Path] = []
         p = Path(self.path)
         if p.is_dir():
@@ -125,6 +127,10 @@ class VideoSequence(Sequence):
         cap = cv2.VideoCapture(str(p))
         if not cap.isOpened():
             raise InputError(f"{p}: OpenCV cannot open it as a video")
+        self._raw = _pixel_format(cap) == _GRAY16
+        if self._raw:  # OpenCV's conversion to 8-bit BGR kept a 16-bit IR stream's top 8 bits: 1900 read as 7
+            cap.release()
+            cap = _capture(str(p), raw=True)
         try:
             count = cap.get(cv2.CAP_PROP_FRAME_COUNT)
             if not (math.isfinite(count) and count >= 1):
@@ -183,7 +189,7 @@ class VideoSequence(Sequence):
         """Frame ``i`` from a capture opened afresh, the ``i`` frames before it decoded and dropped."""
         logger.debug("%s: a seek to frame %d landed elsewhere; reading from the start", self.path, i)
         self._cap.release()
-        self._cap = cv2.VideoCapture(self.path)
+        self._cap = _capture(self.path, self._raw)
         for _ in range(i):
             if not self._cap.grab():
                 return False, None
@@ -193,6 +199,18 @@ class VideoSequence(Sequence):
         if self._cap is not None:
             self._cap.release()
             self._cap = None
+
+
+def _pixel_format(cap: cv2.VideoCapture) -> str:
+    """The decoder's pixel format of an opened video as its four characters (FFmpeg's raw tag)."""
+    code = int(cap.get(cv2.CAP_PROP_CODEC_PIXEL_FORMAT))
+    return "".join(chr((code >> 8 * k) & 0xFF) for k in range(4))
+
+
+def _capture(path: str, raw: bool) -> cv2.VideoCapture:
+    """A capture of ``path``; ``raw``: without the conversion to 8-bit BGR (a 16-bit grey stream's
+    frames come out uint16; OpenCV supports this for GRAY16LE, not for colour formats)."""
+    return cv2.VideoCapture(path, cv2.CAP_ANY, [cv2.CAP_PROP_CONVERT_RGB, 0]) if raw else cv2.VideoCapture(path)
 
 
 def _readable_frames(cap: cv2.VideoCapture, count: int, path: Path) -> int:
