@@ -24,7 +24,8 @@ below MOG2's threshold at range, and a tank without its gun has an APC's silhoue
 threshold finds it, but also a blur halo all round the vehicle, which makes a small far vehicle
 look bigger. So the frame is compared a second time at ``thin_threshold``, and only parts that
 reach at least 3 px straight out (2 px diagonally) beyond a one-pixel ring round the target blob,
-connected to it through pixels above that threshold, join the blob (:func:`extend_thin_parts`).
+connected to it through pixels above that threshold, join the blob (:func:`extend_thin_parts`;
+such a part joins with the halo it touches).
 The second comparison learns nothing, but with ``learning_rate`` −1 it counts as a frame in
 OpenCV's automatic rate.
 
@@ -36,7 +37,7 @@ to [0, 255]; values outside are clipped. uint8 grey frames are used as they are;
 (H, W, 3, RGB, as the sequences give them) are converted to grey first. A pixel that is NaN or
 infinite in a float frame has no data: it takes the background's value, so it is never
 foreground (and is left out of the gain fit); in a warm-up frame, the same pixel's value in the
-nearest warm-up frame that has one (MOG2 would learn a made-up value there as a second mode, and
+nearest warm-up frame before it that has one, else the nearest after it (MOG2 would learn a made-up value there as a second mode, and
 the pixel, blended into the background image, would then be foreground wherever it has no data).
 """
 
@@ -343,7 +344,11 @@ def extend_thin_parts(blob: np.ndarray, low: np.ndarray, ring_px: int = _THIN_RI
     of the Euclidean one (steps 0.955 straight, 1.3693 diagonal), so with the default 2.0 a part
     must reach 3 px straight out or 2 diagonally; the ``low`` pixels of the ring
     next to it join too, joining it to the blob. A halo at most ``reach_px`` thick beyond the
-    ring, and anything not connected to the blob, stay out.
+    ring, and anything not connected to the blob, stay out, unless a part that reaches further
+    touches the halo: the part joins whole, the halo with it (a 12 px barrel through a 2 px halo
+    round a 20 x 20 blob brought 178 px, not 12). Measured on the simulator, thin parts still raise
+    the T-72's mask IoU at 1500 m from 0.79 to 0.86; a rule that lets only the part through the
+    halo is not built.
 
     Args:
         blob: (H, W) bool, the target blob; low: (H, W) bool, the foreground at the lower threshold.
@@ -508,7 +513,8 @@ def static_background_frames(frames: Iterable[np.ndarray]) -> list[np.ndarray]:
     there from the first frame, they teach it the vehicle as background, and the road it uncovers
     later becomes a ghost blob that the tracker then follows. Here a pixel of a frame that lies
     more than 3 robust σ from the pixel's median over the frames (σ: scipy's normal-scaled median
-    absolute deviation) is taken from the nearest frame where it does not: a target that covers a
+    absolute deviation) is taken from the nearest frame before it where it does not (else the nearest
+    after it): a target that covers a
     pixel in fewer than half the frames is replaced by what it hides, with the background's own
     noise (the median itself in its place would shrink the variance MOG2 learns there). Spread
     the frames over the sequence so a moving target covers each pixel in few of them. A pixel

@@ -132,7 +132,9 @@ TRUTH_FIELDS: tuple[str, ...] = tuple(f.name for f in dataclasses.fields(FrameTr
 class Sequence(abc.ABC):
     """A lazily read image sequence.
 
-    Frames are ``(H, W)`` uint16 (IR) or uint8 (grey), or ``(H, W, 3)`` uint8 colour in RGB order.
+    Frames are ``(H, W)`` uint16 (IR) or uint8 (grey), or ``(H, W, 3)`` uint8 colour in RGB order;
+    an :class:`~torch_atr.data.ArraySequence` may also hold float32 or float64 frames (radiometric
+    IR: the segmenter and tracker take them, ``save_sequence``'s image files do not).
     Subclasses set ``name``, ``fps``, ``camera`` and ``meta`` and implement ``__len__`` and
     ``_read_frame``; ``_truth`` defaults to "no ground truth".
 
