@@ -142,11 +142,27 @@ def atomic_path(path: str | os.PathLike, suffix: str = "") -> Iterator[Path]:
         os.chmod(tmp_path, 0o666 & ~umask)  # mkstemp makes 0600; give the file a plain file's mode
         yield tmp_path
         try:
+            os.fsync(fd)  # the content on disk before the name: after a power cut, the old file or the new, not 0 bytes
             os.replace(tmp_path, target)
+            _sync_folder(target.parent)
         except OSError as exc:  # a full disk, a folder in the way: named as above
             raise OSError(exc.errno, f"cannot write {path}: {exc.strerror}") from None
     finally:
         tmp_path.unlink(missing_ok=True)
+        os.close(fd)
+
+
+def _sync_folder(folder: Path) -> None:
+    """fsync ``folder``, so that a rename in it survives a power cut (where the system allows it)."""
+    try:
+        fd = os.open(folder, os.O_RDONLY)
+    except OSError:  # a folder we may write but not read
+        return
+    try:
+        os.fsync(fd)
+    except OSError:  # some file systems refuse fsync on a folder
+        pass
+    finally:
         os.close(fd)
 
 
