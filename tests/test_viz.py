@@ -113,6 +113,47 @@ def test_the_figures_a_run_writes_are_the_named_ones(tmp_path):
     assert set(names) == set(viz.MODEL_FIGURES)
 
 
+def _model_figures(model, step_deg: tuple[float, float], grid: tuple[torch.Tensor, torch.Tensor] | None = None):
+    """viz.model_figures of the checkpoint, blank templates at its training views (or at ``grid``)."""
+    theta, phi = grid or (model.rbf.centres_theta.double(), model.rbf.centres_phi.double())
+    masks = torch.zeros(model.core.num_vehicles, len(theta), model.template.size_px, model.template.size_px,
+                        dtype=torch.bool)
+    return viz.model_figures(model, masks, theta, phi, *map(math.radians, step_deg))
+
+
+def _grid_texts(fig) -> tuple[list[str], list[str]]:
+    """An image grid's column titles and row labels."""
+    axes = np.array(fig.axes).reshape(len([ax for ax in fig.axes if ax.get_ylabel()]), -1)
+    return [ax.get_title() for ax in axes[0]], [ax.get_ylabel() for ax in axes[:, 0]]
+
+
+def test_identity_sweeps_name_the_classes_at_each_border_and_mark_the_named_vehicles_columns():
+    """Between classes the rows named only the vehicles ("chevrolet_silverado → fv101_scorpion"), not which
+    classes meet; the columns ran 0/8 … 8/8 without saying which are the named training vehicles. The
+    reference: the checkpoint's class of each vehicle named, and the named vehicle's own silhouette in
+    its column."""
+    model = GenerativeShapeModel.from_checkpoint(CKPT)
+    figures = _model_figures(model, (12, 10))
+    cls = {name: model.class_names[c] for name, c in zip(model.vehicle_names, model.vehicle_classes)}
+    columns, rows = _grid_texts(figures["identity_sweeps_between_classes"])
+    assert rows[0] == "pickup → tank: chevrolet_silverado → fv101_scorpion"
+    for row in rows:
+        classes, vehicles = row.split(": ")
+        (a, b), (u, v) = classes.split(" → "), vehicles.split(" → ")
+        assert (cls[u], cls[v]) == (a, b) and a != b
+    assert columns == ["0/6\nvehicle 1", "1/6", "2/6", "3/6", "4/6", "5/6", "6/6\nvehicle 2"]
+    fig = figures["identity_sweeps_within_class"]
+    columns, rows = _grid_texts(fig)
+    assert columns == ["0/8\nvehicle 1", "1/8", "2/8", "3/8", "4/8\nvehicle 2", "5/8", "6/8", "7/8",
+                       "8/8\nvehicle 3"]
+    assert "vehicle k: the row's k-th named vehicle" in fig._suptitle.get_text()
+    names = rows[0].split(": ")[1].split(" → ")
+    for column, name in zip((0, 4, 8), names):
+        expected = model.silhouette(model.alphas[model.vehicle_names.index(name)][None],
+                                    torch.tensor([math.radians(60)]), torch.tensor([math.radians(10)]))[0]
+        np.testing.assert_array_equal(fig.axes[column].images[0].get_array(), expected.float().numpy())
+
+
 def _drawn_pixels(fig, colour: str) -> list[int]:
     """Per axes, the pixels of ``colour`` inside it, legends left out."""
     from matplotlib.colors import to_rgb

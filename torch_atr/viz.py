@@ -238,7 +238,7 @@ def model_figures(model, masks: torch.Tensor, theta: torch.Tensor, phi: torch.Te
         if classes[a] != classes[b]:
             between.append(identity_sweep(model, [model.alphas[a].item(), model.alphas[b].item()], math.radians(60),
                                           math.radians(10), between=5))
-            between_labels.append(f"{names[a]} → {names[b]}")
+            between_labels.append(f"{class_names[classes[a]]} → {class_names[classes[b]]}: {names[a]} → {names[b]}")
     if view_rows:
         n = view_rows[0].shape[0] // 2
         steps = [f"θ₀ + {i}/{n}·Δθ" for i in range(n + 1)] + [f"φ₀ + {i}/{n}·Δφ" for i in range(1, n + 1)]
@@ -247,16 +247,19 @@ def model_figures(model, masks: torch.Tensor, theta: torch.Tensor, phi: torch.Te
             f"Along the view manifold from (θ₀, φ₀) = (36°, 10°): one azimuth step Δθ = "
             f"{math.degrees(step_theta):.0f}°, then one elevation step Δφ = {math.degrees(step_phi):.0f}° (Fig. 6.3)",
             _SILHOUETTE_KEY, "interpolated views")
-    for name, rows, labels, what in (
-            ("identity_sweeps_within_class", within_rows, within_labels,
+    for name, rows, labels, anchors, what in (
+            ("identity_sweeps_within_class", within_rows, within_labels, 3,
              "Along the identity manifold through three neighbouring vehicles of each class (Fig. 6.4)"),
-            ("identity_sweeps_between_classes", between, between_labels,
+            ("identity_sweeps_between_classes", between, between_labels, 2,
              "Along the identity manifold across each class border (Fig. 6.5)")):
         if rows:
-            steps = [f"{i}/{rows[0].shape[0] - 1}" for i in range(rows[0].shape[0])]
+            last = rows[0].shape[0] - 1
+            every = last // (anchors - 1)  # the named vehicles' columns
+            steps = [f"{i}/{last}" + (f"\nvehicle {i // every + 1}" if i % every == 0 else "") for i in range(last + 1)]
             figures[name] = image_grid_figure(torch.stack(rows).float().numpy(), labels, steps,
                                               f"{what}, view (60°, 10°)", _SILHOUETTE_KEY,
-                                              "position along the path, first to last named vehicle")
+                                              "position along the path; vehicle k: the row's k-th named vehicle, "
+                                              "a training vehicle")
     figures["identity_manifold"] = identity_circle_figure(model.alphas.tolist(), names, classes, class_names,
                                                           model.identity.class_arcs())
     return figures
