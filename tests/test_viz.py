@@ -154,6 +154,21 @@ def test_identity_sweeps_name_the_classes_at_each_border_and_mark_the_named_vehi
         np.testing.assert_array_equal(fig.axes[column].images[0].get_array(), expected.float().numpy())
 
 
+def test_view_sweeps_give_each_columns_view_in_degrees_and_mark_the_training_views():
+    """The columns said only θ₀ + 2/4·Δθ and the caption called every column interpolated. On the shipped
+    grid (12° by 10°, by hand from (36°, 10°)) columns 1, 5 and 9 are training views; on a 60° by 20°
+    grid none is."""
+    model = GenerativeShapeModel.from_checkpoint(CKPT)
+    fig = _model_figures(model, (12, 10))["view_sweeps"]
+    assert _grid_texts(fig)[0] == ["36°, 10°\n(training)", "39°, 10°", "42°, 10°", "45°, 10°", "48°, 10°\n(training)",
+                                   "48°, 12.5°", "48°, 15°", "48°, 17.5°", "48°, 20°\n(training)"]
+    assert "(training): a training view, the others interpolated" in fig._suptitle.get_text()
+    theta, phi = torch.meshgrid(torch.arange(0.0, 360.0, 60.0), torch.tensor([0.0, 20.0, 40.0]), indexing="ij")
+    coarse = _model_figures(model, (60, 20), (torch.deg2rad(theta.flatten()), torch.deg2rad(phi.flatten())))
+    assert _grid_texts(coarse["view_sweeps"])[0] == ["36°, 10°", "51°, 10°", "66°, 10°", "81°, 10°", "96°, 10°",
+                                                    "96°, 15°", "96°, 20°", "96°, 25°", "96°, 30°"]
+
+
 def _drawn_pixels(fig, colour: str) -> list[int]:
     """Per axes, the pixels of ``colour`` inside it, legends left out."""
     from matplotlib.colors import to_rgb

@@ -190,6 +190,12 @@ def _degrees(theta: float, phi: float) -> str:
     return f"{math.degrees(theta) % 360:.0f}°, {math.degrees(phi):.0f}°"
 
 
+def _is_view_of(theta: float, phi: float, thetas: np.ndarray, phis: np.ndarray) -> bool:
+    """Whether (θ, φ) is one of the views (thetas, phis) (V,), all radians, to 1e-4 rad (θ wrapped)."""
+    d_theta = np.abs(np.remainder(thetas - theta + math.pi, 2 * math.pi) - math.pi)
+    return bool(((d_theta < 1e-4) & (np.abs(phis - phi) < 1e-4)).any())
+
+
 # The figures each entry point may write, by name (a run's folder is theirs; other PNGs there are the user's).
 MODEL_FIGURES = ("reconstructions", "view_sweeps", "identity_sweeps_within_class", "identity_sweeps_between_classes",
                  "identity_manifold")
@@ -241,12 +247,16 @@ def model_figures(model, masks: torch.Tensor, theta: torch.Tensor, phi: torch.Te
             between_labels.append(f"{class_names[classes[a]]} → {class_names[classes[b]]}: {names[a]} → {names[b]}")
     if view_rows:
         n = view_rows[0].shape[0] // 2
-        steps = [f"θ₀ + {i}/{n}·Δθ" for i in range(n + 1)] + [f"φ₀ + {i}/{n}·Δφ" for i in range(1, n + 1)]
+        sweep = [(math.radians(36) + i / n * step_theta, math.radians(10)) for i in range(n + 1)]
+        sweep += [(math.radians(36) + step_theta, math.radians(10) + i / n * step_phi) for i in range(1, n + 1)]
+        trained = theta.double().cpu().numpy(), phi.double().cpu().numpy()
+        columns = [f"{round(math.degrees(t) % 360, 1):g}°, {round(math.degrees(p), 1):g}°"
+                   + ("\n(training)" if _is_view_of(t, p, *trained) else "") for t, p in sweep]
         figures["view_sweeps"] = image_grid_figure(
-            torch.stack(view_rows).float().numpy(), view_labels, steps,
+            torch.stack(view_rows).float().numpy(), view_labels, columns,
             f"Along the view manifold from (θ₀, φ₀) = (36°, 10°): one azimuth step Δθ = "
             f"{math.degrees(step_theta):.0f}°, then one elevation step Δφ = {math.degrees(step_phi):.0f}° (Fig. 6.3)",
-            _SILHOUETTE_KEY, "interpolated views")
+            _SILHOUETTE_KEY, "view (θ, φ); (training): a training view, the others interpolated")
     for name, rows, labels, anchors, what in (
             ("identity_sweeps_within_class", within_rows, within_labels, 3,
              "Along the identity manifold through three neighbouring vehicles of each class (Fig. 6.4)"),
