@@ -66,6 +66,16 @@ def test_track_figures_of_a_run_without_an_estimate_span_it_and_say_so():
     assert not viz.alpha_figure(rows, model, "one").axes[0].texts
 
 
+def test_frame_strip_gives_the_true_class_where_the_sequence_has_one():
+    """An uncalibrated APC tracked as a car: every panel said 'car', and nothing on the figure showed it wrong."""
+    blank = np.zeros((40, 50), dtype=bool)
+    shots = [{"frame": i, "image": np.zeros((40, 50), np.uint8), "mask": blank, "silhouette": blank} for i in (0, 1)]
+    rows = [{"frame": 0, "time_s": 0.0, "lost": 1, "true_class": "apc"},
+            {"frame": 1, "time_s": 1 / 30, "lost": 0, "alpha": 4.2, "class": "car", "true_class": "apc"}]
+    titles = [ax.get_title() for ax in viz.frame_strip_figure(shots, rows, "strip").axes]
+    assert titles == ["frame 0: no estimate (true: apc)", "frame 1: car (true: apc)\nα = 4.20"]
+
+
 def _sensiac_like_rows(n: int = 12) -> list[dict]:
     """Rows of a run whose truth (as SENSIAC's AGT files) has the aspect and class but no position
     or elevation: true_x, true_z and true_phi NaN."""

@@ -436,7 +436,8 @@ def view_figure(rows: list[dict], title: str, training_phi: tuple[float, float] 
 
 def frame_strip_figure(snapshots: list[dict], rows: list[dict], title: str, crop: int = 80):
     """Frames with the segmented target (cyan) and the estimate's reconstructed silhouette (red
-    contour) overlaid, cropped around the estimate (Fig. 6.9). Returns a Figure."""
+    contour) overlaid, cropped around the estimate (Fig. 6.9), each titled with its estimated class
+    and α, and the true class where the sequence has one. Returns a Figure."""
     import cv2
 
     plt = pyplot()
@@ -452,7 +453,8 @@ def frame_strip_figure(snapshots: list[dict], rows: list[dict], title: str, crop
         ax.imshow(image[r0:v + crop, c0:u + crop], extent=(c0, c0 + image[r0:v + crop, c0:u + crop].shape[1],
                                                            r0 + image[r0:v + crop, c0:u + crop].shape[0], r0))
         row = rows[shot["frame"]]
-        estimate = f"{row['class']}\nα = {row['alpha']:.2f}" if "alpha" in row else "no estimate"
+        true = f" (true: {row['true_class']})" if row.get("true_class") else ""
+        estimate = f"{row['class']}{true}\nα = {row['alpha']:.2f}" if "alpha" in row else f"no estimate{true}"
         ax.set_title(f"frame {shot['frame']}: {estimate}", fontsize=8)
         ax.set_xlabel("u (px)", fontsize=7)
         ax.set_ylabel("v (px)", fontsize=7)
