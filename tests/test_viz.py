@@ -395,13 +395,48 @@ def test_the_overlay_video_draws_each_frame_with_the_kernel_widths_of_that_frame
         placed = tracker.silhouette_at(row, image.shape[:2]).numpy().astype(np.uint8)
         contours, _ = cv2.findContours(placed, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
         expected = cv2.drawContours(np.zeros(image.shape[:2], np.uint8), contours, -1, 1, 1).astype(bool)
-        assert np.array_equal((image == (40, 40, 255)).all(-1), expected), i
+        assert not expected[:45].any()  # the key's rows, top left, hold a swatch of the contour's colour
+        assert np.array_equal((image[45:] == (40, 40, 255)).all(-1), expected[45:]), i
     with torch.no_grad():
         log_width.copy_(widths[-1])
     end = tracker.silhouette_at(result.rows[0], image.shape[:2])
     with torch.no_grad():
         log_width.copy_(widths[0])
     assert not torch.equal(end, tracker.silhouette_at(result.rows[0], image.shape[:2]))  # the widths did move it
+
+
+def test_the_overlay_video_keys_its_contour_and_writes_alpha_and_the_true_class(tmp_path, monkeypatch):
+    """The video had no key for its red contour, wrote α as 'a=' and never the true class. OpenCV's
+    fonts cannot draw α: 'alpha='. The reference: the texts handed to cv2.putText, and a swatch of
+    the contour's colour in the key on every frame, estimate or not."""
+    import types
+
+    import cv2
+
+    said = []
+    put_text = cv2.putText
+
+    def recording(image, text, *args):
+        said.append(text)
+        return put_text(image, text, *args)
+
+    monkeypatch.setattr(cv2, "VideoWriter", _RecordingWriter)
+    monkeypatch.setattr(cv2, "putText", recording)
+    box = torch.zeros(120, 160, dtype=torch.bool)
+    box[60:80, 70:110] = True
+    tracker = types.SimpleNamespace(dt=1 / 30, segmenter=types.SimpleNamespace(display=lambda frame: frame),
+                                    silhouette_at=lambda row, shape: box)
+    rows = [{"frame": 0, "lost": 1, "true_class": "apc"},
+            {"frame": 1, "lost": 0, "alpha": 4.2, "class": "car", "true_class": "apc"},
+            {"frame": 2, "lost": 0, "alpha": 0.3, "class": "tank"}]
+    with viz.OverlayVideo(tmp_path / "overlay.mp4", tracker) as video:
+        for i, row in enumerate(rows):
+            video(i, np.zeros((120, 160), np.uint8), row)
+    assert said == ["frame 0: no estimate (true: apc)", "estimate's silhouette",
+                    "frame 1: car alpha=4.20 (true: apc)", "estimate's silhouette",
+                    "frame 2: tank alpha=0.30", "estimate's silhouette"]
+    for image in _RecordingWriter.frames:
+        assert (image[:45, :40] == (40, 40, 255)).all(-1).sum() >= 20  # the key's swatch
 
 
 def test_an_overlay_video_of_a_run_that_fails_leaves_no_file(tmp_path):

@@ -514,8 +514,9 @@ def log_track_tensorboard(folder: str | Path, result, figures: dict) -> None:
 
 class OverlayVideo:
     """A tracking run's frames as the segmenter sees them, each with its estimate's silhouette
-    contour (red) and its class and α, written to an MP4 (OpenCV's mp4v codec) as the run steps:
-    pass it as ``Tracker.run(..., on_frame=video)`` inside its ``with`` block. Each frame is drawn
+    contour (red, keyed top left under the frame's class, α and true class where known), written
+    to an MP4 (OpenCV's mp4v codec) as the run steps: pass it as ``Tracker.run(..., on_frame=video)``
+    inside its ``with`` block. Each frame is drawn
     while the tracker is at that frame, so with the kernel widths then in force (``adapt`` changes
     them over a run), and no frame is read twice. The file appears, atomically, when the block
     ends without an error.
@@ -524,6 +525,8 @@ class OverlayVideo:
         path: the MP4 to write; its rate is the run's (``1 / tracker.dt``: the sequence's fps).
         tracker: the run's :class:`~torch_atr.tracking.filter.Tracker` (or ``BlobTracker``).
     """
+
+    CONTOUR_BGR = (40, 40, 255)  # the estimate's silhouette (red)
 
     def __init__(self, path: str | Path, tracker):
         self.path, self.tracker = Path(path), tracker
@@ -549,9 +552,14 @@ class OverlayVideo:
         if "alpha" in row:
             placed = self.tracker.silhouette_at(row, image.shape[:2]).cpu().numpy().astype(np.uint8)
             contours, _ = cv2.findContours(placed, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
-            cv2.drawContours(image, contours, -1, (40, 40, 255), 1)
-            cv2.putText(image, f"{i}: {row['class']} a={row['alpha']:.2f}", (8, 20), cv2.FONT_HERSHEY_SIMPLEX, 0.5,
-                        (255, 255, 255), 1)
+            cv2.drawContours(image, contours, -1, self.CONTOUR_BGR, 1)
+        # OpenCV's Hershey fonts have no α; the key names the contour's colour
+        estimate = f"{row['class']} alpha={row['alpha']:.2f}" if "alpha" in row else "no estimate"
+        true = f" (true: {row['true_class']})" if row.get("true_class") else ""
+        white = (255, 255, 255)
+        cv2.putText(image, f"frame {i}: {estimate}{true}", (8, 20), cv2.FONT_HERSHEY_SIMPLEX, 0.5, white, 1)
+        cv2.line(image, (8, 34), (28, 34), self.CONTOUR_BGR, 2)
+        cv2.putText(image, "estimate's silhouette", (34, 38), cv2.FONT_HERSHEY_SIMPLEX, 0.4, white, 1)
         self._writer.write(image)
 
     def __exit__(self, *exc) -> bool:
