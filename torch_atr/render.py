@@ -229,16 +229,17 @@ def render_templates(vehicle, theta, phi, cfg: TemplateConfig | None = None) -> 
     verts = verts - centre
     v0, v1, v2 = verts[faces].unbind(dim=1)
     normals = torch.linalg.cross(v1 - v0, v2 - v0)  # (F, 3), unnormalised
-    # Image (right, up) has right × up = u, so a triangle's area there has the sign of n·u; the
-    # pixel grid's rows run down, which flips it.
-    orient = -torch.sign(view_directions(theta, phi) @ normals.T)  # (V, F)
+    directions = view_directions(theta, phi)  # (V, 3)
     size, m = cfg.size_px, cfg.metres_per_px
     step = max(1, _TRIANGLES_PER_BATCH // len(faces))
     out = []
-    for start in range(0, len(theta), step):
+    for start in range(0, len(theta), step):  # every (view, face) array a batch at a time: the memory cap
         q = verts @ axes[start:start + step]  # (b, M, 2) metres along (right, up)
         xy = torch.stack([q[..., 0] / m + size / 2 - 0.5, size / 2 - 0.5 - q[..., 1] / m], dim=-1)
-        out.append(_fill(xy, faces, orient[start:start + step], size, size))
+        # Image (right, up) has right × up = u, so a triangle's area there has the sign of n·u; the
+        # pixel grid's rows run down, which flips it.
+        orient = -torch.sign(directions[start:start + step] @ normals.T)  # (b, F)
+        out.append(_fill(xy, faces, orient, size, size))
     if not out:
         return torch.zeros(0, size, size, dtype=torch.bool)
     return torch.cat(out)

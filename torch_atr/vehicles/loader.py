@@ -55,6 +55,7 @@ _AXES = {
 _CYLINDER_SECTIONS = 16
 MIN_THICKNESS_M = 0.05  # load_vehicle's default: thinner protrusions are trimmed from mesh files
 _SLAB_M = 0.01  # slab thickness of thick_bounds
+_PAIRS_PER_CHUNK = 1 << 20  # (face, slab) pairs thick_bounds holds at once (~50 MB)
 MAX_EXTENT_M = 100.0  # a vehicle larger along any axis is mis-scaled (centimetres or millimetres read as metres)
 _TEXT_MESHES = (".obj", ".off")  # text formats decoded here (_mesh_text), not by trimesh
 
@@ -321,16 +322,26 @@ def thick_bounds(vertices: np.ndarray, faces: np.ndarray, min_thickness: float, 
     lo, hi = tri.min(axis=1), tri.max(axis=1)  # (F, 3) each
     box = np.stack([vertices.min(axis=0), vertices.max(axis=0)])
     for a in range(3):
-        b, c = (k for k in range(3) if k != a)
+        others = [k for k in range(3) if k != a]
         s0 = np.floor((lo[:, a] - box[0, a]) / slab).astype(np.int64)
         count = np.floor((hi[:, a] - box[0, a]) / slab).astype(np.int64) - s0 + 1  # (F,) slabs per face
-        face = np.repeat(np.arange(len(faces)), count)
-        index = s0[face] + np.arange(len(face)) - np.repeat(np.cumsum(count) - count, count)  # slab of each pair
-        order = np.argsort(index, kind="stable")
-        index, face = index[order], face[order]
-        starts = np.flatnonzero(np.r_[True, index[1:] != index[:-1]])  # first pair of each occupied slab
-        span = [np.maximum.reduceat(hi[face, k], starts) - np.minimum.reduceat(lo[face, k], starts) for k in (b, c)]
-        thick = index[starts][(span[0] >= min_thickness) | (span[1] >= min_thickness)]
+        slabs = int((s0 + count).max()) if len(faces) else 0
+        low, high = np.full((slabs, 2), np.inf), np.full((slabs, 2), -np.inf)  # per slab, along the other axes
+        ends = np.cumsum(count)
+        start = 0
+        while start < len(faces):  # (face, slab) pairs a chunk at a time: a 9 m triangle crosses 900 slabs
+            done = ends[start - 1] if start else 0
+            stop = max(start + 1, int(np.searchsorted(ends, done + _PAIRS_PER_CHUNK, side="right")))
+            n = count[start:stop]
+            face = np.repeat(np.arange(start, stop), n)
+            index = s0[face] + np.arange(len(face)) - np.repeat(np.cumsum(n) - n, n)  # slab of each pair
+            order = np.argsort(index, kind="stable")
+            index, face = index[order], face[order]
+            starts = np.flatnonzero(np.r_[True, index[1:] != index[:-1]])  # first pair of each occupied slab
+            np.minimum.at(low, index[starts], np.minimum.reduceat(lo[face][:, others], starts))
+            np.maximum.at(high, index[starts], np.maximum.reduceat(hi[face][:, others], starts))
+            start = stop
+        thick = np.flatnonzero(((high - low) >= min_thickness).any(axis=1))  # an empty slab spans −inf
         if len(thick):
             origin = box[0, a]
             box[0, a] = origin + thick.min() * slab
