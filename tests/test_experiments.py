@@ -548,3 +548,32 @@ def test_the_default_checkpoint_is_found_from_any_folder_and_a_missing_one_makes
     with pytest.raises(ValueError, match="not in the held-out manifest"):
         main(["unseen", "--quick", "--vehicles", "heldout:tank/nope.obj", "--out", "out"])
     assert sorted(os.listdir(tmp_path)) == ["checkpoints"]  # no run folder
+
+
+def test_report_figures_start_at_zero_key_classes_as_alpha_over_time_and_count_one_vehicle():
+    """identity_1000m.png started at −0.04 s and keyed the class arcs in arc order (apc, minivan, …)
+    where alpha_over_time.png keys them in class order; errors_by_range.png said "the 1 test vehicles".
+    The reference: the checkpoint's class names in order, and alpha_over_time.png's own legend."""
+    from torch_atr.experiments.report import errors_figure, identity_figure
+    from torch_atr.model import GenerativeShapeModel
+    from torch_atr.viz import alpha_figure
+
+    model = GenerativeShapeModel.from_checkpoint(Path(__file__).resolve().parents[1] / "checkpoints" / "default.pt")
+    times = [i / 30 for i in range(16)]
+    results = [{"range_m": 1000.0, "vehicle": v, "class": c,
+                "methods": {"I": {"time_s": times, "alpha": [a] * 16, "metrics": {"best_matches": ["t_55", "t_72"]}}}}
+               for v, c, a in (("t_72", "tank", 0.3), ("btr_70", "apc", None))]
+    ax = identity_figure(results, model).axes[0]
+    assert ax.get_xlim()[0] == 0.0 and ax.get_xlim()[1] == pytest.approx(15.5 / 30)
+    arcs = [t.get_text() for t in ax.get_legend().get_texts()][:len(model.class_names)]
+    assert arcs == [f"{name} arc" for name in model.class_names]
+    rows = [{"frame": i, "time_s": t, "lost": 0, "alpha": 0.3} for i, t in enumerate(times)]
+    keyed = [t.get_text() for t in alpha_figure(rows, model, "t").axes[0].get_legend().get_texts()]
+    assert keyed[:len(model.class_names)] == arcs
+    cfg = SensiacLikeConfig(vehicles=("t_72",), ranges_m=(1000.0,), methods=("I",), frames=16)
+    measures = ("horizontal_error_m", "range_error_m", "aspect_error_rad")
+    fig = errors_figure({"errors": {m: {"1000": {"I": 0.5}} for m in measures}}, cfg)
+    assert fig._suptitle.get_text().startswith("Mean tracking errors over the 1 test vehicle per range (")
+    cfg = dataclasses.replace(cfg, vehicles=("t_72", "btr_70"))
+    fig = errors_figure({"errors": {m: {"1000": {"I": 0.5}} for m in measures}}, cfg)
+    assert fig._suptitle.get_text().startswith("Mean tracking errors over the 2 test vehicles per range (")

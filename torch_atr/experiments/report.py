@@ -24,7 +24,7 @@ import numpy as np
 import torch_atr
 from torch_atr.experiments.sensiac_like import GROUPS, SensiacLikeConfig, aggregate
 from torch_atr.io import atomic_write_text, created_folders
-from torch_atr.viz import pyplot, save_figures
+from torch_atr.viz import _span_run, class_arc_bands, pyplot, save_figures
 
 REPORT_FORMAT = "torch_atr.sensiac_like_report"
 EXPERIMENT_CLAIM = ".torch_atr_experiment"  # {"format": EXPERIMENT_CLAIM, "report": its format}: the folder is ours
@@ -56,7 +56,8 @@ def errors_figure(agg: dict, cfg: SensiacLikeConfig):
         ax.set(xlabel="range (m)", ylabel=label, title=label.split(" (")[0])
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8)
-    fig.suptitle(f"Mean tracking errors over the {len(cfg.vehicles)} test vehicles per range "
+    vehicles = f"{len(cfg.vehicles)} test vehicle" + ("s" if len(cfg.vehicles) != 1 else "")
+    fig.suptitle(f"Mean tracking errors over the {vehicles} per range "
                  f"({cfg.init} start, {cfg.frames} frames, {cfg.particles} particles)")
     fig.tight_layout()
     return fig
@@ -68,18 +69,14 @@ def identity_figure(results: list[dict], model, range_m: float = 1000.0):
     if not rows:
         return None
     plt = pyplot()
-    colours = plt.get_cmap("tab10")
     fig, ax = plt.subplots(figsize=(10, 5))
-    for c, start, end in model.identity.class_arcs():
-        for lo, hi in ((start, min(end, 2 * math.pi)), (0.0, end - 2 * math.pi)):
-            if hi > lo:
-                ax.axhspan(lo, hi, color=colours(c % 10), alpha=0.15, lw=0)
-        ax.plot([], [], lw=8, color=colours(c % 10), alpha=0.3, label=f"{model.class_names[c]} arc")
+    class_arc_bands(ax, model)  # keyed in class order, as alpha_over_time.png
     for k, r in enumerate(rows):
         method = r["methods"]["I"]
         ax.plot(method["time_s"], [math.nan if a is None else a for a in method["alpha"]], ".", ms=2,
-                color=plt.get_cmap("Dark2")(k % 8), label=f"{r['vehicle']} ({r['class']}): "
+                clip_on=False, color=plt.get_cmap("Dark2")(k % 8), label=f"{r['vehicle']} ({r['class']}): "
                 + ", ".join(method["metrics"]["best_matches"]))
+    _span_run(ax, np.concatenate([np.asarray(r["methods"]["I"]["time_s"], dtype=np.float64) for r in rows]))
     ax.set(xlabel="time (s)", ylabel="identity α (rad)", ylim=(0, 2 * math.pi),
            title=f"Identity over time at {range_m:g} m, Method I\n(legend: each vehicle's two best-matching "
                  "training vehicles)")
