@@ -527,6 +527,31 @@ def test_missing_file(tmp_path):
         load_vehicle(tmp_path / "nope.urdf")
 
 
+def test_a_mesh_scaled_to_a_toy_is_refused_naming_its_size(tmp_path):
+    """A 4.9 m car read at the centimetre scale came in as 4.9 cm and rendered no template pixel, without a word."""
+    trimesh.creation.box(extents=(4.9, 1.8, 1.5)).export(tmp_path / "car.obj")
+    assert load_vehicle(tmp_path / "car.obj", scale=0.15).mesh.extents[0] == pytest.approx(0.735)
+    with pytest.raises(ValueError, match=r"car\.obj: 0\.049 × 0\.018 × 0\.015 m at scale 0\.01 is too small for a vehicle "
+                                         r"\(at least 0\.5 m along its longest axis\); check its scale"):
+        load_vehicle(tmp_path / "car.obj", scale=0.01)
+
+
+def test_a_mesh_file_too_big_to_read_is_refused_before_it_is_read(tmp_path, monkeypatch):
+    """A mesh file is read whole as bytes, text and lines (~15 bytes of memory a byte) before any
+    check: a 1 GB scan needed ~15 GB. Its size is checked first."""
+    from torch_atr.vehicles import loader
+
+    trimesh.creation.box(extents=(4.0, 1.8, 1.5)).export(tmp_path / "scan.obj")
+    size = (tmp_path / "scan.obj").stat().st_size
+    monkeypatch.setattr(loader, "MAX_MESH_BYTES", size - 1)
+    monkeypatch.setattr(loader, "_mesh_text", lambda path: pytest.fail("the file was read"))
+    with pytest.raises(ValueError, match=r"scan\.obj: 0 MiB is more than a mesh file may have .* decimate it first"):
+        load_vehicle(tmp_path / "scan.obj")
+    monkeypatch.setattr(loader, "MAX_MESH_BYTES", size)
+    monkeypatch.undo()
+    assert load_vehicle(tmp_path / "scan.obj").mesh.extents[0] == pytest.approx(4.0)
+
+
 def test_missing_referenced_mesh(tmp_path):
     (tmp_path / "v.urdf").write_text(
         '<robot name="v"><link name="l"><visual><geometry><mesh filename="gone.obj"/></geometry></visual></link></robot>'

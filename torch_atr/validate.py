@@ -13,6 +13,7 @@ bytes, a SENSIAC ``.agt`` about a megabyte):
     MAX_IMAGE_PIXELS  2**26      pixels of a frame (128 MiB at 16 bits)
     MAX_TEXT_BYTES    64 MiB     a text file (.agt, .bbox_met, truth.csv)
     MAX_JSON_BYTES    16 MiB     a JSON file (meta.json, camera.json)
+    MAX_MESH_BYTES    256 MiB    a mesh file (OBJ, STL, PLY, GLB, ...; reading one costs ~15 bytes a byte)
 """
 
 from __future__ import annotations
@@ -34,6 +35,7 @@ MAX_IMAGE_SIDE = 16384
 MAX_IMAGE_PIXELS = 2 ** 26
 MAX_TEXT_BYTES = 64 * 2 ** 20
 MAX_JSON_BYTES = 16 * 2 ** 20
+MAX_MESH_BYTES = 256 * 2 ** 20
 _WHOLE = 240  # characters of a value, key or override a message quotes whole
 _HEAD = 40  # characters quoted of a longer one, before '…' and its length
 

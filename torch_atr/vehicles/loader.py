@@ -41,7 +41,7 @@ import pytorch_kinematics as pk
 import torch
 import trimesh
 
-from torch_atr.validate import real
+from torch_atr.validate import MAX_MESH_BYTES, real
 
 log = logging.getLogger(__name__)
 
@@ -57,6 +57,7 @@ MIN_THICKNESS_M = 0.05  # load_vehicle's default: thinner protrusions are trimme
 _SLAB_M = 0.01  # slab thickness of thick_bounds
 _PAIRS_PER_CHUNK = 1 << 20  # (face, slab) pairs thick_bounds holds at once (~50 MB)
 MAX_EXTENT_M = 100.0  # a vehicle larger along any axis is mis-scaled (centimetres or millimetres read as metres)
+MIN_EXTENT_M = 0.5  # a vehicle shorter along its longest axis is mis-scaled (metres read as centimetres)
 _TEXT_MESHES = (".obj", ".off")  # text formats decoded here (_mesh_text), not by trimesh
 
 
@@ -194,9 +195,10 @@ def load_vehicle(
         FileNotFoundError: the file, or a mesh a URDF references, is missing (message names it).
         ValueError: broken XML, two links or joints of one name, joints that do not form a tree (a cycle, a
             link with two parent joints), a missing or non-positive geometry size, unreadable or empty
-            mesh, unknown class, bad axes, joints or joint limits, a size above
-            ``MAX_EXTENT_M`` (100 m) along an axis once scaled (checked before any trimming) or of
-            zero, a scale or min_thickness that is not a number, an empty name.
+            mesh, a mesh file over ``validate.MAX_MESH_BYTES`` (256 MiB), unknown class, bad axes, joints
+            or joint limits, a size above ``MAX_EXTENT_M`` (100 m) along an axis once scaled (checked
+            before any trimming), below ``MIN_EXTENT_M`` (0.5 m) along the longest or of zero along any,
+            a scale or min_thickness that is not a number, an empty name.
     """
     path = Path(path)
     _check_class(path, cls)
@@ -383,6 +385,9 @@ def _check_size(path: Path, vertices: np.ndarray, scale: float) -> None:
     if extents.max() > MAX_EXTENT_M:
         raise ValueError(f"{path}: {size} m at scale {scale:g} is too big for a vehicle (at most {MAX_EXTENT_M:g} m "
                          f"along each axis); check its scale or length (millimetres or centimetres read as metres?)")
+    if extents.max() < MIN_EXTENT_M:  # a 4.9 cm car rendered no template pixel, and nothing said why
+        raise ValueError(f"{path}: {size} m at scale {scale:g} is too small for a vehicle (at least {MIN_EXTENT_M:g} m "
+                         f"along its longest axis); check its scale or length (metres read as centimetres?)")
 
 
 def _rest_pose(limits: Mapping[str, tuple[float, float]]) -> dict[str, float]:
@@ -451,6 +456,11 @@ def read_mesh(path: str | Path) -> trimesh.Trimesh:
     refused here (saying so) when it is not."""
     path = Path(path)
     note = ""
+    size = path.stat().st_size if path.is_file() else 0
+    if size > MAX_MESH_BYTES:  # read whole, as bytes, text and lines: ~15 bytes of memory a byte, before any check
+        raise ValueError(f"{path}: {size / 2 ** 20:.0f} MiB is more than a mesh file may have "
+                         f"({MAX_MESH_BYTES / 2 ** 20:.0f} MiB; a vehicle's mesh takes a few); decimate it first "
+                         f"(trimesh's simplify_quadric_decimation, or Blender's Decimate)")
     try:
         if path.suffix.lower() in _TEXT_MESHES:
             text, note = _mesh_text(path)
