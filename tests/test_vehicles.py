@@ -531,8 +531,8 @@ def test_a_mesh_scaled_to_a_toy_is_refused_naming_its_size(tmp_path):
     """A 4.9 m car read at the centimetre scale came in as 4.9 cm and rendered no template pixel, without a word."""
     trimesh.creation.box(extents=(4.9, 1.8, 1.5)).export(tmp_path / "car.obj")
     assert load_vehicle(tmp_path / "car.obj", scale=0.15).mesh.extents[0] == pytest.approx(0.735)
-    with pytest.raises(ValueError, match=r"car\.obj: 0\.049 × 0\.018 × 0\.015 m at scale 0\.01 is too small for a vehicle "
-                                         r"\(at least 0\.5 m along its longest axis\); check its scale"):
+    with pytest.raises(ValueError, match=r"car\.obj: 0\.049 × 0\.018 × 0\.015 m at scale 0\.01 is too small for a "
+                                         r"vehicle \(at least 0\.5 m along its longest axis\); check its scale"):
         load_vehicle(tmp_path / "car.obj", scale=0.01)
 
 

@@ -37,8 +37,9 @@ to [0, 255]; values outside are clipped. uint8 grey frames are used as they are;
 (H, W, 3, RGB, as the sequences give them) are converted to grey first. A pixel that is NaN or
 infinite in a float frame has no data: it takes the background's value, so it is never
 foreground (and is left out of the gain fit); in a warm-up frame, the same pixel's value in the
-nearest warm-up frame before it that has one, else the nearest after it (MOG2 would learn a made-up value there as a second mode, and
-the pixel, blended into the background image, would then be foreground wherever it has no data).
+nearest warm-up frame before it that has one, else the nearest after it (MOG2 would learn a
+made-up value there as a second mode, and the pixel, blended into the background image, would
+then be foreground wherever it has no data).
 """
 
 from __future__ import annotations

@@ -177,7 +177,8 @@ class TensorCore(nn.Module):
             U1 = pixel_basis.to(B)
             off = (U1.T @ U1 - torch.eye(U1.shape[1], dtype=U1.dtype, device=U1.device)).abs().max()
             if not off <= _ORTHONORMAL_TOLERANCE:  # project() and fit_alpha's ‖y − t‖² split rest on UᵀU = I
-                raise ValueError(f"Expected pixel_basis to have orthonormal columns; |UᵀU − I| reaches {float(off):.3g}")
+                raise ValueError(f"Expected pixel_basis to have orthonormal columns; |UᵀU − I| reaches "
+                                 f"{float(off):.3g}")
         elif pixel_rank is not None:
             U1, _ = mode_basis(C, 0)  # (d, R), R = min(d, P·K)
             if pixel_rank > U1.shape[1]:
