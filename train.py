@@ -156,7 +156,7 @@ def _train(cfg: TrainConfig, vehicles: list, out_dir: Path, checkpoint: Path) ->
         with SummaryWriter(str(out_dir)) as writer:
             for step, loss in enumerate(model.width_history):
                 writer.add_scalar("rbf/width_tuning_validation_mse", loss, step)
-            writer.add_histogram("rbf/kernel_widths", model.rbf.widths.detach())
+            writer.add_histogram("rbf/kernel_widths_chord", model.rbf.widths.detach())  # chord on the unit view sphere
             writer.add_scalar("iou/train", train_iou.mean().item())
             writer.add_scalar("iou/held_out", held_iou.mean().item())
             for name, fig in figures.items():

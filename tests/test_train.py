@@ -272,3 +272,16 @@ def test_non_finite_measures_are_named():
               "note": "nan", "ok": True}
     assert non_finite_keys(report) == ["train_iou.car", "test_split[1].mse"]
     assert non_finite_keys({"a": [1.0, 2]}) == []
+
+
+def test_the_kernel_widths_histogram_is_tagged_with_their_unit(tmp_path):
+    """Every TensorBoard tag names its unit (the tracker's: error/aspect_rad); the widths' was
+    rbf/kernel_widths. They are chord lengths on the unit view sphere (rbf.mean_nearest_chord): no unit
+    but that, so the tag says chord. The reference: the histogram's count is the checkpoint's centres."""
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    ckpt, _ = _run(tmp_path, *(o for o in TINY if not o.startswith("tensorboard=")))  # the config's: on
+    events = EventAccumulator(str(tmp_path / "runs/test"), size_guidance={"histograms": 0}).Reload()
+    assert [tag for tag in events.Tags()["histograms"] if tag.startswith("rbf/")] == ["rbf/kernel_widths_chord"]
+    widths = events.Histograms("rbf/kernel_widths_chord")[0].histogram_value
+    assert widths.num == GenerativeShapeModel.from_checkpoint(ckpt).rbf.num_centres
