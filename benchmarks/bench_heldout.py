@@ -121,6 +121,17 @@ def evaluate(model: GenerativeShapeModel, meshes: list, paths: list[str], grid: 
     return rows
 
 
+def wrap_name(name: str, width: int = 20) -> str:
+    """A mesh's name on lines of at most ``width`` characters, broken after underscores where it can (a
+    rotated row label longer than its row ran into the next one's)."""
+    lines = [""]
+    for part in name.replace("_", "_\n").split("\n"):
+        if lines[-1] and len(lines[-1]) + len(part) > width:
+            lines.append("")
+        lines[-1] += part
+    return "\n".join(lines)
+
+
 def failure_figure(rows: list[dict], meshes: list, catalog_dir: Path, model: GenerativeShapeModel, title: str):
     """Meshes wrong in most single views, each beside the training vehicle nearest its best α and the one
     of its true class nearest its best α in that class: overlaid templates at three views. Returns a Figure."""
@@ -158,8 +169,8 @@ def failure_figure(rows: list[dict], meshes: list, catalog_dir: Path, model: Gen
                     ax.set_title(f"{which}\nθ = {deg:g}°", fontsize=8)
                 if v == 0:
                     ax.set_xlabel(f"{name} ({cls_of[name]})", fontsize=7, loc="left")
-        axes[i, 0].set_ylabel(f"{Path(row['path']).stem}\n{row['class']} → {row['classified']}\n"
-                              f"views on class {row['views_correct']:.2f}", fontsize=7)
+        axes[i, 0].set_ylabel(f"{wrap_name(Path(row['path']).stem)}\n{row['class']} → {row['classified']}\n"
+                              f"share of single views\nin true class: {row['views_correct']:.2f}", fontsize=7)
     legend = [Patch(color=colours[k], label=label)
               for k, label in ((1, "real mesh only"), (2, "training vehicle only"), (3, "both"))]
     fig.legend(handles=legend, loc="lower center", ncol=3, fontsize=8)

@@ -350,6 +350,34 @@ def test_alpha_figure_draws_the_matches_over_the_dots_keys_the_bands_as_drawn_an
     assert left_of_edge[row] < 80 and left_of_edge[row + 20] > 240  # the dot's left half, black, only there
 
 
+def test_heldout_failure_rows_say_what_their_number_is_and_long_names_do_not_touch(monkeypatch):
+    """benchmarks/bench_heldout.py's figure: the row label 'views on class 0.10' did not say what 0.10 is,
+    and a long mesh name, rotated, ran into the next row's label (chrono_vw_microbus_chassis). The
+    reference: the labels as written by hand, and their drawn extents, one above the other."""
+    import importlib
+
+    from torch_atr.vehicles import load_catalog_vehicle
+    from torch_atr.vehicles.catalog import CATALOG_DIR
+
+    monkeypatch.syspath_prepend(str(CKPT.parents[1] / "benchmarks"))
+    bench = importlib.import_module("bench_heldout")
+    model = GenerativeShapeModel.from_checkpoint(CKPT)
+    rows = [{"path": f"{folder}/{stem}.obj", "class": cls, "classified": "car", "views_correct": share,
+             "duplicate_of": None, "nearest": ["ford_focus"], "nearest_in_class": "vw_multivan"}
+            for folder, stem, cls, share in (("van", "chrono_vw_microbus_chassis", "minivan", 0.1),
+                                             ("van", "chrono_nissan_patrol_chassis", "minivan", 0.25))]
+    mesh = load_catalog_vehicle("vw_multivan")
+    fig = bench.failure_figure(rows, [mesh, mesh], CATALOG_DIR / "train", model, "failures")
+    labels = [fig.axes[i * 6].yaxis.label for i in range(2)]
+    assert [label.get_text() for label in labels] == [
+        "chrono_nissan_\npatrol_chassis\nminivan → car\nshare of single views\nin true class: 0.25",
+        "chrono_vw_microbus_\nchassis\nminivan → car\nshare of single views\nin true class: 0.10"]
+    fig.canvas.draw()
+    (_, top_low), (_, top_high) = labels[0].get_window_extent().get_points()
+    (_, low), (_, high) = labels[1].get_window_extent().get_points()
+    assert top_low - high > 0.25 * fig.dpi  # the second row's label a quarter inch below the first's (was 0.12)
+
+
 class _RecordingWriter:
     """Stands in for cv2.VideoWriter: keeps every frame written, in order."""
 
