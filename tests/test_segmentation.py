@@ -680,3 +680,48 @@ def test_a_malformed_predicted_box_is_refused_and_a_nan_one_is_no_prediction():
         with pytest.raises(ValueError, match="Expected a box"):
             seg(frame, near=(75.0, 57.0), exclude=box)
     assert _iou(seg(frame, near=(75.0, 57.0), exclude=(np.nan, 40.0, 95.0, 70.0)), target) > 0.8
+
+
+def test_a_stopped_target_inside_the_excluded_box_is_not_learnt_into_the_background():
+    """Untested until now (audit 8, finding 1): the selective update, with learning_rate > 0, puts the
+    background image in place of the frame inside ``exclude`` and on the grown foreground before
+    MOG2 learns, so a target that stops is not absorbed. The target arrives and stops for 100 frames,
+    learning at 0.05 on every frame (after them a plain update has a weight of 1 − 0.95^100 on it),
+    with its box grown by 3 px as ``exclude``. Reference: the known noise-free scene. The target
+    stays the blob, and the background image inside the box stays within the noise of the texture
+    the frames were made from (level + amplitude · texture), not 45 grey levels up."""
+    cfg = SegmentationConfig(warmup_frames=30, learning_rate=0.05, learning_interval=1)
+    seg, texture, rng = _warmed("uint8", 9, cfg)
+    level, amplitude, noise, _ = LEVELS["uint8"]
+    ious = []
+    for k in range(110):
+        u = 60 - 3 * max(10 - k, 0)  # 3 px a frame for 10 frames, then stopped at column 60
+        truth = _rect(u, 50, 24, 14)
+        box = (u - 3.0, 47.0, u + 26.0, 66.0)  # the target's columns u..u+23 and rows 50..63, grown by 3 px
+        mask = seg(_frame("uint8", texture, [truth], rng), near=(u + 11.5, 56.5), exclude=box)
+        ious.append(_iou(mask, truth))
+    assert min(ious) >= 0.8, ious
+    inside = np.zeros((H, W), bool)
+    inside[47:67, 57:87] = True  # the last frames' box
+    error = seg._background.astype(np.float64) - (level + amplitude * texture)
+    assert np.abs(error[inside]).max() < 2 * noise and np.abs(error[truth]).mean() < noise / 2, error[truth]
+
+
+def test_the_gain_fit_leaves_out_the_excluded_box_of_a_large_bright_target():
+    """Untested until now (audit 8, finding 2): ``compensate_gain`` fits frame ≈ a·background + b on
+    the grid of every 7th pixel outside ``exclude``. Here a target 80 grey levels bright covers a
+    third of that grid, more than the fit's 20 % trim can drop, so only leaving out its box keeps
+    the fit unbiased. Reference: the frame is made as 0.8·(noise-free background) + 12 (+ noise of
+    σ 2), so the closed-form least-squares fit on the pixels outside the box is (0.8, 12) within
+    the noise (≈ 270 samples over a background of σ ≈ 17: under 0.01 on a, 1 on b, 0.15 on the
+    fitted line at the background level). Undone, the frame's target is the mask and nothing else."""
+    seg, texture, rng = _warmed("uint8", 0, SegmentationConfig(warmup_frames=30, compensate_gain=True))
+    level, amplitude, noise, _ = LEVELS["uint8"]
+    truth = _rect(15, 15, 100, 75)
+    assert truth[::7, ::7].mean() > 0.3  # the share of the gain fit's grid the target covers
+    frame = 0.8 * (level + amplitude * texture) + 12 + rng.normal(0, noise, (H, W)) + 80 * truth
+    mask = seg(np.clip(np.rint(frame), 0, 255).astype(np.uint8), exclude=(15.0, 15.0, 114.0, 89.0))
+    a, b = seg.gain
+    assert a == pytest.approx(0.8, abs=0.04) and b == pytest.approx(12, abs=4), seg.gain
+    assert a * level + b == pytest.approx(0.8 * level + 12, abs=1), seg.gain  # the fitted line at the level
+    assert _iou(mask, truth) >= 0.9 and not mask[~truth].any()
