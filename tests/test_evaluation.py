@@ -228,5 +228,10 @@ def test_recognition_best_matches_and_convergence(model):
     assert recognition_accuracy(model, alpha, ["", "", "", ""]) is None
     assert best_matches(model, alpha)[0] == model.vehicle_names[k0]
     assert best_matches(model, np.full(3, np.nan)) == []
+    # α either side of 0 (one estimate wrapped): their circular mean is 0, their plain mean π. The
+    # two names nearest 0 by brute-force circular distance, nearest first.
+    gap = np.abs((model.alphas.double().numpy() + math.pi) % (2 * math.pi) - math.pi)
+    near = [model.vehicle_names[i] for i in np.argsort(gap, kind="stable")[:2]]
+    assert best_matches(model, np.array([0.05, 2 * math.pi - 0.05, 0.05, 2 * math.pi - 0.05])) == near
     ok = np.array([0, 1, 1, 0] + [1] * 12, dtype=bool)
     assert frames_to_convergence(ok) == 4 and frames_to_convergence(ok[:8]) is None

@@ -923,6 +923,92 @@ def test_the_estimate_row_is_its_weighted_particles_by_numpy(model):
     best = p[np.argmax(w)]
     assert [row[f"best_{n}"] for n in ("x", "y", "z", "heading", "speed", "alpha")] == pytest.approx(best.tolist())
     assert row["ess"] == pytest.approx(1.0 / float((w ** 2).sum()), rel=1e-9)
+    # The two nearest training vehicles by brute-force circular distance from the row's α, its class
+    # that of the nearest, and its view that of the row's own pose.
+    alphas = model.alphas.double().numpy()
+    gap = np.abs((alphas - row["alpha"] + math.pi) % (2 * math.pi) - math.pi)
+    first, second = np.argsort(gap, kind="stable")[:2]
+    assert (row["nearest_1"], row["nearest_2"]) == (model.vehicle_names[first], model.vehicle_names[second])
+    assert row["class"] == model.class_names[int(model.identity.labels[first])]
+    theta, phi = view_of_pose(VehiclePose(row["x"], row["y"], row["z"], row["heading"]), seq.camera)
+    assert (row["theta"], row["phi"]) == pytest.approx((float(theta), float(phi)), abs=1e-12)
+
+
+def test_resampling_follows_the_ess_threshold(model, btr):
+    """filter.resample_ess = 0.5 resamples exactly when the ESS, 1 / Σ w² of the weights the frame gave
+    (read from a twin tracker that never resamples), is below N / 2, and draws the new particles from the
+    old (no test ran a threshold between 0 and 1)."""
+    t, mask = btr.truth(0), render_mask(btr.vehicle, btr.camera, btr.pose(0)).numpy()
+    still = ("motion.sigma2_x=0", "motion.sigma2_y=0", "motion.sigma2_z=0", "motion.sigma2_heading=0",
+             "motion.sigma2_speed=0", "motion.sigma2_alpha=0", "redetect.every=0", "init.speed_frames=0")
+    same = torch.tensor([[t.x, t.y, t.z, t.heading, 0.0, 0.5]]).repeat(40, 1)
+    spread = same.clone()
+    spread[:, 0] += torch.linspace(-3.0, 3.0, 40)  # across the vehicle and beyond: very unequal weights
+    for particles in (same, spread):
+        twin = Tracker(model, btr.camera, _config("filter.particles=40", "filter.resample_ess=0", *still), seed=0)
+        twin.reset(particles)
+        twin.step(mask=mask)
+        ess = 1.0 / float((twin.log_weights.double().exp() ** 2).sum())
+        tracker = Tracker(model, btr.camera, _config("filter.particles=40", "filter.resample_ess=0.5", *still), seed=0)
+        tracker.reset(particles)
+        row = tracker.step(mask=mask)
+        assert row["ess"] == pytest.approx(ess, rel=1e-5)
+        assert row["resampled"] == int(ess < 20)
+        assert all(any(torch.equal(q, p) for p in particles) for q in tracker.particles)
+    assert row["resampled"] == 1  # the spread case resampled, the same case did not (ESS 40)
+
+
+def test_a_mask_over_max_foreground_is_no_observation(model, btr):
+    """The vehicle's blob plus blocks filling most of the frame (a global change) is no observation
+    under filter.max_foreground 0.5: lost, the weights as they were, and no blind start on it. (The only
+    test had an all-foreground mask, which the likelihood's floor loses anyway.)"""
+    mask, t = render_mask(btr.vehicle, btr.camera, btr.pose(0)).numpy(), btr.truth(0)
+    uv, side = project_windows(btr.camera, torch.tensor([[t.x, t.y, t.z]]), model.template.window_m)
+    v, clear = round(float(uv[0, 1])), round(float(side[0, 1]))  # rows the particles' windows see, and more
+    big = np.ones_like(mask)
+    big[v - clear:v + clear] = mask[v - clear:v + clear]  # the vehicle, and blocks above and below its windows
+    assert big.mean() > 0.5 and (big & mask).sum() == mask.sum()
+    tracker = Tracker(model, btr.camera, _config("filter.particles=50"), seed=0)
+    tracker.reset(torch.tensor([[t.x, t.y, t.z, t.heading, 0.0, 0.5]]).repeat(50, 1))
+    tracker.log_weights = torch.log_softmax(torch.linspace(0.0, 1.0, 50), 0)
+    before = tracker.log_weights.clone()
+    row = tracker.step(mask=big)
+    assert row["lost"] == 1 and row["resampled"] == 0 and torch.equal(tracker.log_weights, before)
+    blind = Tracker(model, btr.camera, _config("filter.particles=50"), seed=0)
+    assert blind.step(mask=big)["lost"] == 1 and not blind.initialised
+
+
+def test_a_rows_class_is_its_nearest_vehicles_where_the_second_is_of_another_class(model, btr):
+    """Every particle at one α, 0.3 of the way from a training vehicle to its neighbour of another
+    class: the row's class is the nearer vehicle's (the estimate row test's α lay between two tanks,
+    where the second nearest would have passed too)."""
+    order = np.argsort(model.alphas.double().numpy())
+    labels = model.identity.labels[order].tolist()
+    k = next(i for i in range(len(order) - 1) if labels[i] != labels[i + 1])
+    a, b = (float(model.alphas[order[i]]) for i in (k, k + 1))
+    t, mask = btr.truth(0), render_mask(btr.vehicle, btr.camera, btr.pose(0)).numpy()
+    tracker = Tracker(model, btr.camera, _config("filter.particles=10", "redetect.every=0", "motion.sigma2_alpha=0"),
+                      seed=0)
+    tracker.reset(torch.tensor([[t.x, t.y, t.z, t.heading, 0.0, a + 0.3 * (b - a)]]).repeat(10, 1))
+    row = tracker.step(mask=mask)
+    assert row["alpha"] == pytest.approx(a + 0.3 * (b - a), abs=1e-6)
+    assert (row["nearest_1"], row["nearest_2"]) == (model.vehicle_names[order[k]], model.vehicle_names[order[k + 1]])
+    assert row["class"] == model.class_names[labels[k]] != model.class_names[labels[k + 1]]
+
+
+def test_the_overlap_is_the_dice_of_the_placed_silhouette_and_the_mask(model, btr):
+    """A row's overlap ξ (eq. 6.1) against NumPy's 2 |A ∩ B| / (|A| + |B|) of the estimate's placed
+    silhouette and the mask, with the mask half the vehicle so that the two areas differ."""
+    t, mask = btr.truth(0), render_mask(btr.vehicle, btr.camera, btr.pose(0)).numpy()
+    cols = np.flatnonzero(mask.any(axis=0))
+    half = mask.copy()
+    half[:, : (cols[0] + cols[-1]) // 2] = False
+    tracker = Tracker(model, btr.camera, _config("filter.particles=20", "redetect.every=0"), seed=0)
+    tracker.reset(torch.tensor([[t.x, t.y, t.z, t.heading, 0.0, 0.5]]).repeat(20, 1))
+    row = tracker.step(mask=half)
+    placed = tracker.silhouette_at(row, half.shape).cpu().numpy()
+    assert placed.sum() > 1.5 * half.sum()  # the areas differ
+    assert row["overlap"] == pytest.approx(2 * (placed & half).sum() / (placed.sum() + half.sum()), abs=1e-12)
 
 
 def test_error_columns_by_hand(model):

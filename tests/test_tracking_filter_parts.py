@@ -71,6 +71,29 @@ def test_resampling_expected_counts_are_n_w(scheme):
         assert (counts >= (n * w).floor()).all()
 
 
+def test_each_scheme_draws_as_its_definition_says():
+    """w = (1, 3, 3, 1) / 8, N = 4: the schemes share their expected counts (above) but not their draws.
+    Closed forms over the strata [k/4, (k + 1)/4) against the cumulative weights (1/8, 1/2, 7/8, 1):
+    only the first and last strata can pick two particles (the outer one with probability 1/2).
+    Systematic, one offset for all, picks exactly one of the outer two; stratified, an offset each,
+    both with probability 1/4 and never one twice; multinomial the first at least twice with
+    probability 1 − (7/8)⁴ − 4 (1/8)(7/8)³ and the second never with (5/8)⁴; residual keeps
+    ⌊N w⌋ = one copy of each middle particle and draws two from the residuals (1/2 each): the
+    first at least twice with probability 1/16."""
+    w = torch.tensor([1.0, 3.0, 3.0, 1.0], dtype=torch.float64) / 8
+    g = torch.Generator().manual_seed(0)
+    counts = {s: torch.stack([torch.bincount(resample(w, s, g), minlength=4) for _ in range(2000)]) for s in SCHEMES}
+    outer = {s: c[:, 0] + c[:, 3] for s, c in counts.items()}
+    assert (outer["systematic"] == 1).all()
+    assert (counts["stratified"][:, [0, 3]] <= 1).all()
+    assert float((outer["stratified"] == 2).double().mean()) == pytest.approx(0.25, abs=0.035)
+    twice = 1 - (7 / 8) ** 4 - 4 * (1 / 8) * (7 / 8) ** 3
+    assert float((counts["multinomial"][:, 0] >= 2).double().mean()) == pytest.approx(twice, abs=0.025)
+    assert float((counts["multinomial"][:, 1] == 0).double().mean()) == pytest.approx((5 / 8) ** 4, abs=0.03)
+    assert (counts["residual"][:, 1:3] >= 1).all()
+    assert float((counts["residual"][:, 0] >= 2).double().mean()) == pytest.approx(1 / 16, abs=0.02)
+
+
 def test_residual_keeps_the_integer_parts_and_schemes_are_seeded():
     w = torch.tensor([0.42, 0.38, 0.2], dtype=torch.float64)
     idx = resample(w, "residual", torch.Generator().manual_seed(0))
