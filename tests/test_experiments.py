@@ -450,7 +450,8 @@ def test_study_labels_name_the_particles_and_ranges_each_run_ran(tmp_path):
             assert study_label(name, cfg).split(", ")[-1] == f"{cfg.particles} particles", name
     assert [cfg.particles for cfg in quick.values()][:4] == [200, 100, 400, 800]  # not the full run's counts
     # The report's rows and results.json carry the same labels (made-up results: nothing is tracked).
-    metrics = {"recognition_accuracy": 0.5, "frames_per_second": 10.0, **{k: 1.0 for k, _ in MEASURES}}
+    metrics = {"recognition_accuracy": 0.5, "frames_per_second": 10.0, "frames": 20,
+               **{k: 1.0 for k, _ in MEASURES}}
     results = {name: [{"range_m": cfg.ranges_m[0], "methods": {"I": {"metrics": metrics}}}]
                for name, cfg in quick.items()}
     rows = write_studies_report(tmp_path, quick, results, wall_s=1.0)
@@ -474,7 +475,8 @@ def test_study_rows_leave_out_vehicles_without_a_true_class(tmp_path):
     configs = {name: configs[name] for name in ("baseline", "day")}
 
     def seq(range_m: float, accuracy: float | None) -> dict:
-        metrics = {"recognition_accuracy": accuracy, "frames_per_second": 10.0, **{k: 1.0 for k, _ in MEASURES}}
+        metrics = {"recognition_accuracy": accuracy, "frames_per_second": 10.0, "frames": 20,
+                   **{k: 1.0 for k, _ in MEASURES}}
         return {"range_m": range_m, "methods": {"I": {"metrics": metrics}}}
 
     results = {"baseline": [seq(1000.0, 0.5), seq(1000.0, None)], "day": [seq(1000.0, None)]}
@@ -495,7 +497,8 @@ def test_recognition_gives_other_classes_their_own_column_beside_table_6_1s():
     cfg = SensiacLikeConfig(vehicles=("t_72", "toyota_camry"), ranges_m=(1000.0,))
 
     def seq(cls: str, accuracy: float | None) -> dict:
-        metrics = {"recognition_accuracy": accuracy, "frames_per_second": 10.0, "horizontal_error_m": 1.0,
+        metrics = {"recognition_accuracy": accuracy, "frames_per_second": 10.0, "frames": 20,
+                   "horizontal_error_m": 1.0,
                    "range_error_m": 1.0, "aspect_error_rad": 0.1}
         return {"class": cls, "range_m": 1000.0, "methods": {m: {"metrics": metrics} for m in cfg.methods}}
 
@@ -516,7 +519,8 @@ def test_recognition_leaves_out_vehicles_of_a_class_the_model_does_not_know():
     cfg = SensiacLikeConfig(vehicles=("t_72", "toyota_camry"), ranges_m=(1000.0,), methods=("I",))
 
     def seq(cls: str, accuracy: float | None) -> dict:
-        metrics = {"recognition_accuracy": accuracy, "frames_per_second": 10.0, "horizontal_error_m": 1.0,
+        metrics = {"recognition_accuracy": accuracy, "frames_per_second": 10.0, "frames": 20,
+                   "horizontal_error_m": 1.0,
                    "range_error_m": 1.0, "aspect_error_rad": 0.1}
         return {"class": cls, "range_m": 1000.0, "methods": {"I": {"metrics": metrics}}}
 
@@ -577,3 +581,28 @@ def test_report_figures_start_at_zero_key_classes_as_alpha_over_time_and_count_o
     cfg = dataclasses.replace(cfg, vehicles=("t_72", "btr_70"))
     fig = errors_figure({"errors": {m: {"1000": {"I": 0.5}} for m in measures}}, cfg)
     assert fig._suptitle.get_text().startswith("Mean tracking errors over the 2 test vehicles per range (")
+
+
+def test_the_grids_rate_is_its_frames_over_its_seconds_and_its_errors_say_whom_they_average(tmp_path):
+    """Two 150-frame sequences at 100 and 10 frames/s ran at 300 / 16.5 s = 18.2 frames/s; the mean of
+    their rates put it at 55. A vehicle never tracked counts as 0 % recognised but has no errors: the
+    report says the errors average the others."""
+    from torch_atr.experiments.report import _error_coverage
+    from torch_atr.experiments.sensiac_like import aggregate
+
+    cfg = SensiacLikeConfig(vehicles=("t_72", "btr_70"), ranges_m=(1000.0,), methods=("I",))
+
+    def seq(fps: float, tracked: bool) -> dict:
+        errors = {k: (1.0 if tracked else None) for k in ("horizontal_error_m", "range_error_m", "aspect_error_rad")}
+        metrics = {"recognition_accuracy": 1.0 if tracked else 0.0, "frames_per_second": fps, "frames": 150, **errors}
+        return {"class": "tank", "range_m": 1000.0, "methods": {"I": {"metrics": metrics}}}
+
+    results = [seq(100.0, True), seq(10.0, False)]
+    agg = aggregate(results, cfg)
+    assert agg["frames_per_second"]["I"] == pytest.approx(300 / (150 / 100 + 150 / 10))
+    assert agg["recognition"]["tank"]["1000"]["I"] == pytest.approx(50.0)
+    assert agg["errors"]["horizontal_error_m"]["1000"]["I"] == pytest.approx(1.0)
+    assert _error_coverage(results, cfg) == [
+        "- At 1000 m, Method I's errors average 1 of the 2 vehicles: the others had no estimate (recognition "
+        "counts them as 0 %).", ""]
+    assert _error_coverage(results[:1], cfg) == []

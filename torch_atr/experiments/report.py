@@ -110,6 +110,20 @@ def _errors_table(agg: dict, cfg: SensiacLikeConfig) -> list[str]:
     return lines
 
 
+def _error_coverage(results: list[dict], cfg: SensiacLikeConfig) -> list[str]:
+    """A line for each range and method whose error means leave out vehicles without an estimate
+    (never tracked: recognition counts them as 0 %, the errors cannot)."""
+    lines = []
+    for range_m in cfg.ranges_m:
+        cell = [r for r in results if r["range_m"] == range_m]
+        for m in cfg.methods:
+            known = sum(r["methods"][m]["metrics"]["horizontal_error_m"] is not None for r in cell)
+            if known < len(cell):
+                lines.append(f"- At {range_m:g} m, Method {m}'s errors average {known} of the {len(cell)} vehicles: "
+                             "the others had no estimate (recognition counts them as 0 %).")
+    return [*lines, ""] if lines else []
+
+
 def write_report(out: Path, cfg: SensiacLikeConfig, results: list[dict], model, wall_s: float) -> dict:
     """``results.json``, ``report.md`` and the figures in ``out``; returns the aggregate."""
     agg = aggregate(results, cfg)
@@ -141,6 +155,7 @@ def write_report(out: Path, cfg: SensiacLikeConfig, results: list[dict], model, 
         "",
         *_errors_table(agg, cfg),
         "",
+        *_error_coverage(results, cfg),
         "![errors by range](errors_by_range.png)",
         "",
         *(["## Identity over time at 1000 m (Fig. 6.10)", "", "![identity](identity_1000m.png)", ""]

@@ -23,11 +23,10 @@ import dataclasses
 import json
 from pathlib import Path
 
-import numpy as np
-
 import torch_atr
 from torch_atr.experiments.report import MEASURES
-from torch_atr.experiments.sensiac_like import SensiacLikeConfig, mean_or_none, run_all
+from torch_atr.experiments.sensiac_like import (SensiacLikeConfig, mean_or_none, pooled_frames_per_second,
+                                              run_all)
 from torch_atr.io import atomic_write_text
 
 STUDIES_FORMAT = "torch_atr.studies_report"
@@ -87,7 +86,7 @@ def study_rows(configs: dict[str, SensiacLikeConfig], results: dict[str, list[di
                    "recognition_pct": mean_or_none([None if m["recognition_accuracy"] is None
                                                     else 100 * m["recognition_accuracy"] for m in metrics])}
             row.update({k: mean_or_none([m[k] for m in metrics]) for k, _ in MEASURES})
-            row["frames_per_second"] = float(np.mean([m["frames_per_second"] for m in metrics]))
+            row["frames_per_second"] = pooled_frames_per_second(metrics)
             rows.append(row)
     return rows
 
