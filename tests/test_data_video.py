@@ -388,3 +388,34 @@ def test_frames_of_an_h264_transport_stream_are_its_own_after_any_seek():
     assert len(seq) == 30
     for i in [*range(30), 5, 0, 29, 13, 3]:  # in order, then back and forth
         assert np.array_equal(seq.frame(i), reference[i]), i
+
+
+def test_a_read_that_fails_after_a_seek_is_read_again_from_the_start(avi):
+    """A seek whose read then fails (a container whose index points past a damaged packet) raised at
+    once, where reading from the start gets the frame; the read after a seek that landed elsewhere
+    already went that way. Here the capture's first read after each seek is made to fail."""
+    seq = VideoSequence(avi)
+    sequential = [f.copy() for f in seq]
+    real = seq._cap
+
+    class FailsAfterSeek:
+        def __init__(self, cap):
+            self.cap, self.sought = cap, False
+
+        def set(self, prop, value):
+            self.sought = prop == cv2.CAP_PROP_POS_FRAMES
+            return self.cap.set(prop, value)
+
+        def read(self):
+            if self.sought:
+                self.sought = False
+                return False, None
+            return self.cap.read()
+
+        def __getattr__(self, name):
+            return getattr(self.cap, name)
+
+    seq._cap = FailsAfterSeek(real)
+    np.testing.assert_array_equal(seq.frame(7), sequential[7])
+    np.testing.assert_array_equal(seq.frame(8), sequential[8])  # then on from there, no seek
+    seq.close()

@@ -170,7 +170,7 @@ class VideoSequence(Sequence):
         if sought:
             self._cap.set(cv2.CAP_PROP_POS_FRAMES, i)
         ok, img = self._cap.read()
-        if ok and sought and not self._read_at(i):
+        if sought and not (ok and self._read_at(i)):  # landed elsewhere, or the read after the seek failed
             ok, img = self._read_from_start(i)
         if not ok:
             self._pos = -1
