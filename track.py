@@ -77,14 +77,14 @@ def main(argv: list[str] | None = None) -> dict:
     # the run folder is checked (a typo in --sequence is not "runs/track exists"), and a value the
     # tracker refuses before the folder is claimed.
     model, extra = load_checkpoint(in_repo(cfg.checkpoint), map_location=cfg.device)
-    sequence = open_sequence(cfg.sequence)
-    # config.yaml names the files read by absolute paths: it reproduces the run from any folder.
-    cfg = dataclasses.replace(cfg, checkpoint=os.path.abspath(in_repo(cfg.checkpoint)),
-                              sequence=absolute_spec(cfg.sequence))
-    out = check_output_dir(cfg.out, args.overwrite, "metrics.json", is_track_run, "tracking run")
-    tracker = make_tracker(cfg, model, trained_catalog(extra), sequence)
-    with claimed_output_dir(out, "tracking run", replaces=OUTPUTS):
-        return _track(cfg, model, tracker, sequence, out)
+    with open_sequence(cfg.sequence) as sequence:  # closed (its video capture released) however the run ends
+        # config.yaml names the files read by absolute paths: it reproduces the run from any folder.
+        cfg = dataclasses.replace(cfg, checkpoint=os.path.abspath(in_repo(cfg.checkpoint)),
+                                  sequence=absolute_spec(cfg.sequence))
+        out = check_output_dir(cfg.out, args.overwrite, "metrics.json", is_track_run, "tracking run")
+        tracker = make_tracker(cfg, model, trained_catalog(extra), sequence)
+        with claimed_output_dir(out, "tracking run", replaces=OUTPUTS):
+            return _track(cfg, model, tracker, sequence, out)
 
 
 def make_tracker(cfg: TrackConfig, model: GenerativeShapeModel, catalog: str, sequence) -> Tracker | BlobTracker:
