@@ -423,8 +423,8 @@ def test_the_overlay_video_draws_each_frame_with_the_kernel_widths_of_that_frame
         placed = tracker.silhouette_at(row, image.shape[:2]).numpy().astype(np.uint8)
         contours, _ = cv2.findContours(placed, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
         expected = cv2.drawContours(np.zeros(image.shape[:2], np.uint8), contours, -1, 1, 1).astype(bool)
-        assert not expected[:45].any()  # the key's rows, top left, hold a swatch of the contour's colour
-        assert np.array_equal((image[45:] == (40, 40, 255)).all(-1), expected[45:]), i
+        assert not expected[:60].any()  # the key's rows, top left, hold a swatch of the contour's colour
+        assert np.array_equal((image[60:] == (40, 40, 255)).all(-1), expected[60:]), i
     with torch.no_grad():
         log_width.copy_(widths[-1])
     end = tracker.silhouette_at(result.rows[0], image.shape[:2])
@@ -460,11 +460,40 @@ def test_the_overlay_video_keys_its_contour_and_writes_alpha_and_the_true_class(
     with viz.OverlayVideo(tmp_path / "overlay.mp4", tracker) as video:
         for i, row in enumerate(rows):
             video(i, np.zeros((120, 160), np.uint8), row)
-    assert said == ["frame 0: no estimate (true: apc)", "estimate's silhouette",
-                    "frame 1: car alpha=4.20 (true: apc)", "estimate's silhouette",
-                    "frame 2: tank alpha=0.30", "estimate's silhouette"]
+    keys = ["estimate's silhouette", "segmented target"]
+    assert said == ["frame 0: no estimate (true: apc)", *keys, "frame 1: car alpha=4.20 (true: apc)", *keys,
+                    "frame 2: tank alpha=0.30", *keys]
     for image in _RecordingWriter.frames:
-        assert (image[:45, :40] == (40, 40, 255)).all(-1).sum() >= 20  # the key's swatch
+        assert (image[:45, :40] == (40, 40, 255)).all(-1).sum() >= 20  # the key's swatches
+        assert (image[40:56, :40] == (255, 255, 0)).all(-1).sum() >= 20
+
+
+def test_the_overlay_video_draws_the_segmented_target_under_the_estimate(tmp_path, monkeypatch):
+    """frames.png draws the segmented target's contour beside the estimate's; the video drew the
+    estimate's alone. The reference: OpenCV's contour of the tracker's last mask in cyan, the
+    estimate's in red over it where the two meet."""
+    import types
+
+    import cv2
+
+    monkeypatch.setattr(cv2, "VideoWriter", _RecordingWriter)
+    mask = np.zeros((120, 160), bool)
+    mask[70:90, 60:100] = True
+    placed = torch.zeros(120, 160, dtype=torch.bool)
+    placed[72:88, 80:120] = True
+    tracker = types.SimpleNamespace(dt=1 / 30, segmenter=types.SimpleNamespace(display=lambda frame: frame),
+                                    silhouette_at=lambda row, shape: placed, last_mask=mask)
+    with viz.OverlayVideo(tmp_path / "overlay.mp4", tracker) as video:
+        video(0, np.zeros((120, 160), np.uint8), {"frame": 0, "lost": 0, "alpha": 0.3, "class": "tank"})
+    image = _RecordingWriter.frames[0]
+
+    def outline(m: np.ndarray) -> np.ndarray:
+        contours, _ = cv2.findContours(m.astype(np.uint8), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+        return cv2.drawContours(np.zeros(m.shape, np.uint8), contours, -1, 1, 1).astype(bool)
+
+    red, cyan = outline(placed.numpy()), outline(mask)
+    assert np.array_equal((image[60:] == (40, 40, 255)).all(-1), red[60:])
+    assert np.array_equal((image[60:] == (255, 255, 0)).all(-1), (cyan & ~red)[60:])
 
 
 def test_an_overlay_video_of_a_run_that_fails_leaves_no_file(tmp_path):

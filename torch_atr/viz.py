@@ -514,7 +514,8 @@ def log_track_tensorboard(folder: str | Path, result, figures: dict) -> None:
 
 class OverlayVideo:
     """A tracking run's frames as the segmenter sees them, each with its estimate's silhouette
-    contour (red, keyed top left under the frame's class, α and true class where known), written
+    contour (red) over the segmented target's (cyan), both keyed top left under the frame's class,
+    α and true class where known, written
     to an MP4 (OpenCV's mp4v codec) as the run steps: pass it as ``Tracker.run(..., on_frame=video)``
     inside its ``with`` block. Each frame is drawn
     while the tracker is at that frame, so with the kernel widths then in force (``adapt`` changes
@@ -527,6 +528,7 @@ class OverlayVideo:
     """
 
     CONTOUR_BGR = (40, 40, 255)  # the estimate's silhouette (red)
+    MASK_BGR = (255, 255, 0)  # the segmented target (cyan), as frames.png draws it
 
     def __init__(self, path: str | Path, tracker):
         self.path, self.tracker = Path(path), tracker
@@ -549,6 +551,10 @@ class OverlayVideo:
         if self._writer is None:
             self._writer = cv2.VideoWriter(str(self._video), cv2.VideoWriter_fourcc(*"mp4v"), 1.0 / self.tracker.dt,
                                            (image.shape[1], image.shape[0]))
+        mask = getattr(self.tracker, "last_mask", None)  # the frame's segmentation, under the estimate's contour
+        if mask is not None and mask.shape == image.shape[:2]:
+            contours, _ = cv2.findContours(mask.astype(np.uint8), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+            cv2.drawContours(image, contours, -1, self.MASK_BGR, 1)
         if "alpha" in row:
             placed = self.tracker.silhouette_at(row, image.shape[:2]).cpu().numpy().astype(np.uint8)
             contours, _ = cv2.findContours(placed, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
@@ -560,6 +566,8 @@ class OverlayVideo:
         cv2.putText(image, f"frame {i}: {estimate}{true}", (8, 20), cv2.FONT_HERSHEY_SIMPLEX, 0.5, white, 1)
         cv2.line(image, (8, 34), (28, 34), self.CONTOUR_BGR, 2)
         cv2.putText(image, "estimate's silhouette", (34, 38), cv2.FONT_HERSHEY_SIMPLEX, 0.4, white, 1)
+        cv2.line(image, (8, 48), (28, 48), self.MASK_BGR, 2)
+        cv2.putText(image, "segmented target", (34, 52), cv2.FONT_HERSHEY_SIMPLEX, 0.4, white, 1)
         self._writer.write(image)
 
     def __exit__(self, *exc) -> bool:
