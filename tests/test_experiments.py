@@ -15,7 +15,8 @@ import torch
 
 from torch_atr.data.synthetic import SyntheticSequence
 from torch_atr.experiments.__main__ import main
-from torch_atr.experiments.report import EXPERIMENT_CLAIM, REPORT_FORMAT, THESIS_TABLE_6_1
+from torch_atr.experiments.report import REPORT_FORMAT, THESIS_TABLE_6_1
+from torch_atr.io import RUN_CLAIM, write_claim
 from torch_atr.experiments.sensiac_like import FULL, RANGES_M, TEST_VEHICLES, SensiacLikeConfig, scene
 from torch_atr.pose import body_to_world
 
@@ -121,7 +122,7 @@ def test_another_experiment_is_refused_a_runs_folder_finished_or_not(run, tmp_pa
     for folder in (finished, interrupted):
         assert sorted(os.listdir(folder / "sequences")) == sorted(os.listdir(out / "sequences"))
     assert sorted(os.listdir(finished)) == sorted(os.listdir(out))
-    assert sorted(os.listdir(interrupted)) == [EXPERIMENT_CLAIM, "sequences"]
+    assert sorted(os.listdir(interrupted)) == [RUN_CLAIM, "sequences"]
     assert (finished / "report.md").read_text() == (out / "report.md").read_text()
 
 
@@ -130,7 +131,7 @@ def _interrupted(run: Path, folder: Path) -> Path:
     import shutil
 
     shutil.copytree(run / "sequences", folder / "sequences")
-    shutil.copy(run / EXPERIMENT_CLAIM, folder)
+    shutil.copy(run / RUN_CLAIM, folder)
     return folder
 
 
@@ -145,6 +146,11 @@ def test_a_users_folder_holding_sequences_is_not_taken_for_an_interrupted_run(tm
         main([*QUICK, "--out", str(mine)])
     assert sorted(os.listdir(mine)) == ["report.md", "results.json", "sequences"]
     assert (mine / "report.md").read_text() == "my notes" and not any((mine / "sequences").iterdir())
+    track_run = tmp_path / "track_run"  # the claim file is shared with track.py: its run is not an experiment's
+    track_run.mkdir()
+    write_claim(track_run, "tracking run")
+    with pytest.raises(OSError, match=re.escape(f"{track_run} exists and is not an experiment's folder")):
+        main([*QUICK, "--out", str(track_run)])
 
 
 def test_an_interrupted_run_is_not_claimed_by_an_experiment_of_another_layout(run, tmp_path):
@@ -157,14 +163,14 @@ def test_an_interrupted_run_is_not_claimed_by_an_experiment_of_another_layout(ru
     sensiac = _interrupted(out, tmp_path / "sensiac")
     studies = tmp_path / "studies"
     (studies / "baseline" / "sequences").mkdir(parents=True)
-    (studies / EXPERIMENT_CLAIM).write_text(json.dumps({"format": EXPERIMENT_CLAIM, "report": STUDIES_FORMAT}))
+    write_claim(studies, STUDIES_FORMAT)
     cases = [(["studies", "--quick"], sensiac, REPORT_FORMAT), (["all", "--quick"], sensiac, REPORT_FORMAT),
              (QUICK, studies, STUDIES_FORMAT), (["all", "--quick"], studies, STUDIES_FORMAT)]
     for argv, folder, theirs in cases:
-        with pytest.raises(OSError, match=re.escape(f"unfinished run ({folder / EXPERIMENT_CLAIM}: {theirs})")):
+        with pytest.raises(OSError, match=re.escape(f"unfinished run ({folder / RUN_CLAIM}: {theirs})")):
             main([*argv, "--out", str(folder)])
-    assert sorted(os.listdir(sensiac)) == [EXPERIMENT_CLAIM, "sequences"]
-    assert sorted(os.listdir(studies)) == [EXPERIMENT_CLAIM, "baseline"]
+    assert sorted(os.listdir(sensiac)) == [RUN_CLAIM, "sequences"]
+    assert sorted(os.listdir(studies)) == [RUN_CLAIM, "baseline"]
     assert sorted(os.listdir(sensiac / "sequences")) == sorted(os.listdir(out / "sequences"))
 
 

@@ -276,11 +276,23 @@ def check_output_dir(folder: str | os.PathLike, overwrite: bool, marker: str, is
                             f"delete it or choose another folder")
 
 
-def _claimed(folder: Path, what: str) -> bool:
+def claim_of(folder: Path) -> str | None:
+    """What the claim in ``folder`` (:func:`write_claim`) says holds it; None where it has none."""
     try:
-        return json.loads((folder / RUN_CLAIM).read_text(encoding="utf-8")) == {"format": RUN_CLAIM, "what": what}
+        claim = json.loads((folder / RUN_CLAIM).read_text(encoding="utf-8"))
     except (OSError, ValueError):
-        return False
+        return None
+    ok = isinstance(claim, dict) and claim.get("format") == RUN_CLAIM and isinstance(claim.get("what"), str)
+    return claim["what"] if ok else None
+
+
+def write_claim(folder: Path, what: str) -> None:
+    """Claim ``folder`` (which exists) for ``what``: the folder of a run that may be interrupted stays ours."""
+    atomic_write_text(json.dumps({"format": RUN_CLAIM, "what": what}) + "\n", folder / RUN_CLAIM)
+
+
+def _claimed(folder: Path, what: str) -> bool:
+    return claim_of(folder) == what
 
 
 @contextmanager
@@ -300,7 +312,7 @@ def claimed_output_dir(folder: Path, what: str, replaces: tuple[str, ...] = ()) 
     """
     made, claimed = _missing_folders(folder), (folder / RUN_CLAIM).exists()
     try:
-        atomic_write_text(json.dumps({"format": RUN_CLAIM, "what": what}) + "\n", folder / RUN_CLAIM)
+        write_claim(folder, what)
     except OSError as exc:
         _remove_empty(made)
         if exc.errno is None:

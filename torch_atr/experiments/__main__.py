@@ -33,12 +33,12 @@ from pathlib import Path
 from torch_atr.cli import ArgumentParser, console_logging, run_main
 from torch_atr.config import ConfigError, check_seed, override_leaves
 from torch_atr.experiments.combined import COMBINED_FORMAT, EXPERIMENTS, write_combined_report
-from torch_atr.experiments.report import (EXPERIMENT_CLAIM, REPORT_FORMAT, claim_format, claimed_report_folder,
-                                          is_report_folder, mean_recognition, report_format, write_report)
+from torch_atr.experiments.report import (REPORT_FORMAT, claimed_report_folder, is_report_folder, mean_recognition,
+                                          report_format, write_report)
 from torch_atr.experiments.sensiac_like import FULL, QUICK, SensiacLikeConfig, run_all, worker_model
 from torch_atr.experiments.studies import STUDIES_FORMAT, run_studies, study_configs, write_studies_report
 from torch_atr.experiments.unseen import UNSEEN_FORMAT, unseen_fields, write_unseen_report
-from torch_atr.io import OutputExistsError
+from torch_atr.io import RUN_CLAIM, OutputExistsError, claim_of
 from torch_atr.tracking import TrackerConfig
 from torch_atr.validate import show
 
@@ -146,14 +146,14 @@ def _check_out(out: Path, expected: str) -> None:
     its claim (an interrupted run) naming ``expected`` (another experiment's run would be claimed)."""
     if out.exists() and (not out.is_dir() or (any(out.iterdir()) and not is_report_folder(out))):
         raise OutputExistsError(f"{out} exists and is not an experiment's folder (it has no results.json or "
-                                f"{EXPERIMENT_CLAIM} of ours); choose another --out")
+                                f"{RUN_CLAIM} of ours); choose another --out")
     written = report_format(out)
     if written is not None and written != expected:
         raise OutputExistsError(f"{out} holds another experiment's report ({out / 'results.json'}: format "
                                 f"{written}); choose another --out")
-    claimed = claim_format(out)
+    claimed = claim_of(out)
     if written is None and claimed is not None and claimed != expected:
-        raise OutputExistsError(f"{out} holds another experiment's unfinished run ({out / EXPERIMENT_CLAIM}: "
+        raise OutputExistsError(f"{out} holds another experiment's unfinished run ({out / RUN_CLAIM}: "
                                 f"{claimed}); choose another --out, or resume that experiment there")
 
 

@@ -23,11 +23,10 @@ import numpy as np
 
 import torch_atr
 from torch_atr.experiments.sensiac_like import GROUPS, SensiacLikeConfig, aggregate
-from torch_atr.io import atomic_write_text, created_folders
+from torch_atr.io import RUN_CLAIM, atomic_write_text, claim_of, created_folders, write_claim
 from torch_atr.viz import _span_run, class_arc_bands, pyplot, save_figures
 
 REPORT_FORMAT = "torch_atr.sensiac_like_report"
-EXPERIMENT_CLAIM = ".torch_atr_experiment"  # {"format": EXPERIMENT_CLAIM, "report": its format}: the folder is ours
 
 # Table 6.1 of the thesis (Method I / II / III / IV, % of frames), the ranges it prints.
 THESIS_TABLE_6_1 = {"1000": {"tank": (96, 94, 91, 90), "apc": (94, 92, 89, 88), "suv": (100, 100, 99, 99),
@@ -183,38 +182,27 @@ def report_format(path: Path) -> str | None:
     return written if isinstance(written, str) else None
 
 
-def claim_format(path: Path) -> str | None:
-    """The report format that the claim in folder ``path`` (:func:`claimed_report_folder`) names; None
-    where it has none."""
-    try:
-        claim = json.loads((path / EXPERIMENT_CLAIM).read_text(encoding="utf-8"))
-    except (OSError, ValueError):
-        return None
-    ok = isinstance(claim, dict) and claim.get("format") == EXPERIMENT_CLAIM and isinstance(claim.get("report"), str)
-    return claim["report"] if ok else None
-
-
 def is_report_folder(path: Path) -> bool:
     """True for a folder an experiment wrote (its results.json is ours) or is writing (its claim).
     A folder's name or layout says nothing: a user's own sequences/ beside their report.md and
     results.json had them replaced."""
     written = report_format(path)
-    return (written is not None and written.startswith("torch_atr.")) or claim_format(path) is not None
+    return any(f is not None and f.startswith("torch_atr.") for f in (written, claim_of(path)))  # not track.py's
 
 
 @contextmanager
 def claimed_report_folder(out: Path, report: str, runs: tuple[str, ...] = ("sequences",)) -> Iterator[Path]:
-    """Make ``out`` and its ``runs`` folders, and claim ``out`` for the experiment whose report format
-    is ``report`` before any work, so that an interrupted run's folder is known as ours and resumed.
+    """Make ``out`` and its ``runs`` folders, and claim ``out`` (:func:`~torch_atr.io.write_claim`) for
+    the experiment whose report format is ``report`` before any work, so that an interrupted run's folder is known as ours and resumed.
     If the block raises before anything but the claim and the empty folders were written, the claim
     and the folders it made go."""
     with ExitStack() as made:
         for folder in (out, *(out / run for run in runs)):
             made.enter_context(created_folders(folder))
             folder.mkdir(parents=True, exist_ok=True)
-        claim = out / EXPERIMENT_CLAIM
+        claim = out / RUN_CLAIM
         fresh = not claim.exists()
-        atomic_write_text(json.dumps({"format": EXPERIMENT_CLAIM, "report": report}) + "\n", claim)
+        write_claim(out, report)
         try:
             yield out
         except BaseException:
