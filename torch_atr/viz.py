@@ -293,7 +293,7 @@ def _note_no_estimate(ax) -> None:
             ha="center", va="center", fontsize=10, bbox={"facecolor": "white", "alpha": 0.8, "lw": 0})
 
 
-def _span_run(ax, t: np.ndarray) -> None:
+def span_run(ax, t: np.ndarray) -> None:
     """Set the time axis of ``ax`` to the whole run, frames with an estimate or not, and half a frame
     after the last (whose marker the edge cut in half); t: (T,) seconds. A one-frame run gets half a
     second either side, cut at 0 s (matplotlib's ±0.05 s ran through negative time). The first frame
@@ -336,7 +336,7 @@ def alpha_figure(rows: list[dict], model, title: str):
                    label=f"best match {k + 1}: {name}")
     ax.plot(t, alpha, ".", ms=3, color="k", zorder=2, clip_on=False,  # α in [0, 2π): the first frame's dot whole
             label="estimated α")
-    _span_run(ax, t)
+    span_run(ax, t)
     if not np.isfinite(alpha).any():
         _note_no_estimate(ax)
     true_class = next((r.get("true_class") for r in rows if r.get("true_class")), "")
@@ -382,7 +382,7 @@ def error_figure(rows: list[dict], title: str):
         ax.legend(loc="best", fontsize=8)  # errors often grow late: upper right hid their end
         ax.grid(alpha=0.3)
     axes[-1].set(xlabel="time (s)")
-    _span_run(axes[-1], t)
+    span_run(axes[-1], t)
     axes[0].set_title(f"{title}: {what}")
     fig.tight_layout()
     return fig
@@ -426,7 +426,7 @@ def view_figure(rows: list[dict], title: str, training_phi: tuple[float, float] 
            xlabel="azimuth θ from the vehicle's front (degrees)", ylabel="elevation φ (degrees)",
            title=f"{title}: the view over the run")
     ax_time.set(ylim=(0, 360), yticks=range(0, 361, 90), xlabel="time (s)", ylabel="azimuth θ (degrees)")
-    _span_run(ax_time, t)
+    span_run(ax_time, t)
     for a in (ax, ax_time):
         a.grid(alpha=0.3)
         a.legend(loc="best", fontsize=8)  # upper right hid the views of a run ending at θ near 360°

@@ -24,7 +24,7 @@ import numpy as np
 import torch_atr
 from torch_atr.experiments.sensiac_like import GROUPS, SensiacLikeConfig, aggregate
 from torch_atr.io import RUN_CLAIM, atomic_write_text, claim_of, created_folders, write_claim
-from torch_atr.viz import _span_run, class_arc_bands, pyplot, save_figures
+from torch_atr.viz import span_run, class_arc_bands, pyplot, save_figures
 
 REPORT_FORMAT = "torch_atr.sensiac_like_report"
 
@@ -75,7 +75,7 @@ def identity_figure(results: list[dict], model, range_m: float = 1000.0):
         ax.plot(method["time_s"], [math.nan if a is None else a for a in method["alpha"]], ".", ms=2,
                 clip_on=False, color=plt.get_cmap("Dark2")(k % 8), label=f"{r['vehicle']} ({r['class']}): "
                 + ", ".join(method["metrics"]["best_matches"]))
-    _span_run(ax, np.concatenate([np.asarray(r["methods"]["I"]["time_s"], dtype=np.float64) for r in rows]))
+    span_run(ax, np.concatenate([np.asarray(r["methods"]["I"]["time_s"], dtype=np.float64) for r in rows]))
     ax.set(xlabel="time (s)", ylabel="identity α (rad)", ylim=(0, 2 * math.pi),
            title=f"Identity over time at {range_m:g} m, Method I\n(legend: each vehicle's two best-matching "
                  "training vehicles)")
