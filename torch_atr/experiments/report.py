@@ -24,7 +24,7 @@ import numpy as np
 import torch_atr
 from torch_atr.experiments.sensiac_like import GROUPS, SensiacLikeConfig, aggregate
 from torch_atr.io import RUN_CLAIM, atomic_write_text, claim_of, created_folders, write_claim
-from torch_atr.viz import span_run, class_arc_bands, pyplot, save_figures
+from torch_atr.viz import class_arc_bands, pyplot, save_figures, span_run
 
 REPORT_FORMAT = "torch_atr.sensiac_like_report"
 
