@@ -192,8 +192,9 @@ def _degrees(theta: float, phi: float) -> str:
 
 def _is_view_of(theta: float, phi: float, thetas: np.ndarray, phis: np.ndarray) -> bool:
     """Whether (θ, φ) is one of the views (thetas, phis) (V,), all radians, to 1e-4 rad (θ wrapped)."""
-    d_theta = np.abs(np.remainder(thetas - theta + math.pi, 2 * math.pi) - math.pi)
-    return bool(((d_theta < 1e-4) & (np.abs(phis - phi) < 1e-4)).any())
+    from torch_atr.evaluation import wrapped_abs
+
+    return bool(((wrapped_abs(thetas - theta) < 1e-4) & (np.abs(phis - phi) < 1e-4)).any())
 
 
 # The figures each entry point may write, by name (a run's folder is theirs; other PNGs there are the user's).
