@@ -598,8 +598,6 @@ def test_a_frame_only_weightless_particles_explain_is_lost_not_nan(model, btr):
     mask = render_mask(btr.vehicle, btr.camera, btr.pose(0)).numpy()
     first = tracker.step(mask=mask)
     assert first["lost"] == 0 and tracker.log_weights.tolist() == [0.0, -math.inf]
-    _, side = project_windows(btr.camera, tracker.particles[:, :3] + torch.tensor([v * dt, 0, 0]),
-                              model.template.window_m)
     score = tracker.score(mask, tracker.particles + torch.tensor([v * dt, 0, 0, 0, 0, 0]))
     assert score[0] == -math.inf and score[1] > filter_module.LOST_LOG_LIKELIHOOD  # as the case says
     row = tracker.step(mask=mask, dt=dt)
