@@ -373,8 +373,8 @@ def test_heldout_failure_rows_say_what_their_number_is_and_long_names_do_not_tou
         "chrono_nissan_\npatrol_chassis\nminivan → car\nshare of single views\nin true class: 0.25",
         "chrono_vw_microbus_\nchassis\nminivan → car\nshare of single views\nin true class: 0.10"]
     fig.canvas.draw()
-    (_, top_low), (_, top_high) = labels[0].get_window_extent().get_points()
-    (_, low), (_, high) = labels[1].get_window_extent().get_points()
+    top_low = labels[0].get_window_extent().get_points()[0, 1]
+    high = labels[1].get_window_extent().get_points()[1, 1]
     assert top_low - high > 0.25 * fig.dpi  # the second row's label a quarter inch below the first's (was 0.12)
 
 
