@@ -144,7 +144,7 @@ def atomic_path(path: str | os.PathLike, suffix: str = "") -> Iterator[Path]:
         try:
             os.fsync(fd)  # the content on disk before the name: after a power cut, the old file or the new, not 0 bytes
             os.replace(tmp_path, target)
-            _sync_folder(target.parent)
+            sync_folder(target.parent)
         except OSError as exc:  # a full disk, a folder in the way: named as above
             raise OSError(exc.errno, f"cannot write {path}: {exc.strerror}") from None
     finally:
@@ -152,7 +152,22 @@ def atomic_path(path: str | os.PathLike, suffix: str = "") -> Iterator[Path]:
         os.close(fd)
 
 
-def _sync_folder(folder: Path) -> None:
+def sync_tree(folder: str | os.PathLike) -> None:
+    """fsync every file under ``folder``, then each folder from the deepest up, so that a folder written whole
+    and then renamed into place (as :func:`~torch_atr.data.save_sequence` does) holds its content after a
+    power cut, not empty files."""
+    folder = Path(folder)
+    for root, _, files in os.walk(folder, topdown=False):
+        for name in files:
+            fd = os.open(Path(root) / name, os.O_RDONLY)
+            try:
+                os.fsync(fd)
+            finally:
+                os.close(fd)
+        sync_folder(Path(root))
+
+
+def sync_folder(folder: str | os.PathLike) -> None:
     """fsync ``folder``, so that a rename in it survives a power cut (where the system allows it)."""
     try:
         fd = os.open(folder, os.O_RDONLY)

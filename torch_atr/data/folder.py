@@ -40,7 +40,7 @@ from tqdm import tqdm
 
 from torch_atr.data.sequence import (TEXT_FIELDS, TRUTH_FIELDS, FrameTruth, Sequence,
                                      check_camera_height, check_fps, load_camera_json, register_scheme)
-from torch_atr.io import TEMP_CHARS, hidden_stem, strict_json, unheld
+from torch_atr.io import TEMP_CHARS, hidden_stem, strict_json, sync_folder, sync_tree, unheld
 from torch_atr.validate import (InputError, image_file_size, image_size, integer, parse_real, read_image,
                                 read_json_object, read_text, real, show)
 
@@ -244,7 +244,8 @@ def save_sequence(seq: Sequence, folder: str | os.PathLike, progress: bool = Tru
     An existing empty ``folder`` is replaced. A non-empty one is refused (``FileExistsError``
     naming it) unless ``overwrite=True`` and it is a sequence folder (its ``meta.json`` says our
     format), so no other folder is ever deleted. Everything is written into a temporary folder
-    beside ``folder`` and renamed into place at the end; the folder gets the mode a new folder
+    beside ``folder``, flushed to disk file by file (fsync) and renamed into place at the end, so that after a
+    power cut ``folder`` holds the old sequence or the whole new one; the folder gets the mode a new folder
     gets (0o777 less the umask). What :class:`FolderSequence` would refuse to read (an fps or a
     camera height out of range, an infinite truth value) is refused before anything is written.
 
@@ -308,7 +309,9 @@ def save_sequence(seq: Sequence, folder: str | os.PathLike, progress: bool = Tru
                 "source": type(seq).__name__, "source_meta": seq.meta}
         (tmp / "meta.json").write_text(json.dumps(strict_json(meta), indent=1, default=str, allow_nan=False),
                                        encoding="utf-8")
+        sync_tree(tmp)
         _swap_in(tmp, folder)
+        sync_folder(folder.parent)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
