@@ -707,6 +707,29 @@ def test_a_stopped_target_inside_the_excluded_box_is_not_learnt_into_the_backgro
     assert np.abs(error[inside]).max() < 2 * noise and np.abs(error[truth]).mean() < noise / 2, error[truth]
 
 
+@pytest.mark.parametrize("excluded", [True, False])
+def test_the_excluded_box_alone_keeps_a_faint_target_out_of_the_background(excluded):
+    """``exclude`` on its own, with no foreground to grow: a target 5 grey levels bright (2.5 noise σ, under
+    MOG2's threshold, so never foreground) stands still for 100 frames of learning at 0.05. Reference: the
+    known noise-free scene. With its box excluded the background image under it stays the scene's (mean
+    error < σ/4); without, the plain update absorbs it (1 − 0.95^100 of the 5 levels), which is what the box
+    is there to prevent."""
+    cfg = SegmentationConfig(warmup_frames=30, learning_rate=0.05, learning_interval=1)
+    seg, texture, rng = _warmed("uint8", 9, cfg)
+    level, amplitude, noise, _ = LEVELS["uint8"]
+    truth = _rect(60, 50, 24, 14)
+    for _ in range(100):
+        frame = level + amplitude * texture + rng.normal(0, noise, (H, W)) + 5 * truth
+        mask = seg(np.clip(np.rint(frame), 0, 255).astype(np.uint8), near=(71.5, 56.5),
+                   exclude=(57.0, 47.0, 86.0, 66.0) if excluded else None)
+        assert not mask.any()
+    error = seg._background.astype(np.float64) - (level + amplitude * texture)
+    if excluded:
+        assert abs(error[truth].mean()) < noise / 4, error[truth].mean()
+    else:
+        assert error[truth].mean() == pytest.approx(5 * (1 - 0.95 ** 100), abs=noise / 4)
+
+
 def test_the_gain_fit_leaves_out_the_excluded_box_of_a_large_bright_target():
     """Untested until now (audit 8, finding 2): ``compensate_gain`` fits frame ≈ a·background + b on
     the grid of every 7th pixel outside ``exclude``. Here a target 80 grey levels bright covers a
