@@ -17,8 +17,7 @@ from torch_atr.camera import Camera
 from torch_atr.config import ConfigError
 from torch_atr.data import FolderSequence, open_sequence, save_sequence
 from torch_atr.data.synthetic import (BODY, ENGINE_DECK, EXHAUST, RUNNING_GEAR, SceneConfig, SyntheticSequence,
-                                      demo_sequence, parse_synthetic_spec, surface_parts, visible_faces,
-                                      visible_scene)
+                                      parse_synthetic_spec, surface_parts, visible_faces, visible_scene)
 from torch_atr.pose import VehiclePose, body_to_world
 from torch_atr.render import render_mask
 from torch_atr.segmentation import ForegroundSegmenter
@@ -468,12 +467,6 @@ def test_save_sequence_round_trip(tmp_path):
     for i in range(3):
         np.testing.assert_array_equal(back.frame(i), seq.frame(i))
         assert back.truth(i) == seq.truth(i)
-
-
-def test_demo_sequence():
-    demo = demo_sequence()
-    assert len(demo) == 90 and demo.vehicle.name == "btr_70" and demo.cfg.range_m == 1000.0
-    assert all(demo.true_mask(i).any() for i in (0, 89))
 
 
 def test_visible_faces_against_ray_casting():

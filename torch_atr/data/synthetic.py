@@ -954,9 +954,4 @@ def open_synthetic(rest: str) -> SyntheticSequence:
     return SyntheticSequence(vehicle, cfg)
 
 
-def demo_sequence(frames: int = 90) -> SyntheticSequence:
-    """A short built-in demo: the test-split BTR-70 side-on at 1000 m by night, 3 s at 30 fps."""
-    return SyntheticSequence("btr_70", SceneConfig(frames=frames))
-
-
 register_scheme("synthetic", open_synthetic)
