@@ -346,7 +346,8 @@ class Tracker:
         config: the settings; ``TrackerConfig()`` if None.
         device: where the particles live (``"cpu"``, ``"cuda"``, a ``torch.device``); default
             the model's device.
-        seed: seeds the tracker's generator: the same seed and frames give the same run.
+        seed: seeds the tracker's generator: the same seed and frames give the same run on the same device,
+            torch thread count and CPU model (BLAS products and long sums split by thread).
         templates: (K, V, S, S) training templates for Method IV (see ``ShapeAppearance``).
 
     Use :meth:`run` on a whole sequence, or :meth:`warm_up`, optionally :meth:`initialise`, and
