@@ -423,3 +423,50 @@ def test_a_sequence_whose_camera_height_is_none_starts_blind_as_unknown(model):
     rows = Tracker(model, seq.camera, load_config(TrackerConfig, None, ["filter.particles=100"]), seed=0).run(
         seq, progress=False).rows
     assert len(rows) == 3 and all(math.isfinite(row["x"]) for row in rows)
+
+
+def test_hypothesis_shares_refuse_log_likelihoods_that_are_not_one_per_hypothesis():
+    """A (4, 1) log_lik gave a (2, 1) index for 2 particles, not (2,)."""
+    log_lik = torch.tensor([0.0, -1.0, -2.0, -3.0], dtype=torch.float64)
+    best = best_hypotheses(log_lik, 4)
+    with pytest.raises(ValueError, match=r"Expected log_lik to have shape \(M\); got \(4, 1\)"):
+        hypothesis_shares(best, log_lik[:, None], 2)
+    with pytest.raises(ValueError, match=r"Expected best to have shape \(K\); got \(4, 1\)"):
+        hypothesis_shares(best[:, None], log_lik, 2)
+    with pytest.raises(ValueError, match=r"Expected classes to have shape \(4\); got \(3,\)"):
+        hypothesis_shares(best, log_lik, 2, torch.zeros(3, dtype=torch.int64))
+
+
+def test_ground_depth_refuses_a_pixel_that_is_not_one_u_v():
+    camera = Camera(1000, 1000, 320, 256, 640, 512, R=_tilt(-3.0), t=[1.0, -2.0, 3.0])
+    with pytest.raises(ValueError, match=r"Expected pixel to have shape \(2\); got \(1, 2\)"):
+        ground_depth(camera, torch.tensor([[320.0, 400.0]], dtype=torch.float64), 5.0)
+    with pytest.raises(ValueError, match=r"Expected pixel to have shape \(2\); got \(3,\)"):
+        ground_depth(camera, torch.tensor([320.0, 400.0, 1.0], dtype=torch.float64), 5.0)
+
+
+def test_blind_hypotheses_refuse_a_numpy_or_non_bool_blob_and_a_2d_alpha_index(model):
+    """The filter hands the blob over as a tensor; a numpy blob raised a TypeError from torch.nonzero."""
+    mask = np.zeros((64, 80), dtype=bool)
+    mask[30:36, 20:40] = True
+    distance, origin = frame_distance(mask, math.inf)
+    camera = Camera(1000, 1000, 40, 32, 80, 64, R=_tilt(-3.0), t=[0.0, -5.0, 0.0])
+    args = (distance, camera, ShapeAppearance(model, "I", 32), InitConfig(alpha_steps=3, azimuth_steps=4), 0.1)
+    with pytest.raises(ValueError, match=r"Expected blob to be a tensor of shape \(H, W\); got ndarray"):
+        initialise.blind_hypotheses(mask, *args, origin=origin)
+    with pytest.raises(ValueError, match=r"Expected blob to be a bool tensor; got dtype torch.uint8"):
+        initialise.blind_hypotheses(torch.from_numpy(mask).to(torch.uint8), *args, origin=origin)
+    with pytest.raises(ValueError, match=r"Expected alpha_index to have shape \(A\); got \(1, 2\)"):
+        initialise.blind_hypotheses(torch.from_numpy(mask), *args, origin=origin, alpha_index=torch.tensor([[0, 2]]))
+
+
+def test_blind_particles_refuse_states_that_are_not_one_6_state_per_log_likelihood():
+    """States of 5 columns raised an IndexError from the jitter; one log-likelihood fewer than states
+    picked among the first rows only."""
+    camera = Camera(1000, 1000, 320, 256, 640, 512, R=_tilt(-3.0), t=[1.0, -5.0, 3.0])
+    states = torch.zeros(3, 6, dtype=torch.float64)
+    log_lik = torch.tensor([0.0, -1.0, -2.0], dtype=torch.float64)
+    with pytest.raises(ValueError, match=r"Expected states to have shape \(M, 6\); got \(3, 5\)"):
+        initialise.blind_particles(states[:, :5], log_lik, 4, InitConfig(), camera)
+    with pytest.raises(ValueError, match=r"Expected log_lik to have shape \(3\); got \(2,\)"):
+        initialise.blind_particles(states, log_lik[:2], 4, InitConfig(), camera)

@@ -57,3 +57,27 @@ def test_the_squared_error_of_a_perfect_fit_is_not_below_zero(model, method):
     direct = (z.double() - app(alpha, theta, phi).double()).square().sum(dim=(1, 2))
     assert bool((errors >= 0).all())
     torch.testing.assert_close(errors.double(), direct, atol=5e-3, rtol=0)
+
+
+def test_coords_refuse_queries_of_different_lengths(model):
+    """alpha (3,) with theta, phi (5,) returned (3, r) from the first three views without a word."""
+    app = ShapeAppearance(model, "I", 16)
+    alpha, views = torch.ones(3), torch.full((5,), 0.3)
+    with pytest.raises(ValueError, match=r"Expected theta to have shape \(3\); got \(5,\)"):
+        app.coords(alpha, views, views)
+    with pytest.raises(ValueError, match=r"Expected phi to have shape \(5\); got \(3,\)"):
+        app.coords(torch.ones(5), views, torch.full((3,), 0.3))
+    with pytest.raises(ValueError, match=r"Expected alpha to have shape \(N\); got \(5, 1\)"):
+        app.coords(torch.ones(5, 1), views, views)
+
+
+def test_pool_images_refuses_fewer_than_two_dims():
+    """A 1-D tensor raised a bare IndexError reading its rows; pooled images equal the block means."""
+    from torch_atr.tracking.appearance import pool_images
+
+    with pytest.raises(ValueError, match=r"Expected images to be a tensor of shape \(\.\.\., S, S\); got \(16,\)"):
+        pool_images(torch.zeros(16), 4)
+    images = torch.arange(2 * 16, dtype=torch.float64).reshape(2, 4, 4)
+    want = torch.tensor([[[(images[k, 2 * i:2 * i + 2, 2 * j:2 * j + 2]).mean() for j in range(2)] for i in range(2)]
+                         for k in range(2)], dtype=torch.float64)
+    torch.testing.assert_close(pool_images(images, 2), want)

@@ -170,3 +170,12 @@ def test_the_blob_tracker_is_where_the_trackers_error_sends_a_user(model):
     with pytest.raises(ValueError, match=r"track its blob with torch_atr\.tracking\.BlobTracker\)$"):
         Tracker(model, None)
     assert torch_atr.tracking.BlobTracker is BlobTracker and "BlobTracker" in torch_atr.tracking.__all__
+
+
+def test_view_walks_refuse_particles_that_are_not_theta_phi_alpha():
+    """A 3D tracker's particle (1, 6) [x, y, z, h, v, α] had its column 2, z, wrapped as α without a word."""
+    particles = torch.tensor([[10.0, -2.0, 950.0, 1.0, 3.0, 0.5]], dtype=torch.float64)
+    with pytest.raises(ValueError, match=r"Expected particles to have shape \(N, 3\); got \(1, 6\)"):
+        wrap_views(particles)
+    with pytest.raises(ValueError, match=r"Expected particles to have shape \(N, 3\); got \(1, 6\)"):
+        predict_views(particles, 0.1, MotionConfig())

@@ -232,3 +232,21 @@ def test_the_window_functions_refuse_vectors_of_the_wrong_shape():
         blob_windows(torch.zeros(2, 4), torch.zeros(3), 8)
     with pytest.raises(ValueError, match=r"position to have shape \(3\); got \(2,\)"):
         truth_particles(torch.zeros(2), 0.0, 0.0, 4, InitConfig())
+
+
+def test_blob_windows_take_one_window_size_for_all_boxes_or_one_per_box_never_a_vector():
+    """One size per hypothesis (M,) with M = 2 was read as one window's (width, height). By hand: a box
+    centred on the 8-px template's centre lies on the blob's centre; one centred 2 template px up and
+    left of it lies 2 · side / 8 image px down and right of it."""
+    from torch_atr.tracking.observation import blob_windows
+
+    boxes = torch.tensor([[2.0, 2.0, 5.0, 5.0], [0.0, 0.0, 3.0, 3.0]])
+    blob_box = torch.tensor([10.0, 20.0, 29.0, 39.0])
+    with pytest.raises(ValueError, match=r"Expected side to have shape \(1, 2\) or \(2, 2\), .*; got \(2,\)"):
+        blob_windows(boxes, blob_box, 8, torch.tensor([16.0, 8.0]))
+    with pytest.raises(ValueError, match=r"Expected side to have shape \(1, 2\) or \(2, 2\), .*; got \(3, 2\)"):
+        blob_windows(boxes, blob_box, 8, torch.ones(3, 2))
+    uv, side = blob_windows(boxes, blob_box, 8, torch.tensor([[16.0, 8.0]]))
+    assert uv.tolist() == [[19.5, 29.5], [23.5, 31.5]] and side.tolist() == [[16.0, 8.0], [16.0, 8.0]]
+    uv, side = blob_windows(boxes, blob_box, 8, torch.tensor([[16.0, 16.0], [8.0, 8.0]]))
+    assert uv.tolist() == [[19.5, 29.5], [21.5, 31.5]] and side.tolist() == [[16.0, 16.0], [8.0, 8.0]]

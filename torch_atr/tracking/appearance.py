@@ -35,6 +35,9 @@ SPLINE_POINTS = 4  # control points carrying each α (cubic spline)
 
 def pool_images(images: torch.Tensor, size: int) -> torch.Tensor:
     """Average-pool square images (..., S, S) to (..., L, L), L = ``size`` dividing S."""
+    if not isinstance(images, torch.Tensor) or images.dim() < 2:
+        got = tuple(images.shape) if isinstance(images, torch.Tensor) else type(images).__name__
+        raise ValueError(f"Expected images to be a tensor of shape (..., S, S); got {got}")
     S = images.shape[-1]
     if images.shape[-2] != S or size < 1 or S % size:
         raise ValueError(f"Expected square images whose size {tuple(images.shape[-2:])} is a multiple of {size}")
@@ -141,8 +144,11 @@ class ShapeAppearance(nn.Module):
         return silhouette_boxes(shapes.reshape(-1, S, S) > 0)
 
     def coords(self, alpha: torch.Tensor, theta: torch.Tensor, phi: torch.Tensor) -> torch.Tensor:
-        """Pixel-basis coordinates c = 𝒜 ×₃ i(α) ×₂ Ψ(Θ) for (N,) queries in the model's dtype,
-        grouped by spline span. Returns (N, r)."""
+        """Pixel-basis coordinates c = 𝒜 ×₃ i(α) ×₂ Ψ(Θ), grouped by spline span.
+
+        alpha, theta, phi: (N,) each (radians). Returns (N, r) in the model's dtype.
+        """
+        alpha, theta, phi = self._queries(alpha, theta, phi)
         psi = self.model.rbf(theta, phi)  # (N, P)
         first, weights = self.model.identity.local_basis(alpha)
         N, r = alpha.shape[0], self.basis.shape[1]

@@ -43,6 +43,7 @@ BOX_COLUMNS = ("blob_u0", "blob_v0", "blob_u1", "blob_v1")  # a row's blob box, 
 def wrap_views(particles: torch.Tensor) -> torch.Tensor:
     """[θ, φ, α] particles (N, 3) with θ and α wrapped to [0, 2π) and φ reflected into [0, π/2]
     (as often as it takes: a walk of a long gap between frames goes beyond ±π)."""
+    check_shape("particles", particles, ("N", 3))
     out = particles.clone()
     out[:, THETA], out[:, ALPHA] = wrap_angle(out[:, THETA]), wrap_angle(out[:, ALPHA])
     half_pi, phi = math.pi / 2, out[:, PHI]
@@ -54,6 +55,7 @@ def wrap_views(particles: torch.Tensor) -> torch.Tensor:
 def predict_views(particles: torch.Tensor, dt: float, cfg: MotionConfig, generator: torch.Generator | None = None
                   ) -> torch.Tensor:
     """Random walks on θ, φ and α (eq. 5.3 for α) over ``dt`` seconds: particles (N, 3) -> (N, 3)."""
+    check_shape("particles", particles, ("N", 3))
     std = torch.tensor([cfg.sigma2_heading, cfg.sigma2_elevation, cfg.sigma2_alpha], dtype=torch.float64)
     std = std.mul(dt).sqrt().to(particles)
     return wrap_views(particles + torch.randn(particles.shape, generator=generator, dtype=particles.dtype,

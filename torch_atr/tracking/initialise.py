@@ -208,6 +208,7 @@ def ground_depth(camera: Camera, pixel: torch.Tensor, camera_height_m: float) ->
     ``camera_height_m`` below the camera centre (world y = c_y − height); NaN if it never does.
     InputError (a ValueError) unless the height is a finite number of metres > 0 (at 0 every ray met the ground at
     the camera, depth 0; below it, behind the camera)."""
+    check_shape("pixel", pixel, (2,))
     camera_height_m = real("camera_height_m (the camera's height above the ground, metres)", camera_height_m,
                            lo=0, lo_open=True)
     R, t = camera.R.to(pixel), camera.t.to(pixel)
@@ -261,7 +262,7 @@ def blind_hypotheses(blob: torch.Tensor, distance: torch.Tensor, camera: Camera,
     """Score a grid of (α, θ) hypotheses against one blob (module docstring).
 
     Args:
-        blob: (H, W) bool, the target blob (non-empty).
+        blob: (H, W) bool tensor, the target blob (non-empty).
         distance: (H, W) the frame's signed distance in image pixels, or a region of it whose
             (0, 0) is the frame pixel ``origin`` (``observation.frame_distance``).
         camera: the scene's camera (sensor-like, ground-levelled world frame).
@@ -283,6 +284,12 @@ def blind_hypotheses(blob: torch.Tensor, distance: torch.Tensor, camera: Camera,
         float64 on the appearance's device; log_lik: (M,) their log-likelihoods (−inf for a
         hypothesis whose silhouette is empty).
     """
+    check_shape("blob", blob, ("H", "W"))
+    if blob.dtype != torch.bool:
+        raise ValueError(f"Expected blob to be a bool tensor; got dtype {blob.dtype}")
+    check_shape("distance", distance, (None, None))
+    if alpha_index is not None:
+        check_shape("alpha_index", alpha_index, ("A",))
     model = appearance.model
     if len(cut) != 4:
         raise ValueError(f"Expected cut, the edges (left, top, right, bottom) that cut the blob, to hold 4 flags; "
@@ -308,7 +315,7 @@ def blind_hypotheses(blob: torch.Tensor, distance: torch.Tensor, camera: Camera,
         math.nan if unknown else ground_depth(camera, contact, camera_height_m))
     f = torch.stack([K[0, 0], K[1, 1]])
     if math.isfinite(ground):
-        side = f * model.template.window_m / ground
+        side = (f * model.template.window_m / ground)[None]  # (1, 2): every window alike
     else:  # the range z where the silhouette has the blob's size: its sides' geometric mean is √(fx fy) W / z
         side = blob_windows(boxes, blob_box, S)[1] * (f / f.prod().sqrt())  # (fx, fy) W / z: 1 for square pixels
     centre_px, side = blob_windows(boxes, blob_box, S, side)
@@ -386,6 +393,10 @@ def hypothesis_shares(best: torch.Tensor, log_lik: torch.Tensor, n: int, classes
     best: (K,) from :func:`best_hypotheses` with the same ``log_lik`` (M,) and ``classes`` (M,)
     (or None). Returns (n,) int64 indices into log_lik.
     """
+    check_shape("log_lik", log_lik, ("M",))
+    check_shape("best", best, ("K",))
+    if classes is not None:
+        check_shape("classes", classes, (log_lik.shape[0],))
     if n < best.shape[0]:
         order = _ranked(log_lik[best], stable=True)
         if classes is not None:  # each hypothesis's rank within its class (best_hypotheses groups them)
@@ -405,6 +416,8 @@ def blind_particles(states: torch.Tensor, log_lik: torch.Tensor, n: int, cfg: In
     step, the range by ``range_std`` (relative, along the line of sight from the camera centre),
     the signed speed by ``speed_std_mps``. Returns (N, 6) on ``states``' device and dtype.
     """
+    check_shape("states", states, ("M", STATE_DIM))
+    check_shape("log_lik", log_lik, (states.shape[0],))
     pick = hypothesis_shares(best_hypotheses(log_lik, cfg.hypotheses, classes), log_lik, n, classes)
     out = states[pick].clone()
     noise = torch.randn(n, 4, generator=generator, dtype=states.dtype, device=states.device)

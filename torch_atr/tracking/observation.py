@@ -139,9 +139,11 @@ def blob_windows(boxes: torch.Tensor, blob_box: torch.Tensor, size: int, side: t
             template (:func:`silhouette_boxes`).
         blob_box: (4,) the blob's box [u0, v0, u1, v1] in image pixels (inclusive).
         size: the template's side in pixels (the boxes' pixels).
-        side: (2,) or (M, 2) window sizes in image pixels to use (e.g. from a known range);
-            default: those that give each silhouette the blob's size (geometric mean of the
-            width and height ratios, so the silhouette's aspect is kept).
+        side: window sizes (width, height) in image pixels to use (e.g. from a known range), a
+            tensor (1, 2), the same for every box, or (M, 2), one per box (a 1-D side is refused:
+            with M = 2, (2,) reads as one size or as one per box); default: those that give each
+            silhouette the blob's size (geometric mean of the width and height ratios, so the
+            silhouette's aspect is kept).
     Returns:
         uv: (M, 2) window centres and side: (M, 2) window sizes, image pixels (NaN for an empty
         silhouette); the dtype and device of ``boxes``.
@@ -153,7 +155,12 @@ def blob_windows(boxes: torch.Tensor, blob_box: torch.Tensor, size: int, side: t
     if side is None:
         ratio = ((blob_box[2:] - blob_box[:2] + 1) / size_t).prod(dim=1).sqrt()  # image px per template px
         side = (size * ratio)[:, None].expand(-1, 2)
-    side = torch.as_tensor(side).to(boxes).expand(boxes.shape[0], 2)
+    elif not (isinstance(side, torch.Tensor) and side.dim() == 2 and side.shape[0] in (1, boxes.shape[0])
+              and side.shape[1] == 2):
+        got = tuple(side.shape) if isinstance(side, torch.Tensor) else type(side).__name__
+        raise ValueError(f"Expected side to have shape (1, 2) or ({boxes.shape[0]}, 2), one window size for every box "
+                         f"or one per box; got {got}")
+    side = side.to(boxes).expand(boxes.shape[0], 2)
     offset_t = (boxes[:, :2] + boxes[:, 2:]) / 2 - (size - 1) / 2  # silhouette box centre − window centre
     uv = (blob_box[:2] + blob_box[2:]) / 2 - offset_t * side / size
     return uv, side
@@ -267,7 +274,12 @@ def observe_windows(distance: torch.Tensor, uv: torch.Tensor, side: torch.Tensor
 def observe(distance: torch.Tensor, camera: Camera, centres: torch.Tensor, template: TemplateConfig,
             size: int, origin: tuple[int, int] = (0, 0)) -> torch.Tensor:
     """What particles at ``centres`` (N, 3) world metres see: :func:`observe_windows` of their
-    windows placed by the camera (:func:`project_windows`). Returns (N, L, L) in [−1, 1]."""
+    windows placed by the camera (:func:`project_windows`).
+
+    distance: (H, W) the frame's signed distance in image pixels, positive on the foreground, or a
+    region of it whose (0, 0) is the frame pixel ``origin`` (u0, v0) (:func:`frame_distance`);
+    template: the model's template geometry; size: L. Returns (N, L, L) in [−1, 1].
+    """
     uv, side = project_windows(camera, centres, template.window_m)
     return observe_windows(distance, uv, side, template, size, origin)
 
