@@ -85,6 +85,22 @@ def test_fit_gain_leaves_out_pixels_without_data():
         assert fit_gain(frame, dead_background, valid) == want
 
 
+def test_fit_gain_refuses_images_of_other_shapes_and_a_valid_that_is_not_bool():
+    """A uint8 0/1 valid was taken as a fancy index (rows 0 and 1 over and over), and a background of
+    another shape raised numpy's IndexError."""
+    frame, background = np.zeros((6, 8)), np.zeros((6, 8))
+    valid = np.ones((6, 8), dtype=bool)
+    with pytest.raises(ValueError, match=r"Expected valid to be a bool array of the frame's shape \(6, 8\); got "
+                                         r"shape \(6, 8\), dtype uint8"):
+        fit_gain(frame, background, valid.astype(np.uint8))
+    with pytest.raises(ValueError, match=r"Expected valid .*; got shape \(6, 7\), dtype bool"):
+        fit_gain(frame, background, valid[:, :7])
+    with pytest.raises(ValueError, match=r"Expected background to have the frame's shape \(6, 8\); got shape \(8, 6\)"):
+        fit_gain(frame, background.T, valid)
+    with pytest.raises(ValueError, match=r"Expected frame to have shape \(H, W\); got shape \(48,\)"):
+        fit_gain(frame.ravel(), background.ravel(), valid.ravel())
+
+
 def test_brightness_ramp_breaks_a_frozen_background_not_the_compensated_one(car):
     ramp = Composite(car, gain_end=0.9)  # a 10 % drop in 1 s, as a cloud or a gain change
     frozen = ForegroundSegmenter(SegmentationConfig())

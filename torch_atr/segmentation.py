@@ -550,6 +550,14 @@ def fit_gain(frame: np.ndarray, background: np.ndarray, valid: np.ndarray) -> tu
     Args:
         frame, background: (H, W) any real dtype; valid: (H, W) bool.
     """
+    if not (isinstance(frame, np.ndarray) and frame.ndim == 2):
+        raise ValueError(f"Expected frame to have shape (H, W); got {describe_array(frame)}")
+    if not (isinstance(background, np.ndarray) and background.shape == frame.shape):
+        raise ValueError(f"Expected background to have the frame's shape {frame.shape}; got "
+                         f"{describe_array(background)}")
+    if not (isinstance(valid, np.ndarray) and valid.dtype == bool and valid.shape == frame.shape):
+        raise ValueError(f"Expected valid to be a bool array of the frame's shape {frame.shape}; got "
+                         f"{describe_array(valid)}")
     x = background[valid].astype(np.float64)
     y = frame[valid].astype(np.float64)
     finite = np.isfinite(x) & np.isfinite(y)
@@ -780,12 +788,10 @@ class ForegroundSegmenter:
         near = _check_near(near)  # before the region compared first reads it
         k, c = self._to_uint8_scale()
         if cfg.compensate_gain:  # on a fixed grid of pixels outside the target box
-            rows, cols = self._samples
             keep = ~_box_mask(grey.shape, exclude)[self._samples]
             if missing is not None:
                 keep &= ~missing[self._samples]
-            x = self._background[self._samples][keep]
-            self.gain = fit_gain(grey[rows, cols][keep] * k + c, x, np.ones(x.shape, dtype=bool))
+            self.gain = fit_gain(grey[self._samples] * k + c, self._background[self._samples], keep)
             k, c = self._to_uint8_scale(*self.gain)
         image = _affine_uint8(grey, k, c)
         if missing is not None:  # no data: the background, never foreground
