@@ -235,3 +235,36 @@ def test_recognition_best_matches_and_convergence(model):
     assert best_matches(model, np.array([0.05, 2 * math.pi - 0.05, 0.05, 2 * math.pi - 0.05])) == near
     ok = np.array([0, 1, 1, 0] + [1] * 12, dtype=bool)
     assert frames_to_convergence(ok) == 4 and frames_to_convergence(ok[:8]) is None
+
+
+def test_frames_to_convergence_refuses_what_is_not_a_bool_per_frame():
+    """Errors passed for the flags (every non-zero one true) converged at frame 0; the flags themselves
+    converge where ten in a row begin."""
+    from torch_atr.evaluation import frames_to_convergence
+
+    errors = np.array([0.5, 2.0, 0.1] + [0.2] * 12)
+    with pytest.raises(ValueError, match=r"Expected ok to be a bool array of shape \(T,\); got shape \(15,\), "
+                                         r"dtype float64"):
+        frames_to_convergence(errors)
+    with pytest.raises(ValueError, match=r"Expected ok .*; got shape \(1, 15\), dtype bool"):
+        frames_to_convergence((errors < 1.0)[None])
+    assert frames_to_convergence(errors < 1.0) == 2
+
+
+def test_best_matches_refuses_alpha_that_is_not_one_per_frame(model):
+    """A (T, 2) alpha was flattened into one sequence of 2T estimates."""
+    from torch_atr.evaluation import best_matches
+
+    with pytest.raises(ValueError, match=r"Expected alpha to have shape \(T,\); got \(3, 2\)"):
+        best_matches(model, np.full((3, 2), 0.5))
+
+
+def test_recognition_accuracy_refuses_alpha_that_is_not_one_per_frame(model):
+    """A 0-d alpha raised a bare IndexError reading its length."""
+    from torch_atr.evaluation import recognition_accuracy
+
+    own = model.class_names[model.vehicle_classes[0]]
+    with pytest.raises(ValueError, match=r"Expected alpha to have shape \(T,\); got \(\)"):
+        recognition_accuracy(model, np.float64(model.alphas[0]), [own])
+    with pytest.raises(ValueError, match=r"Expected alpha to have shape \(T,\); got \(2, 1\)"):
+        recognition_accuracy(model, np.zeros((2, 1)), [own, own])

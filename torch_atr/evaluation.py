@@ -17,7 +17,7 @@ import math
 import numpy as np
 import torch
 
-from torch_atr._checks import as_float_tensor, check_finite, check_shape
+from torch_atr._checks import as_float_tensor, check_finite, check_shape, describe_array
 from torch_atr.model.rbf import ridge_hat
 from torch_atr.shape import iou
 from torch_atr.validate import integer
@@ -257,6 +257,8 @@ def recognition_accuracy(model, alpha: np.ndarray, true_class: list[str]) -> flo
     and logged at debug level. None when no frame has a class the model knows.
     """
     alpha = np.asarray(alpha, dtype=np.float64)
+    if alpha.ndim != 1:
+        raise ValueError(f"Expected alpha to have shape (T,); got {alpha.shape}")
     known = np.array([c in model.class_names for c in true_class], dtype=bool)
     if len(true_class) != alpha.shape[0]:
         raise ValueError(f"Expected one true class per frame ({alpha.shape[0]}); got {len(true_class)}")
@@ -278,6 +280,8 @@ def best_matches(model, alpha: np.ndarray, k: int = 2) -> list[str]:
     alpha: (T,) radians (NaN entries ignored). Returns k names, nearest first ([] without any α).
     """
     alpha = np.asarray(alpha, dtype=np.float64)
+    if alpha.ndim != 1:
+        raise ValueError(f"Expected alpha to have shape (T,); got {alpha.shape}")
     alpha = alpha[np.isfinite(alpha)]
     if alpha.size == 0:
         return []
@@ -294,7 +298,9 @@ def frames_to_convergence(ok: np.ndarray, window: int = 10) -> int | None:
     """
     if window < 1:
         raise ValueError(f"Expected window >= 1; got {window}")
-    ok = np.asarray(ok, dtype=bool)
+    ok = np.asarray(ok)
+    if ok.dtype != bool or ok.ndim != 1:
+        raise ValueError(f"Expected ok to be a bool array of shape (T,); got {describe_array(ok)}")
     run = 0
     for i, good in enumerate(ok):
         run = run + 1 if good else 0
