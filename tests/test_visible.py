@@ -277,3 +277,17 @@ def test_quick_run_resumes_and_refuses_foreign_folders(quick_run, tmp_path, monk
         main(["visible", "--out", str(tmp_path), "--quick"])
     with pytest.raises(ConfigError, match="--ranges"):
         main(["visible", "--out", str(tmp_path / "new"), "--quick", "--ranges", "1000"])
+
+
+def test_the_calibration_figure_and_report_refuse_a_drawn_image_that_is_not_bgr(tmp_path):
+    """A grey (H, W) image was mirrored left to right by drawn[..., ::-1] (meant to turn BGR into RGB) and
+    shown without a word; the report refuses it before writing anything."""
+    from torch_atr.experiments.visible import VisibleConfig, calibration_figure, write_visible_report
+
+    grey = np.zeros((48, 64), dtype=np.uint8)
+    calibration = {"floor_square_m": 0.5, "errors": {"fx_rel": 0.0, "height_m": 0.0, "rotation_deg": 0.0}}
+    with pytest.raises(ValueError, match=r"Expected drawn to have shape \(H, W, 3\) \(BGR\); got shape \(48, 64\)"):
+        calibration_figure(grey, calibration)
+    with pytest.raises(ValueError, match=r"Expected drawn to have shape \(H, W, 3\) \(BGR\); got shape \(48, 64\)"):
+        write_visible_report(tmp_path, VisibleConfig(), calibration, grey, [], None, 0.0)
+    assert list(tmp_path.iterdir()) == []

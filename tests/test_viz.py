@@ -131,6 +131,19 @@ def _model_figures(model, step_deg: tuple[float, float], grid: tuple[torch.Tenso
     return viz.model_figures(model, masks, theta, phi, *map(math.radians, step_deg))
 
 
+def test_model_figures_refuse_views_that_are_not_the_masks_views():
+    """θ, φ of one more view than the masks hold labelled the reconstructions with the wrong views."""
+    model = GenerativeShapeModel.from_checkpoint(CKPT)
+    V = model.rbf.num_centres
+    masks = torch.zeros(model.core.num_vehicles, V, model.template.size_px, model.template.size_px, dtype=torch.bool)
+    theta, phi = model.rbf.centres_theta.double(), model.rbf.centres_phi.double()
+    longer = torch.cat([theta[:1], theta])
+    with pytest.raises(ValueError, match=rf"Expected theta to have shape \({V}\); got \({V + 1},\)"):
+        viz.model_figures(model, masks, longer, torch.cat([phi[:1], phi]), math.radians(12), math.radians(10))
+    with pytest.raises(ValueError, match=rf"Expected phi to have shape \({V}\); got \({V}, 1\)"):
+        viz.model_figures(model, masks, theta, phi[:, None], math.radians(12), math.radians(10))
+
+
 def _grid_texts(fig) -> tuple[list[str], list[str]]:
     """An image grid's column titles and row labels."""
     axes = np.array(fig.axes).reshape(len([ax for ax in fig.axes if ax.get_ylabel()]), -1)

@@ -216,6 +216,8 @@ def model_figures(model, masks: torch.Tensor, theta: torch.Tensor, phi: torch.Te
     """
     check_shape("masks", masks, ("K", "V", None, None))
     V = masks.shape[1]
+    check_shape("theta", theta, (V,))
+    check_shape("phi", phi, (V,))
     like = model.alphas
     names, classes, class_names = model.vehicle_names, model.vehicle_classes, model.class_names
     pick = torch.linspace(0, V - 1, 10).round().long()  # 10 views spread over the grid

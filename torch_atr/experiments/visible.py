@@ -46,6 +46,7 @@ from pathlib import Path
 import numpy as np
 
 import torch_atr
+from torch_atr._checks import describe_array
 from torch_atr.config import ConfigError, load_config
 from torch_atr.experiments.sensiac_like import (HELDOUT_PREFIX, FrameCache, check_vehicle, in_processes, json_number,
                                                 kept_results, resolve_checkpoint, worker_model,
@@ -154,8 +155,8 @@ def calibrate(cfg: VisibleConfig) -> tuple[dict, np.ndarray]:
     Returns:
         ({"true", "calibrated": ``Camera.to_dict()`` (the calibrated one levelled: the tracker's),
         "height_m", "true_height_m", "rms_px", "errors": {"fx_rel", "fy_rel", "cx_px", "cy_px",
-        "height_m", "rotation_deg"}}, the floor board's image (H, W) uint8 with cubes drawn by the
-        floor-posed calibrated camera (Fig. 3.7)).
+        "height_m", "rotation_deg"}}, the floor board's image (H, W, 3) uint8 BGR with cubes drawn by
+        the floor-posed calibrated camera (Fig. 3.7; :func:`~torch_atr.calibration.draw_cubes`)).
     """
     import torch
 
@@ -312,9 +313,20 @@ def overlap_figure(results: list[dict], cfg: VisibleConfig):
     return fig
 
 
+def _check_drawn(drawn) -> None:
+    """ValueError unless ``drawn`` is an (H, W, 3) BGR image (:func:`calibrate`'s)."""
+    if not (isinstance(drawn, np.ndarray) and drawn.ndim == 3 and drawn.shape[2] == 3):
+        raise ValueError(f"Expected drawn to have shape (H, W, 3) (BGR); got {describe_array(drawn)}")
+
+
 def calibration_figure(drawn: np.ndarray, calibration: dict):
-    """The floor board with cubes drawn through the calibrated camera (Fig. 3.7)."""
+    """The floor board with cubes drawn through the calibrated camera (Fig. 3.7).
+
+    drawn: (H, W, 3) uint8 BGR, :func:`calibrate`'s image; calibration: its dict.
+    """
     from torch_atr.viz import pyplot
+
+    _check_drawn(drawn)
 
     plt = pyplot()
     fig, ax = plt.subplots(figsize=(8, 6.4))
@@ -336,8 +348,13 @@ def _number(v, fmt: str = ".2f") -> str:
 
 def write_visible_report(out: Path, cfg: VisibleConfig, calibration: dict, drawn: np.ndarray,
                          results: list[dict], model, wall_s: float) -> dict:
-    """``results.json``, ``report.md`` and the figures in ``out``, atomically; returns the aggregate."""
+    """``results.json``, ``report.md`` and the figures in ``out``, atomically; returns the aggregate.
+
+    calibration, drawn: :func:`calibrate`'s dict and its (H, W, 3) uint8 BGR floor board image.
+    """
     from torch_atr.viz import alpha_figure, save_figures, view_figure
+
+    _check_drawn(drawn)
 
     agg = aggregate_visible(results, cfg)
     summary = {"format": VISIBLE_FORMAT, "torch_atr_version": torch_atr.__version__,
