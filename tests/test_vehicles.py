@@ -478,6 +478,18 @@ def test_thick_bounds_leave_the_catalog_untouched(catalog):
         np.testing.assert_allclose(box, v.mesh.bounds, atol=1e-9, err_msg=v.name)
 
 
+def test_thick_bounds_refuse_vertices_or_faces_of_the_wrong_shape_or_kind():
+    """Float faces and (M, 2) vertices raised numpy's IndexError from deep inside."""
+    mesh = trimesh.creation.box((1.0, 2.0, 3.0))
+    v, f = np.asarray(mesh.vertices), np.asarray(mesh.faces)
+    with pytest.raises(ValueError, match=r"Expected faces to be an integer array of shape \(F, 3\); got shape "
+                                         r"\(12, 3\), dtype float64"):
+        thick_bounds(v, f.astype(np.float64), 0.05)
+    with pytest.raises(ValueError, match=r"Expected vertices to be a float array of shape \(M, 3\); got shape "
+                                         r"\(8, 2\)"):
+        thick_bounds(v[:, :2], f, 0.05)
+
+
 def test_thick_bounds_against_a_slab_by_slab_loop_whatever_the_chunk(monkeypatch):
     """thick_bounds against its definition done slab by slab (the faces crossing a slab, their boxes'
     span along the other two axes), with (face, slab) pairs taken a handful at a time: it held one
@@ -708,6 +720,30 @@ def test_sweep_volume_matches_convex_hull(seed):
     assert volume(*sweep(rings[::-1])) > 0  # either direction comes out oriented outwards
     with pytest.raises(ValueError, match=r"shape \(S>=2, n>=3, 3\)"):
         sweep(rings[:1])
+
+
+def test_signed_area_refuses_points_that_are_not_2d():
+    """Points (n, 3) gave the area of their x, y shadow without a word."""
+    square = np.array([[0.0, 0.0], [2.0, 0.0], [2.0, 1.0], [0.0, 1.0]])
+    assert signed_area(square) == 2.0 and signed_area(square[::-1]) == -2.0
+    with pytest.raises(ValueError, match=r"Expected poly to have shape \(n, 2\); got \(4, 3\)"):
+        signed_area(np.c_[square, np.ones(4)])
+    with pytest.raises(ValueError, match=r"Expected poly to have shape \(n, 2\); got \(8,\)"):
+        signed_area(square.ravel())
+
+
+def test_volume_refuses_vertices_or_faces_of_the_wrong_shape_or_kind():
+    """Float faces failed inside numpy's indexing; faces (F, 4) were read as triangles of their first three."""
+    v = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]])
+    f = np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]])
+    assert volume(v, f) == pytest.approx(1 / 6, rel=1e-12)
+    with pytest.raises(ValueError, match=r"Expected faces to be an integer array of shape \(F, 3\); got shape "
+                                         r"\(4, 3\), dtype float64"):
+        volume(v, f.astype(np.float64))
+    with pytest.raises(ValueError, match=r"Expected faces .*; got shape \(4, 4\), dtype int64"):
+        volume(v, np.c_[f, f[:, :1]])
+    with pytest.raises(ValueError, match=r"Expected verts to be a float array of shape \(M, 3\); got shape \(4, 2\)"):
+        volume(v[:, :2], f)
 
 
 def test_fillet_arcs_are_tangent_circles_of_the_radius():

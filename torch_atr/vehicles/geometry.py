@@ -25,6 +25,9 @@ def _cross2(o: np.ndarray, a: np.ndarray, b: np.ndarray) -> float:
 
 def signed_area(poly: np.ndarray) -> float:
     """Shoelace area of a polygon ``poly: (n, 2)``; positive when counter-clockwise."""
+    poly = np.asarray(poly)
+    if poly.ndim != 2 or poly.shape[1] != 2:
+        raise ValueError(f"Expected poly to have shape (n, 2); got {poly.shape}")
     x, y = poly[:, 0], poly[:, 1]
     return 0.5 * float(np.dot(x, np.roll(y, -1)) - np.dot(np.roll(x, -1), y))
 
@@ -92,8 +95,20 @@ def loft(ring0: np.ndarray, ring1: np.ndarray, cap: np.ndarray) -> Part:
     return _outwards(verts, faces, "loft")
 
 
+def check_mesh(verts, faces, names: tuple[str, str] = ("verts", "faces")) -> None:
+    """ValueError naming the argument (``names``) unless ``verts`` is a float array (M, 3) and
+    ``faces`` an integer array (F, 3)."""
+    for name, a, kinds, want in ((names[0], verts, "f", "a float array of shape (M, 3)"),
+                                 (names[1], faces, "iu", "an integer array of shape (F, 3)")):
+        if not (isinstance(a, np.ndarray) and a.ndim == 2 and a.shape[1] == 3 and a.dtype.kind in kinds):
+            got = f"shape {a.shape}, dtype {a.dtype}" if isinstance(a, np.ndarray) else type(a).__name__
+            raise ValueError(f"Expected {name} to be {want}; got {got}")
+
+
 def volume(verts: np.ndarray, faces: np.ndarray) -> float:
-    """Signed volume of a closed triangle mesh (divergence theorem); verts (M, 3), faces (F, 3)."""
+    """Signed volume of a closed triangle mesh (divergence theorem); verts (M, 3) float, faces (F, 3)
+    integer indices into verts."""
+    check_mesh(verts, faces)
     a, b, c = verts[faces[:, 0]], verts[faces[:, 1]], verts[faces[:, 2]]
     return float(np.einsum("ij,ij->i", a, np.cross(b, c)).sum() / 6.0)
 

@@ -42,6 +42,7 @@ import torch
 import trimesh
 
 from torch_atr.validate import MAX_MESH_BYTES, real
+from torch_atr.vehicles.geometry import check_mesh
 
 log = logging.getLogger(__name__)
 
@@ -320,6 +321,7 @@ def thick_bounds(vertices: np.ndarray, faces: np.ndarray, min_thickness: float, 
         (2, 3) [low, high] corners, inside the mesh's bounding box (they may leave up to one
         slab of a trimmed wire); that box itself where an axis has no thick slab.
     """
+    check_mesh(vertices, faces, ("vertices", "faces"))
     tri = vertices[faces]  # (F, 3, 3)
     lo, hi = tri.min(axis=1), tri.max(axis=1)  # (F, 3) each
     box = np.stack([vertices.min(axis=0), vertices.max(axis=0)])
