@@ -306,6 +306,24 @@ def test_type_errors_say_what_was_expected_in_words():
                                                                                  "d": 1500.0, "e": 7}
 
 
+def test_a_fixed_length_tuple_checks_its_length_and_each_items_type():
+    """tuple[float, float] checked every item against float alone and never the length: [1.0, 2.0, 3.0]
+    passed, and tuple[int, str] refused [1, "a"]. tuple[X, ...] stays any length of X."""
+    from torch_atr.config import check_type
+
+    with pytest.raises(ConfigError, match=r"^box: expected a list of 2 \(a number, a number\); "
+                                          r"got \[1\.0, 2\.0, 3\.0\]$"):
+        check_type("box", [1.0, 2.0, 3.0], tuple[float, float])
+    with pytest.raises(ConfigError, match=r"^box: expected a list of 2 or null; got \[1\.0\]$"):
+        check_type("box", [1.0], tuple[float, float] | None)
+    with pytest.raises(ConfigError, match=r"^pair\[1\]: expected a string; got 2"):
+        check_type("pair", [1, 2], tuple[int, str])
+    assert check_type("pair", [1, "a"], tuple[int, str]) == (1, "a")
+    assert check_type("box", [1, 2.5], tuple[float, float]) == (1.0, 2.5)
+    assert check_type("ranges", [1, 2.5, 3], tuple[float, ...]) == (1.0, 2.5, 3.0)
+    assert check_type("ranges", [], tuple[float, ...]) == ()
+
+
 def test_numbers_are_read_as_yaml_1_2_reads_them_not_as_octal_or_base_60(tmp_path):
     """YAML 1.1 reads 010 as octal 8 and 1:30 as base-60 90, without a word; a config means 10, and
     1:30 is no number: its key refuses it, in a file and in an override."""

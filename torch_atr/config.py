@@ -67,10 +67,19 @@ _UNQUOTED_TEXT = (int, float, datetime.date)
 _KINDS = {bool: "true/false", int: "an integer", float: "a number", str: "text", type(None): "null"}
 
 
+def _fixed_length(tp: Any) -> tuple | None:
+    """The item types of a fixed-length ``tuple[A, B]``; None for a list or ``tuple[A, ...]``."""
+    args = typing.get_args(tp)
+    if typing.get_origin(tp) is not tuple or not args or args[-1] is Ellipsis:
+        return None
+    return args
+
+
 def _describe(tp: Any) -> str:
     """A config type in words, for errors: an integer, a number, text, null, a list, a mapping."""
     if typing.get_origin(tp) in (list, tuple):
-        return "a list"
+        fixed = _fixed_length(tp)
+        return "a list" if fixed is None else f"a list of {len(fixed)}"
     return "a mapping" if dataclasses.is_dataclass(tp) else _KINDS.get(tp, str(tp))
 
 
@@ -94,10 +103,15 @@ def check_type(key: str, value: Any, tp: Any) -> Any:
         raise ConfigError(f"{key}: expected null; got {show(value)}")
     if origin in (list, tuple):
         if not isinstance(value, (list, tuple)):
-            raise ConfigError(f"{key}: expected a list; got {show(value)}")
-        args = typing.get_args(tp)
-        arm = args[0] if args else Any
-        items = [check_type(f"{key}[{i}]", v, arm) for i, v in enumerate(value)]
+            raise ConfigError(f"{key}: expected {_describe(tp)}; got {show(value)}")
+        arms = _fixed_length(tp)
+        if arms is None:
+            args = typing.get_args(tp)
+            arms = [args[0] if args else Any] * len(value)
+        elif len(value) != len(arms):
+            raise ConfigError(f"{key}: expected a list of {len(arms)} ({', '.join(_describe(a) for a in arms)}); "
+                              f"got {show(value)}")
+        items = [check_type(f"{key}[{i}]", v, arm) for i, (v, arm) in enumerate(zip(value, arms))]
         return tuple(items) if origin is tuple else items
     if tp is Any:
         return value
