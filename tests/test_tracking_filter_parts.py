@@ -34,6 +34,27 @@ def test_predict_is_eq_5_1_and_5_3_particle_by_particle():
     assert ((out[:, [HEADING, ALPHA]] >= 0) & (out[:, [HEADING, ALPHA]] < TWO_PI)).all()
 
 
+def test_predict_wraps_heading_and_alpha_that_cross_0_or_2pi_either_way():
+    """Particles 1e-3 rad either side of the wrap with σ 0.1 rad per step: about half of them cross 0
+    or 2π, each way, in h and in α. Each result is the particle's h + σ w (α + σ w) with the same
+    draws, taken % 2π (Python's float remainder), and lies in [0, 2π)."""
+    n = 400
+    cfg = MotionConfig(sigma2_heading=0.3, sigma2_alpha=0.3)  # σ = √(0.3 / 30) = 0.1 rad per step
+    p = torch.zeros(n, 6, dtype=torch.float64)
+    p[: n // 2, HEADING], p[n // 2:, HEADING] = 1e-3, TWO_PI - 1e-3
+    p[::2, ALPHA], p[1::2, ALPHA] = TWO_PI - 1e-3, 1e-3
+    dt = 1 / 30
+    out = predict(p, dt, cfg, torch.Generator().manual_seed(7))
+    w = torch.randn(n, 6, generator=torch.Generator().manual_seed(7), dtype=torch.float64)  # the same draws
+    std = math.sqrt(0.3 * dt)
+    for column in (HEADING, ALPHA):
+        raw = [a + std * float(d) for a, d in zip(p[:, column].tolist(), w[:, column])]
+        assert sum(r < 0 for r in raw) > n // 8 and sum(r >= TWO_PI for r in raw) > n // 8  # crossed both ways
+        want = np.array([r % TWO_PI for r in raw])
+        np.testing.assert_allclose(out[:, column].numpy(), want, rtol=0, atol=1e-12)
+        assert ((out[:, column] >= 0) & (out[:, column] < TWO_PI)).all()
+
+
 def test_predict_noise_has_the_per_second_variance():
     cfg = MotionConfig()
     p = torch.zeros(200_000, 6, dtype=torch.float64)
