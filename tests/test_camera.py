@@ -131,6 +131,40 @@ def test_points_beyond_the_distortion_fold_are_nan_not_imaged_inside():
     np.testing.assert_allclose(cam.pixel_rays(cam.undistort(uv[1:3])).numpy(), p[1:3] / p[1:3, 2:], atol=1e-6)
 
 
+def test_the_fold_of_a_lens_with_two_turning_points_is_the_first():
+    """k1 = −0.5, k2 = 0.05: r (1 + k1 r² + k2 r⁴) rises, falls from r² = 0.764 and rises again from
+    r² = 5.236. Brute force: the first r of a dense grid where the radial map stops rising. The fold
+    is there, not at the second turn: a point at r² = 2, between them, is NaN like one beyond both,
+    and points inside the fold keep cv2's pixels."""
+    from torch_atr.camera import _fold_r2
+
+    k1, k2 = -0.5, 0.05
+    r = np.linspace(0.0, 3.0, 300_001)  # steps of 1e-5
+    radial = r * (1 + k1 * r ** 2 + k2 * r ** 4)
+    first = r[np.argmax(np.diff(radial) <= 0)]
+    assert _fold_r2(k1, k2, 0.0) == pytest.approx(first ** 2, abs=1e-4)
+    dist = np.array([k1, k2, 0.0, 0.0, 0.0])
+    cam = Camera(500.0, 500.0, 319.5, 239.5, 640, 480, dist=dist)
+    x = np.sqrt([0.5, 0.75, 2.0, 9.0])  # r² inside, just inside, between the turns, beyond both
+    p = np.column_stack([x, np.zeros(4), np.ones(4)])
+    uv, _ = cam.project(torch.from_numpy(p), world=False)
+    assert torch.isfinite(uv[:2]).all() and torch.isnan(uv[2:]).all()
+    ref, _ = cv2.projectPoints(p[:2] * [1.0, -1.0, 1.0], np.zeros(3), np.zeros(3), cam.K.numpy(), dist)
+    np.testing.assert_allclose(uv[:2].numpy(), ref.reshape(-1, 2), atol=1e-9)
+
+
+def test_points_on_the_camera_plane_are_nan_without_distortion_too():
+    """Depth 0 is not in front of the camera: without distortion (project skips its terms) a point
+    at z = 0 gave x / 0 = ±inf, an infinite pixel where z >= 0 counted as seen; it is NaN, like one
+    behind the camera, as the docstring promises (depth <= 0)."""
+    cam = Camera(600.0, 610.0, 300.5, 200.25, 640, 480)
+    p_sensor = torch.tensor([[1.0, 1.0, 0.0], [-2.0, 0.5, 0.0], [1.0, 0.0, -0.0], [0.2, 0.1, 3.0]],
+                            dtype=torch.float64)
+    uv, depth = cam.project(p_sensor, world=False)
+    assert torch.isnan(uv[:3]).all() and torch.isfinite(uv[3]).all()
+    assert depth.tolist() == [0.0, 0.0, 0.0, 3.0]
+
+
 def test_project_batch_shapes_and_bad_shape():
     cam = _camera()
     pts = torch.from_numpy(_points_in_front(12, seed=2)).reshape(3, 4, 3)

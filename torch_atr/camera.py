@@ -165,7 +165,7 @@ class Camera(nn.Module):
         Returns:
             uv: (..., 2) pixels (u right, v down); depth: (..., ) metres along the optical axis.
             Points at or behind the camera (depth <= 0), and with lens distortion those beyond
-            the radius where it folds back (r² >= :func:`_fold_r2`), get non-finite ``uv``.
+            the radius where it folds back (r² >= :func:`_fold_r2`), get NaN ``uv``.
         """
         p = self.world_to_sensor(points) if world else as_float_tensor("points", points, like=self.K)
         if p.shape[-1:] != (3,):
