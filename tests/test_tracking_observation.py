@@ -16,8 +16,8 @@ from torch_atr.pose import VehiclePose, view_of_pose
 from torch_atr.render import render_mask, render_templates
 from torch_atr.shape import iou, signed_distance, signed_distance_px
 from torch_atr.tracking.observation import (cut_edges, frame_distance, log_likelihood, mask_box, observe,
-                                            observed_cells, place_silhouette, project_windows, sample_windows,
-                                            sees_image)
+                                            observe_windows, observed_cells, place_silhouette, project_windows,
+                                            sample_windows, sees_image)
 
 CFG = TemplateConfig()
 
@@ -74,6 +74,62 @@ def test_sample_windows_matchesbilinear():
                 v = uv[n, 1].item() + ((a + 0.5) / L - 0.5) * side[n, 1].item()
                 assert got[n, a, b].item() == pytest.approx(bilinear(image.numpy(), u, v), abs=1e-9)
     assert (got[3] == 0).all()  # a non-finite window samples nothing
+
+
+def test_observe_windows_converts_with_the_geometric_mean_of_non_square_sides():
+    """fx = 600, fy = 450: a window spans fx W / z by fy W / z pixels, and an image distance is
+    S z / (√(fx fy) W) template pixels (the module docstring's step 3), then clipped to τ and divided
+    by τ. On a distance image linear in u and v (bilinear sampling is exact there) the closed form,
+    by numpy, at each cell centre."""
+    fx, fy, cu, cv = 600.0, 450.0, 200.0, 150.0
+    cam = Camera(fx, fy, cu, cv, 400, 300)
+    centres = torch.tensor([[0.3, -0.2, 60.0], [-0.5, 0.4, 80.0]], dtype=torch.float64)
+    uv, side = project_windows(cam, centres, CFG.window_m)
+    vv, uu = np.mgrid[0:300, 0:400].astype(np.float64)
+    distance = torch.from_numpy(0.08 * (uu - cu) - 0.05 * (vv - cv) + 1.0)
+    L, S, tau = 16, CFG.size_px, CFG.tau_px
+    got = observe_windows(distance, uv, side, CFG, L).numpy()
+    offsets = (np.arange(L) + 0.5) / L - 0.5
+    for n, (x, y, z) in enumerate(centres.tolist()):
+        u = cu + fx * x / z + offsets * fx * CFG.window_m / z  # (L,) cell columns
+        v = cv - fy * y / z + offsets * fy * CFG.window_m / z  # (L,) cell rows
+        d = 0.08 * (u[None, :] - cu) - 0.05 * (v[:, None] - cv) + 1.0  # image pixels
+        want = np.clip(d * S * z / (math.sqrt(fx * fy) * CFG.window_m), -tau, tau) / tau
+        assert 0.1 < (np.abs(want) < 1).mean()  # not all clipped
+        np.testing.assert_allclose(got[n], want, rtol=0, atol=1e-9)
+
+
+def test_a_window_behind_the_camera_observes_exact_zeros():
+    """The module docstring: a window behind the camera sees "nothing at all (0)". Its uv and side are
+    NaN; its samples are 0 and so is its unit conversion (1 / NaN image px), so its cells are exact
+    zeros, not NaN; the other windows are those observed without it."""
+    cam = Camera(600.0, 450.0, 200.0, 150.0, 400, 300)
+    centres = torch.tensor([[0.3, -0.2, 60.0], [0.0, 0.0, -5.0], [-0.5, 0.4, 80.0]], dtype=torch.float64)
+    uv, side = project_windows(cam, centres, CFG.window_m)
+    assert uv[1].isnan().all() and side[1].isnan().all()
+    distance = signed_distance_px(np.pad(np.ones((40, 60), dtype=bool), ((130, 130), (170, 170))))
+    got = observe_windows(distance, uv, side, CFG, 8)
+    assert got.isfinite().all() and torch.equal(got[1], torch.zeros(8, 8, dtype=got.dtype))
+    torch.testing.assert_close(got[[0, 2]], observe_windows(distance, uv[[0, 2]], side[[0, 2]], CFG, 8),
+                               rtol=0, atol=0)
+
+
+def test_place_silhouette_with_non_square_pixels_against_every_pixel():
+    """Brute force per image pixel (u, v) of a window of sᵤ ≠ s_v: inside the window (|u − u_c| <= sᵤ/2,
+    |v − v_c| <= s_v/2), at template coordinates ((u − u_c)/sᵤ + ½) S − ½ and ((v − v_c)/s_v + ½) S − ½,
+    y sampled bilinearly (references.bilinear) is > 0."""
+    S, H, W = 16, 40, 60
+    y = torch.randn(S, S, generator=torch.Generator().manual_seed(2), dtype=torch.float64)
+    uv, side = torch.tensor([30.3, 20.7], dtype=torch.float64), torch.tensor([24.6, 13.2], dtype=torch.float64)
+    got = place_silhouette(y, uv, side, (H, W)).numpy()
+    want = np.zeros((H, W), dtype=bool)
+    for v in range(H):
+        for u in range(W):
+            du, dv = (u - 30.3) / 24.6, (v - 20.7) / 13.2
+            if abs(du) <= 0.5 and abs(dv) <= 0.5:
+                want[v, u] = bilinear(y.numpy(), (du + 0.5) * S - 0.5, (dv + 0.5) * S - 0.5) > 0
+    assert 20 < want.sum() < 0.5 * 25 * 14
+    np.testing.assert_array_equal(got, want)
 
 
 def test_log_likelihood_is_eq_5_2():
