@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import torch
 
-from torch_atr.config import load_config
+from torch_atr.config import TemplateConfig, load_config
 from torch_atr.data.synthetic import SceneConfig, SyntheticSequence
 from torch_atr.pose import camera_centre
 from torch_atr.tracking import Tracker, TrackerConfig
@@ -43,6 +43,40 @@ def test_half_heights_match_the_training_meshes(model):
         bounds = load_catalog_vehicle(model.vehicle_names[k]).mesh.bounds
         got = interpolate_periodic(table, model.alphas[k:k + 1]).item()
         assert got == pytest.approx((bounds[1][2] - bounds[0][2]) / 2, abs=0.15), model.vehicle_names[k]
+
+
+class _BoxModel:
+    """The least of a model half_heights reads: ``alphas`` (dtype and device), ``template`` and a call
+    (α, θ, φ) -> (B, S, S) signed distances. Each is an analytic box, its rows [S/2 − 6, bottom(α)]
+    (edges from the top edge, pixel r's centre at r + ½) and columns from 10: seen side-on (θ = π/2,
+    φ = 0) bottom(α) = S/2 + 5 + 3 sin α, from any other view 4 rows higher."""
+
+    def __init__(self):
+        self.alphas = torch.zeros(3, dtype=torch.float64)
+        self.template = TemplateConfig(size_px=48, window_m=10.0)
+
+    def bottom(self, alpha):
+        return self.template.size_px / 2 + 5 + 3 * torch.sin(alpha)
+
+    def __call__(self, alpha, theta, phi):
+        S = self.template.size_px
+        side_on = (theta == math.pi / 2) & (phi == 0)
+        bottom = torch.where(side_on, self.bottom(alpha), self.bottom(alpha) - 4)[:, None]
+        rows = torch.arange(S, dtype=torch.float64) + 0.5
+        sdf = torch.minimum(rows - (S / 2 - 6), bottom - rows)[:, :, None].expand(-1, S, S).clone()
+        sdf[:, :, :10] = -1.0  # columns outside the box
+        return sdf
+
+
+def test_half_heights_are_the_side_views_bottom_below_the_window_centre_in_metres():
+    """Against the module docstring's closed form on an analytic box model: H(α)/2 is the side view's
+    bottom edge b(α) below the window's centre (S/2 from its top edge), at W / S metres per template
+    pixel: (b − S/2) W / S, at α = 2π k / grid."""
+    stub = _BoxModel()
+    alpha = torch.arange(16, dtype=torch.float64) * (2 * math.pi / 16)
+    S, W = stub.template.size_px, stub.template.window_m
+    want = (stub.bottom(alpha) - S / 2) * W / S
+    torch.testing.assert_close(half_heights(stub, grid=16), want, rtol=0, atol=1e-9)
 
 
 def test_ground_contact_puts_every_particle_half_its_height_above_the_ground(model):
