@@ -336,6 +336,49 @@ def test_hypotheses_on_flat_ground_have_the_window_of_the_contact_range(model):
         assert centre == pytest.approx([215.0, 304.0], abs=1e-6), k
 
 
+def _roll(degrees: float) -> torch.Tensor:
+    """A rotation about the sensor's optical axis (z), det +1."""
+    c, s = math.cos(math.radians(degrees)), math.sin(math.radians(degrees))
+    return torch.tensor([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]], dtype=torch.float64)
+
+
+def test_a_rolled_cameras_hypotheses_lie_at_the_ground_range_below_the_blobs_bottom_centre(model):
+    """With a roll about the optical axis the ground's depth changes along a row, so the contact's column
+    matters: every hypothesis lies at the depth z where the ray through the blob's bottom-centre pixel
+    (215, 308: the middle of columns 200-230, the lowest row's centre) meets the plane 6 m below the
+    camera centre (the closed form, _flat_ground_depth), its window (fx, fy) W / z pixels."""
+    R = _roll(8.0) @ _rotation(4.0, -3.0)
+    camera = Camera(1000.0, 1050.0, 320, 256, 640, 512, R=R, t=[0.5, -4.0, 1.0])
+    mask = np.zeros((512, 640), dtype=bool)
+    mask[300:309, 200:231] = True
+    distance, origin = frame_distance(mask, math.inf)
+    states, log_lik = initialise.blind_hypotheses(torch.from_numpy(mask), distance, camera,
+                                                  ShapeAppearance(model, "I", 32),
+                                                  InitConfig(alpha_steps=3, azimuth_steps=4), 0.1,
+                                                  camera_height_m=6.0, origin=origin)
+    z = _flat_ground_depth(camera, 215.0, 308.0, 6.0)
+    assert abs(_flat_ground_depth(camera, 200.0, 308.0, 6.0) / z - 1) > 0.01  # the column matters here
+    _, side = project_windows(camera, states[:, X:Z + 1], model.template.window_m)
+    want = torch.tensor([1000.0, 1050.0], dtype=torch.float64) * model.template.window_m / z
+    torch.testing.assert_close(side, want.expand_as(side).contiguous(), rtol=1e-9, atol=0)
+    assert log_lik.isfinite().all()
+
+
+@pytest.mark.parametrize("known_depth", [-500.0, -1e-3, 0.0])
+def test_hypotheses_at_a_known_depth_at_or_behind_the_camera_have_no_likelihood(model, known_depth):
+    """A known depth <= 0 places every hypothesis at or behind the camera, where its window sees nothing
+    (observation: "nothing at all (0)", and the tracker gives such particles no weight): every
+    log-likelihood is −inf, not the finite score of a window of zeros against the template."""
+    camera = Camera(1000.0, 1000.0, 320, 256, 640, 512, R=_rotation(4.0, -3.0), t=[0.5, -4.0, 1.0])
+    mask = np.zeros((512, 640), dtype=bool)
+    mask[300:309, 200:231] = True
+    distance, origin = frame_distance(mask, math.inf)
+    _, log_lik = initialise.blind_hypotheses(torch.from_numpy(mask), distance, camera, ShapeAppearance(model, "I", 32),
+                                             InitConfig(alpha_steps=3, azimuth_steps=4), 0.1, origin=origin,
+                                             known_depth=known_depth)
+    assert log_lik.shape == (12,) and (log_lik == -math.inf).all()
+
+
 def test_blind_particles_have_the_promised_spreads():
     """Around each of two hypotheses (equal shares): the range from the camera centre scaled by
     1 + range_std N(0, 1) along the line of sight, h and α by half a grid step (σ = π / steps) and

@@ -3,6 +3,7 @@
 import math
 
 import numpy as np
+import pytest
 import torch
 
 from clips import Clip
@@ -13,16 +14,24 @@ from torch_atr.tracking.blob import BOX_COLUMNS, BlobTracker
 from torch_atr.tracking.initialise import best_hypotheses, hypothesis_shares
 
 
-def test_fewer_particles_than_hypotheses_go_to_each_class_best_first_against_brute_force():
+@pytest.mark.parametrize("lonely", [False, True])
+def test_fewer_particles_than_hypotheses_go_to_each_class_best_first_against_brute_force(lonely):
     """n particles over the K best hypotheses: equal shares in best_hypotheses' order when n >= K;
     fewer than K go to the classes' best hypotheses (best first), then their second best, ... The
-    reference sorts by (rank within the class, score), one hypothesis at a time."""
+    reference sorts by (rank within the class, score), one hypothesis at a time. ``lonely``: class 2
+    has a single finite hypothesis, so it keeps fewer than count // C and the classes' shares of the
+    best differ in size (a rank counted from a class's end, not its start, then differs by class)."""
     g = torch.Generator().manual_seed(0)
     log_lik = torch.randn(300, generator=g, dtype=torch.float64)
     log_lik[:40] = -math.inf
     classes = torch.randint(0, 6, (300,), generator=g)
+    if lonely:
+        finite_2 = ((classes == 2) & log_lik.isfinite()).nonzero()[:, 0]
+        log_lik[finite_2[1:]] = -math.inf
     best = best_hypotheses(log_lik, 16, classes)
     K = best.shape[0]
+    per_class = torch.bincount(classes[best], minlength=6).tolist()
+    assert per_class == ([2, 2, 1, 2, 2, 2] if lonely else [2] * 6)
     rank = {i: sum(classes[j] == classes[i] for j in best.tolist()[:p]) for p, i in enumerate(best.tolist())}
     ordered = sorted(best.tolist(), key=lambda i: (rank[i], -float(log_lik[i])))
     for n in range(1, 2 * K + 3):

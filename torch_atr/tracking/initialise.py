@@ -273,7 +273,8 @@ def blind_hypotheses(blob: torch.Tensor, distance: torch.Tensor, camera: Camera,
             (:func:`ground_row_from_contrast`; NaN: unknown, the lowest row's centre).
         origin: (u0, v0) the frame pixel of ``distance[0, 0]`` when it is a region.
         known_depth: the range to place every hypothesis at (depth along the optical axis, m), e.g.
-            a tracker's estimate; NaN: from the ground, or from the blob's size.
+            a tracker's estimate; NaN: from the ground, or from the blob's size. At or behind the camera
+            (≤ 0) every hypothesis has log-likelihood −inf.
         grid: the (α, θ) grid's silhouette boxes, kept between calls (default: computed here).
         alpha_index: (A,) the grid's α to score (indices into ``grid.alpha``); default all of them.
         cut: (left, top, right, bottom), the image edges that cut the blob (``observation.cut_edges``):
