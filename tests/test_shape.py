@@ -86,6 +86,15 @@ def test_silhouette_round_trip_is_exact():
         assert torch.equal(silhouette(y), torch.from_numpy(masks))
 
 
+def test_silhouette_is_strictly_positive_distance():
+    """The module docstring: a reconstruction's silhouette is y > 0, so y = 0 (a zero crossing, or an
+    all-zero reconstruction) is outside, and the smallest positive normal float inside."""
+    assert not silhouette(torch.zeros(2, 2)).any()
+    tiny = torch.finfo(torch.float32).tiny
+    y = torch.tensor([[0.0, -0.0, tiny], [-tiny, 0.5, -0.5]])
+    assert silhouette(y).tolist() == [[False, False, True], [False, True, False]]
+
+
 def test_iou_and_dice_match_brute_force_counts():
     rng = np.random.default_rng(2)
     a = rng.random((2, 5, 7, 9)) < 0.4
