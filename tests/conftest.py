@@ -7,6 +7,7 @@ tests themselves (a SIGALRM timer and RLIMIT_DATA), so Hypothesis's deadline is 
 flaky on a shared machine and cannot stop a hang anyway.
 """
 
+import os
 import sys
 from pathlib import Path
 
@@ -37,3 +38,22 @@ def model():
     from torch_atr.model import GenerativeShapeModel
 
     return GenerativeShapeModel.from_checkpoint(SHIPPED_CHECKPOINT)
+
+
+@pytest.fixture
+def disk_events(monkeypatch):
+    """The fsyncs and renames a test makes, in order: ("fsync", the path synced) and ("replace", src, dst)."""
+    events = []
+    real_fsync, real_replace = os.fsync, os.replace
+
+    def fsync(fd):
+        events.append(("fsync", os.path.realpath(f"/proc/self/fd/{fd}")))
+        real_fsync(fd)
+
+    def replace(src, dst):
+        events.append(("replace", str(src), str(dst)))
+        real_replace(src, dst)
+
+    monkeypatch.setattr(os, "fsync", fsync)
+    monkeypatch.setattr(os, "replace", replace)
+    return events

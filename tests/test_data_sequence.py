@@ -76,23 +76,11 @@ def _truths(n):
     return out
 
 
-def test_a_saved_sequence_is_on_disk_before_it_is_renamed_into_place(tmp_path, monkeypatch):
+def test_a_saved_sequence_is_on_disk_before_it_is_renamed_into_place(tmp_path, disk_events):
     """A power cut after the rename must not leave a sequence of empty frames: every file the save wrote
     (frames, truth, camera, meta) and every folder in it is fsynced before the folder is renamed into place,
     and the parent folder after."""
-    events = []
-    real_fsync, real_replace = os.fsync, os.replace
-
-    def fsync(fd):
-        events.append(("fsync", os.path.realpath(f"/proc/self/fd/{fd}")))
-        real_fsync(fd)
-
-    def replace(src, dst):
-        events.append(("replace", str(src), str(dst)))
-        real_replace(src, dst)
-
-    monkeypatch.setattr(os, "fsync", fsync)
-    monkeypatch.setattr(os, "replace", replace)
+    events = disk_events
     n = 4
     seq = ListSequence([np.full((8, 10), i, np.uint8) for i in range(n)], _truths(n), camera=_camera(10, 8))
     out = save_sequence(seq, tmp_path / "seq", progress=False)
@@ -104,7 +92,6 @@ def test_a_saved_sequence_is_on_disk_before_it_is_renamed_into_place(tmp_path, m
     assert len(written) == n + 5  # the folder, frames/, n frames, truth.csv, camera.json, meta.json
     assert written <= synced, sorted(written - synced)
     assert ("fsync", str(tmp_path)) in events[at:]
-
 
 
 @pytest.mark.parametrize("kind", ["uint16", "uint8", "rgb"])

@@ -403,25 +403,13 @@ def test_a_temp_file_another_write_deleted_before_it_was_locked_is_replaced(tmp_
     assert sorted(p.name for p in tmp_path.iterdir()) == ["report.json"]
 
 
-def test_the_content_is_synced_before_the_rename_and_the_folder_after(tmp_path, monkeypatch):
+def test_the_content_is_synced_before_the_rename_and_the_folder_after(tmp_path, disk_events):
     """Without fsync a power cut after the rename could leave the new name on 0 bytes (the data was
     still in the page cache): the file is synced before os.replace, its folder after."""
-    events = []
-    real_fsync, real_replace = os.fsync, os.replace
-
-    def fsync(fd):
-        events.append(("fsync", os.path.realpath(f"/proc/self/fd/{fd}")))
-        real_fsync(fd)
-
-    def replace(src, dst):
-        events.append(("replace", str(dst)))
-        real_replace(src, dst)
-
-    monkeypatch.setattr(atomic_io.os, "fsync", fsync)
-    monkeypatch.setattr(atomic_io.os, "replace", replace)
+    events = disk_events
     target = tmp_path / "metrics.json"
     atomic_write_text("{}", target)
-    assert [kind for kind, _ in events] == ["fsync", "replace", "fsync"]
-    synced, renamed = Path(events[0][1]), events[1][1]
+    assert [event[0] for event in events] == ["fsync", "replace", "fsync"]
+    synced, renamed = Path(events[0][1]), events[1][2]
     assert synced.parent == tmp_path and synced != target and renamed == str(target) and events[2][1] == str(tmp_path)
     assert target.read_text() == "{}"
