@@ -3,6 +3,7 @@
 import collections
 import copy
 import enum
+import itertools
 import math
 
 import numpy as np
@@ -316,6 +317,27 @@ def test_diverged_width_tuning_is_refused_not_fitted(data, ridge):
     assert torch.equal(rbf.log_width, before)  # left as they were
 
 
+@pytest.mark.parametrize("log_width", [20.5, -20.5, 0.0])
+def test_width_tuning_check_bounds_log_widths_on_both_sides(log_width):
+    """LOG_WIDTH_RANGE = (-20, 20) is closed on both ends: one log width past either end (a finite MSE)
+    is refused with the widths put back; within it nothing changes (the runs above only hit the low end)."""
+    from torch_atr.model.generative import LOG_WIDTH_RANGE, RBFViewMapping, _check_tuning
+
+    assert LOG_WIDTH_RANGE == (-20.0, 20.0)
+    rbf = RBFViewMapping(torch.tensor([0.0, 1.0, 2.0]), torch.zeros(3), init_width=0.5)
+    initial = rbf.log_width.detach().clone()
+    with torch.no_grad():
+        rbf.log_width[1] = log_width
+    if log_width == 0.0:
+        _check_tuning(rbf, initial, 0, 0.1, 0.05)
+        assert rbf.log_width[1].item() == 0.0
+        return
+    with pytest.raises(ValueError, match=r"diverged in step 1: validation MSE 0.1, log widths in .*expected within "
+                                         r"\[-20, 20\]"):
+        _check_tuning(rbf, initial, 0, 0.1, 0.05)
+    assert torch.equal(rbf.log_width, initial)
+
+
 def test_fine_tune_widths_loss_is_the_mse_of_explicit_mappings(data):
     """The Gram-matrix loss equals the MSE of explicitly solved Bᵏ applied at the held-out views."""
     K, V = data["templates"].shape[:2]
@@ -358,6 +380,78 @@ def test_fit_tunes_widths_when_asked(data):
         for k in range(K):
             Bk = torch.einsum("dpj,j->dp", tuned.core.core.double(), tuned.core.identity_vectors[k].double())
             torch.testing.assert_close(Bk, B[k], rtol=1e-4, atol=1e-4)
+
+
+def test_fit_tunes_widths_at_the_configured_ridge(data):
+    """fit's first validation MSE is that of numpy ridge regression at cfg.ridge (λ = 0.5, far from the
+    default 1e-4 that fine_tune_widths falls back to): Ψ a direct Gaussian kernel sum at the default
+    width (mean nearest-centre chord), each Bᵏ np.linalg.lstsq on [Ψ; √λ I] b = [y; 0]."""
+    ridge = 0.5
+    cfg = ModelConfig(pixel_rank=None, ridge=ridge, width_steps=1, width_lr=1e-9)
+    model = _fit(data, cfg, val_templates=data["val"], val_theta=data["val_theta"], val_phi=data["val_phi"])
+
+    def unit(theta, phi):
+        t, p = theta.double().numpy(), phi.double().numpy()
+        return np.stack([np.cos(p) * np.cos(t), np.cos(p) * np.sin(t), np.sin(p)], axis=1)
+
+    centres, val_u = unit(data["theta"], data["phi"]), unit(data["val_theta"], data["val_phi"])
+    chords = np.linalg.norm(centres[:, None] - centres[None], axis=-1)
+    np.fill_diagonal(chords, np.inf)
+    width = chords.min(axis=1).mean()
+
+    def psi(u):
+        r2 = ((u[:, None] - centres[None]) ** 2).sum(-1)
+        return np.hstack([np.exp(-r2 / (2 * width ** 2)), np.ones((len(u), 1)), u])
+
+    train_psi, val_psi = psi(centres), psi(val_u)
+    P = train_psi.shape[1]
+    A = np.vstack([train_psi, math.sqrt(ridge) * np.eye(P)])
+    K, V = data["templates"].shape[:2]
+    Y = data["templates"].double().reshape(K, V, -1).numpy()
+    val = data["val"].double().reshape(K, data["val"].shape[1], -1).numpy()
+    errors = []
+    for Yk, Vk in zip(Y, val):
+        b = np.linalg.lstsq(A, np.vstack([Yk, np.zeros((P, Yk.shape[1]))]), rcond=None)[0]  # (P, d)
+        errors.append((val_psi @ b - Vk) ** 2)
+    assert model.width_history[0] == pytest.approx(float(np.mean(errors)), rel=1e-6)
+
+
+def test_fit_uses_the_configured_init_width(data):
+    """cfg.init_width s is every kept kernel width (untuned), and Ψ at the training views is the direct
+    Gaussian kernel sum exp(−‖u − cₗ‖² / (2 s²)) at that width, in numpy (float32 model: atol 2e-6)."""
+    model = _fit(data, ModelConfig(pixel_rank=None, ridge=1e-9, init_width=0.3))
+    torch.testing.assert_close(model.rbf.widths, torch.full((len(data["theta"]),), 0.3))
+    t, p = data["theta"].double().numpy(), data["phi"].double().numpy()
+    u = np.stack([np.cos(p) * np.cos(t), np.cos(p) * np.sin(t), np.sin(p)], axis=1)
+    psi = np.hstack([np.exp(-((u[:, None] - u[None]) ** 2).sum(-1) / (2 * 0.3 ** 2)), np.ones((len(u), 1)), u])
+    with torch.no_grad():
+        got = model.rbf(data["theta"], data["phi"]).double().numpy()
+    np.testing.assert_allclose(got[:, :len(u)], np.where(psi[:, :len(u)] >= 1e-9, psi[:, :len(u)], 0.0), atol=2e-6)
+
+
+def test_fit_orders_vehicles_at_the_configured_class_penalty(data):
+    """With class_penalty 0 the order is the brute-force shortest closed tour of D₀ (a double loop of
+    per-view template distances), which splits the classes [0, 0, 1, 0, 1, 1]; the default penalty keeps
+    each class contiguous instead."""
+    classes = [0, 0, 1, 0, 1, 1]
+    K, V = data["templates"].shape[:2]
+    Y = data["templates"].double().reshape(K, V, -1).numpy()
+    D0 = np.array([[sum(np.linalg.norm(Y[u, m] - Y[v, m]) for m in range(V)) for v in range(K)] for u in range(K)])
+
+    def cost(tour):
+        return sum(D0[tour[i], tour[(i + 1) % K]] for i in range(K))
+
+    best = min(((0, *p) for p in itertools.permutations(range(1, K)) if p[0] < p[-1]), key=cost)
+    assert sum(classes[best[i]] != classes[best[i - 1]] for i in range(K)) > 2  # not contiguous
+
+    def order(penalty):
+        model = GenerativeShapeModel.fit(data["templates"], data["theta"], data["phi"], NAMES, classes,
+                                         ["car", "tank"], TEMPLATE, ModelConfig(pixel_rank=None, class_penalty=penalty))
+        return model.identity.order.tolist()
+
+    assert order(0.0) == list(best)
+    contiguous = order(None)
+    assert sum(classes[contiguous[i]] != classes[contiguous[i - 1]] for i in range(K)) == 2
 
 
 def test_fit_rejects_bad_inputs(data):

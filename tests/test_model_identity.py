@@ -44,6 +44,19 @@ def test_dissimilarity_matches_double_loop():
         dissimilarity(Y, labels, a=-1.0)
 
 
+def test_default_class_penalty_is_k_plus_one_times_max_d0():
+    """The default a = (K + 1)·max D₀ of the docstring, D₀ from a double loop of per-view norms: the bound
+    that keeps every class contiguous (a smaller a passed the random-template tour tests too)."""
+    g = torch.Generator().manual_seed(4)
+    Y = torch.rand(6, 3, 5, generator=g, dtype=torch.float64)
+    labels = torch.tensor([0, 1, 1, 2, 0, 2])
+    Yn = Y.numpy()
+    D0 = np.array([[sum(np.linalg.norm(Yn[u, m] - Yn[v, m]) for m in range(3)) for v in range(6)] for u in range(6)])
+    a = 7 * D0.max()
+    want = D0 + a * (labels.numpy()[:, None] != labels.numpy()[None, :])
+    np.testing.assert_allclose(dissimilarity(Y, labels).numpy(), want, rtol=1e-12, atol=1e-12)
+
+
 @pytest.mark.parametrize("seed", range(4))
 def test_held_karp_matches_brute_force_on_random_matrices(seed):
     rng = np.random.default_rng(seed)

@@ -89,6 +89,35 @@ def test_default_width_is_mean_nearest_chord():
     assert set(rbf.state_dict()) == {"centres_theta", "centres_phi", "log_width"}
 
 
+def test_default_width_is_mean_nearest_chord_of_irregular_centres():
+    """Brute-force double loop over random centres, whose nearest-neighbour chords all differ (on the
+    grid above every centre's nearest chord is the 20° elevation step, so a max or a min passed too)."""
+    g = torch.Generator().manual_seed(3)
+    theta = torch.rand(9, generator=g, dtype=torch.float64) * 2 * math.pi
+    phi = torch.rand(9, generator=g, dtype=torch.float64) * 1.2
+    pts = view_vectors(theta, phi).tolist()
+    nearest = [min(math.dist(p, q) for j, q in enumerate(pts) if j != i) for i, p in enumerate(pts)]
+    assert max(nearest) - min(nearest) > 0.05
+    width = sum(nearest) / len(nearest)
+    torch.testing.assert_close(RBFViewMapping(theta, phi).widths, torch.full((9,), width, dtype=torch.float64))
+
+
+def test_given_init_width_is_the_kernel_width():
+    """init_width = s is every centre's width, and the features are the direct Gaussian kernel sum
+    exp(−‖u − cₗ‖² / (2 s²)) at it (the tests above used s = 1, where s and s² agree)."""
+    theta, phi = _grid(8, [0, 30])
+    rbf = RBFViewMapping(theta, phi, init_width=0.3)
+    torch.testing.assert_close(rbf.widths, torch.full((16,), 0.3, dtype=torch.float64))
+    g = torch.Generator().manual_seed(2)
+    q_theta = torch.rand(5, generator=g, dtype=torch.float64) * 6
+    q_phi = torch.rand(5, generator=g, dtype=torch.float64)
+    u, centres = view_vectors(q_theta, q_phi).numpy(), view_vectors(theta, phi).numpy()
+    kernel = np.exp(-((u[:, None] - centres[None]) ** 2).sum(-1) / (2 * 0.3 ** 2))
+    with torch.no_grad():
+        psi = rbf(q_theta, q_phi).numpy()
+    np.testing.assert_allclose(psi[:, :16], np.where(kernel >= KERNEL_FLOOR, kernel, 0.0), rtol=1e-9, atol=1e-12)
+
+
 def test_init_width_validation():
     with pytest.raises(ValueError, match="init_width"):
         RBFViewMapping(torch.zeros(3), torch.zeros(3), init_width=-1.0)

@@ -151,6 +151,23 @@ def test_batched_reconstruct_equals_naive_eq_4_18_loop(pixel_rank):
             np.testing.assert_allclose(grid[a, v], proj @ y, rtol=1e-9, atol=1e-10)
 
 
+def test_reconstruct_grid_in_basis_gives_pixel_basis_coordinates():
+    """in_basis=True returns c = U₁ᵀ y (r numbers, not d pixels) of the naive eq. 4.18 loop, Σₖ (iᵏ · i) Bᵏ Ψ."""
+    B = _random_mappings(seed=5)
+    core = TensorCore.from_mappings(B, 5)
+    g = torch.Generator().manual_seed(11)
+    identity = torch.randn(3, 5, generator=g, dtype=torch.float64)
+    psi = torch.randn(2, 7, generator=g, dtype=torch.float64)
+    coords = core.reconstruct_grid(identity, psi, in_basis=True).numpy()
+    assert coords.shape == (3, 2, 5)
+    C, ids, U1 = _stack(B), core.identity_vectors.numpy(), core.pixel_basis.numpy()
+    for a in range(3):
+        for v in range(2):
+            weights = ids @ identity[a].numpy()
+            y = sum(weights[k] * C[:, :, k] @ psi[v].numpy() for k in range(5))
+            np.testing.assert_allclose(coords[a, v], U1.T @ y, rtol=1e-9, atol=1e-10)
+
+
 def test_reconstruct_rejects_bad_shapes_and_keeps_dtype():
     core = TensorCore.from_mappings(_random_mappings().float(), 4)
     assert core.core.dtype == torch.float32
@@ -197,6 +214,24 @@ def test_principal_basis_randomised_error_is_near_optimal():
     assert optimal <= direct <= 1.01 * optimal
     U2, _ = principal_basis(torch.from_numpy(Y), 20)
     assert torch.equal(U, U2)  # seeded: deterministic
+
+
+def test_principal_basis_ignores_and_keeps_the_global_rng():
+    """The randomised sketch is seeded by ``seed`` alone: the same basis whatever the caller's global RNG
+    state (two calls in a row share one state, as fork_rng restores it, so torch.equal above cannot tell),
+    and that state is left as it was."""
+    rng = np.random.default_rng(6)
+    Y = torch.from_numpy((rng.standard_normal((200, 150)) / (1 + np.arange(150)) ** 0.5) @ np.linalg.qr(
+        rng.standard_normal((150, 150)))[0])
+    torch.manual_seed(1)
+    U1, _ = principal_basis(Y, 10, oversample=4, power_iters=0)
+    torch.manual_seed(2)
+    state = torch.get_rng_state()
+    U2, _ = principal_basis(Y, 10, oversample=4, power_iters=0)
+    assert torch.equal(torch.get_rng_state(), state)
+    torch.testing.assert_close(U1, U2, rtol=0, atol=0)
+    U3, _ = principal_basis(Y, 10, oversample=4, power_iters=0, seed=1)
+    assert not torch.equal(U1, U3)  # the seed, not the global state, picks the sketch
 
 
 def test_principal_basis_error_of_float32_data_is_its_residual():

@@ -207,6 +207,31 @@ def test_fill_triangles_matches_brute_force():
     assert torch.equal(one, torch.from_numpy(_fill_reference(tri[0, :1].numpy(), 25, 30))) and one.any()
 
 
+def test_fill_triangles_skips_infinite_corners():
+    """±inf corners are skipped like NaN ones (brute-force reference): a −inf corner gave its triangle an
+    orientation that a corner zeroed for the scan would otherwise fill."""
+    tri = torch.tensor([[[[2.3, 2.2], [6.7, 2.4], [2.1, 6.6]],
+                         [[10.3, 10.2], [-math.inf, 10.4], [10.6, 20.3]],
+                         [[10.2, 10.4], [20.3, math.inf], [20.6, 10.1]]]], dtype=torch.float64)
+    got = fill_triangles(tri, 25, 30)[0]
+    assert torch.equal(got, torch.from_numpy(_fill_reference(tri[0].numpy(), 25, 30)))
+    assert torch.equal(got, torch.from_numpy(_fill_reference(tri[0, :1].numpy(), 25, 30))) and got.any()
+
+
+def test_templates_in_several_batches_equal_one_batch(monkeypatch):
+    """Views split over batches (a small _TRIANGLES_PER_BATCH) give the templates of one view at a time,
+    each a single batch: the batch loop takes each view's own axes and orientations."""
+    import torch_atr.render as render
+
+    cfg = TemplateConfig(size_px=32, window_m=9.0)
+    mesh = _toy_car()
+    theta, phi = [0.0, 0.7, 1.9, 3.0, 4.4], [0.0, 0.3, 0.6, 0.1, 1.2]
+    single = torch.cat([render_templates(mesh, [t], [p], cfg) for t, p in zip(theta, phi)])
+    monkeypatch.setattr(render, "_TRIANGLES_PER_BATCH", 2 * len(mesh.faces))  # 2 views a batch: 3 batches
+    assert torch.equal(render_templates(mesh, theta, phi, cfg), single)
+    assert len({tuple(m.flatten().tolist()) for m in single}) == 5  # the views differ
+
+
 def _bounding_rows_cols(mask: np.ndarray) -> tuple[int, int, int, int]:
     rows, cols = np.nonzero(mask.any(axis=1))[0], np.nonzero(mask.any(axis=0))[0]
     return rows[0], rows[-1], cols[0], cols[-1]
