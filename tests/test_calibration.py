@@ -407,6 +407,20 @@ def test_floor_pose_matches_truth(view):
     assert (-got.R.numpy().T @ got.t.numpy())[2] > 0
 
 
+def test_floor_pose_through_a_distorting_lens_is_opencvs_pose_of_the_exact_corners(distorted_views):
+    """A camera with barrel distortion (DIST) against cv2.solvePnP of the exact corners (cv2.projectPoints through
+    K and DIST) given the true lens: the pose from undistorted corners, not from the distorted pixels as if pinhole."""
+    camera = Camera(K[0, 0], K[1, 1], K[0, 2], K[1, 2], W, H, dist=DIST)
+    flip_y = np.diag([1.0, -1.0, 1.0])  # OpenCV's camera frame (y down) -> sensor frame (y up)
+    for image, truth in distorted_views[:3]:
+        got = floor_pose(camera, image, PATTERN, SQUARE)
+        ok, rvec, tvec = cv2.solvePnP(CORNERS, truth, K, DIST)
+        assert ok
+        R_ref, t_ref = flip_y @ cv2.Rodrigues(rvec)[0], flip_y @ tvec.ravel()
+        assert _angle_deg(got.R.numpy(), R_ref) < 0.3
+        assert np.linalg.norm(got.t.numpy() - t_ref) / np.linalg.norm(t_ref) < 0.005
+
+
 def test_floor_pose_errors():
     intrinsics = Camera(K[0, 0], K[1, 1], K[0, 2], K[1, 2], W, H)
     with pytest.raises(ValueError, match="no 9x6 checkerboard"):

@@ -366,6 +366,35 @@ def test_the_truth_position_projects_onto_the_box_centre_side_on(range_m):
         np.testing.assert_allclose(uv.numpy(), [(t.u0 + t.u1) / 2, (t.v0 + t.v1) / 2], atol=0.51, err_msg=spec.name)
 
 
+def test_truth_range_is_slant_and_the_scene_camera_is_the_docstrings_pinhole():
+    """Closed forms of the module docstring in numpy, where the camera's height matters (the visible scene: 6.5 m up,
+    13 m from the circle's centre): at start_deg a the vehicle's centre is (r sin a, −h + height / 2, range + r cos a)
+    and range_m its Euclidean norm (the slant range; the horizontal one is 15 % shorter there); the camera a
+    pinhole with principal point ((W − 1) / 2, (H − 1) / 2) (pixel (0, 0) the top-left pixel's centre) and world ->
+    sensor R = [[1, 0, 0], [0, cos τ, sin τ], [0, −sin τ, cos τ]] (τ = tilt_deg, here 32°): u = cx + f X / Z,
+    v = cy − f Y / Z; with tilt_deg null, τ = atan2(h, range): the circle's centre on the ground at the image's."""
+    cfg = visible_scene(frames=1, start_deg=150.0)
+    seq = SyntheticSequence("isuzu_rodeo", cfg)
+    t = seq.truth(0)
+    r, a, h = cfg.circle_diameter_m / 2, math.radians(150.0), cfg.camera_height_m
+    centre = np.array([r * math.sin(a), -h + seq.vehicle.mesh.extents[2] / 2, cfg.range_m + r * math.cos(a)])
+    np.testing.assert_allclose([t.x, t.y, t.z], centre, atol=1e-9)
+    assert t.range_m == pytest.approx(float(np.linalg.norm(centre)), rel=1e-9)
+    aimed = SceneConfig(frames=1, tilt_deg=None, **SMALL)
+    for scene, tau in ((cfg, math.radians(32.0)), (aimed, math.atan2(aimed.camera_height_m, aimed.range_m))):
+        h, d = scene.camera_height_m, scene.range_m
+        R = np.array([[1.0, 0.0, 0.0], [0.0, math.cos(tau), math.sin(tau)], [0.0, -math.sin(tau), math.cos(tau)]])
+        points = np.array([[0.0, -h, d], [r * math.sin(a), -h + 1.0, d + r * math.cos(a)], [3.0, -h, d - 4.0],
+                           [-4.0, 1.0, d + 2.0]])
+        q = points @ R.T
+        f, cx, cy = scene.focal_px, (scene.width - 1) / 2, (scene.height - 1) / 2
+        expected = np.stack([cx + f * q[:, 0] / q[:, 2], cy - f * q[:, 1] / q[:, 2]], axis=1)
+        uv, depth = SyntheticSequence("isuzu_rodeo", scene).camera.project(torch.tensor(points, dtype=torch.float64))
+        np.testing.assert_allclose(uv.numpy(), expected, atol=1e-9)
+        np.testing.assert_allclose(depth.numpy(), q[:, 2], atol=1e-9)
+    np.testing.assert_allclose(expected[0], [cx, cy], atol=1e-9)  # aimed: the circle's centre at the image centre
+
+
 def test_open_sequence_spec(tmp_path):
     seq = open_sequence("synthetic:vehicle=T-72,range=2000,frames=5,seed=3,night=false,tilt_deg=0.5")
     assert isinstance(seq, SyntheticSequence) and len(seq) == 5 and seq.vehicle.name == "t_72"
@@ -564,3 +593,29 @@ def test_a_vehicle_inside_the_frame_is_blurred_as_the_whole_frame_is():
     assert 4 < target.u0 and target.u0 + w < seq.cfg.width - 4 and 4 < target.v0 and target.v0 + h < seq.cfg.height - 4
     assert seq.cfg.psf_sigma == 1.0  # the scenario: 4 σ a whole number of pixels
     assert np.abs(seq.scene(0) - _scene_blurred_by_scipy(seq, 1.0)).max() < 3e-4
+
+
+def test_the_psf_grows_with_the_circles_centre_range_not_the_vehicles():
+    """σ = psf_sigma_px + psf_sigma_per_km · range_m / 1 km, range_m the circle's centre's (module docstring), also
+    where the vehicle is far nearer (a 1000 m circle at 2000 m: the near point is 1500 m away): σ = 0.5 · 2 = 1 px.
+    Reference: the whole composed scene blurred by scipy with that σ, mirrored at the frame's edges."""
+    seq = SyntheticSequence("t_72", SceneConfig(frames=1, range_m=2000.0, circle_diameter_m=1000.0,
+                                                psf_sigma_px=0.0, psf_sigma_per_km=0.5))
+    assert seq.truth(0).z == pytest.approx(1500.0, abs=5.0)  # the scenario: the vehicle at the near point
+    assert np.abs(seq.scene(0) - _scene_blurred_by_scipy(seq, 1.0)).max() < 3e-4
+
+
+def test_the_atmosphere_dims_the_target_by_its_own_slant_range():
+    """T_app = ground_k + exp(−extinction_per_km · slant / 1 km) (T − ground_k) with slant the camera -> vehicle
+    centre distance (module docstring), worked out in numpy from the closed-form centre at the near point of a
+    1000 m circle at 2000 m (1500 m away, not the circle centre's 2000 m). One temperature on every part, no
+    top delta, clutter, gradient, blur or noise: the scene inside the silhouette is T_app (float32)."""
+    cfg = SceneConfig(frames=1, range_m=2000.0, circle_diameter_m=1000.0, extinction_per_km=1.0, body_k=300.0,
+                      running_gear_k=300.0, engine_deck_k=300.0, exhaust_k=300.0, top_delta_k=0.0, clutter_k=0.0,
+                      ground_gradient_k=0.0, psf_sigma_px=0.0, psf_sigma_per_km=0.0, noise_k=0.0)
+    seq = SyntheticSequence("t_72", cfg)
+    slant = math.hypot(-cfg.camera_height_m + seq.vehicle.mesh.extents[2] / 2, cfg.range_m - cfg.radius_m)
+    ground = cfg.temperatures()["ground_k"]
+    inside = ndimage.binary_erosion(seq.true_mask(0), iterations=2)
+    assert inside.sum() > 100
+    np.testing.assert_allclose(seq.scene(0)[inside], ground + math.exp(-slant / 1000.0) * (300.0 - ground), atol=1e-4)

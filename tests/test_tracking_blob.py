@@ -179,3 +179,24 @@ def test_view_walks_refuse_particles_that_are_not_theta_phi_alpha():
         wrap_views(particles)
     with pytest.raises(ValueError, match=r"Expected particles to have shape \(N, 3\); got \(1, 6\)"):
         predict_views(particles, 0.1, MotionConfig())
+
+
+def test_the_estimate_is_the_particles_weighted_means(model):
+    """An estimate row against numpy on hand-set particles and weights: θ and α the weighted circular means
+    (atan2 of the weighted sines and cosines, in [0, 2π)), φ the weighted arithmetic mean (the particles' φ lie in
+    [0, π/2], no wrap), best_* the heaviest particle (to the float32 of the tracker's particles)."""
+    from torch_atr.tracking.filter import FilterConfig
+
+    tracker = BlobTracker(model, TrackerConfig(filter=FilterConfig(particles=5)), seed=0)
+    alphas = model.alphas.double()
+    p = np.array([[6.2, 0.05, float(alphas[0])], [0.1, 0.6, float(alphas[1])], [0.3, 1.2, float(alphas[0])],
+                  [5.9, 0.3, float(alphas[2])], [0.2, 1.5, float(alphas[1])]])
+    w = np.array([0.1, 0.4, 0.2, 0.25, 0.05])
+    tracker.reset(torch.tensor(p))
+    tracker.log_weights = torch.tensor(np.log(w), dtype=tracker.dtype)
+    row = tracker._estimate()
+    for key, k in (("theta", 0), ("alpha", 2)):
+        expected = math.atan2((w * np.sin(p[:, k])).sum(), (w * np.cos(p[:, k])).sum()) % (2 * math.pi)
+        assert row[key] == pytest.approx(expected, abs=1e-6)
+    assert row["phi"] == pytest.approx(float((w * p[:, 1]).sum()), abs=1e-6)
+    assert (row["best_theta"], row["best_phi"], row["best_alpha"]) == pytest.approx(tuple(p[1]), abs=1e-6)
