@@ -7,8 +7,9 @@ is wrong across 0 / 2π (the mean of 0.1 and 2π − 0.1 is 0, not π).
 The weighted sums are elementwise products and ``sum``, not BLAS products: a matrix-vector product
 gave last-bit differences between identical runs (the BLAS library's threading is not fixed),
 and the tracker promises the same run for the same seed and thread count (a sum over more than
-32 768 particles is split by thread, so another thread count may move its last bit). For the same reason the class posterior
-is a masked ``sum``, not ``index_add_``, whose CUDA kernel adds with atomics in no fixed order.
+32 768 particles is split by thread, so another thread count may move its last bit). For the same
+reason the class posterior is a masked ``sum``, not ``index_add_``, whose CUDA kernel adds with
+atomics in no fixed order.
 """
 
 from __future__ import annotations
