@@ -232,8 +232,8 @@ def test_a_vehicle_of_the_wrong_size_is_named_before_training(tmp_path):
     _own_catalog(folder)
     manifest = folder / "catalog.yaml"
     good = manifest.read_text()
-    for scale, message in [("1.0e-5", r"vehicles\[3\] \(camry_cm.obj\): .*camry_cm.obj: 0.00488 × 0.00208 × 0.00145 m at "
-                                      r"scale 1e-05 is too small for a vehicle \(at least 0.5 m"),  # at loading
+    for scale, message in [("1.0e-5", r"vehicles\[3\] \(camry_cm.obj\): .*camry_cm.obj: 0.00488 × 0.00208 × "
+                                      r"0.00145 m at scale 1e-05 is too small for a vehicle \(at least 0.5 m"),  # at loading
                            ("0.00105", r"'camry' \(0.512 × 0.2 × 0.152 m\) covers no template pixel in \d+ of 12"),
                            ("0.03", r"'camry' \(14.6 × 6.24 × 4.34 m\) reaches the edge of the 12 m template window"),
                            ("1.0", r"vehicles\[3\] \(camry_cm.obj\): .*camry_cm.obj: 488 × 208 × 145 m at scale 1 is "

@@ -280,7 +280,7 @@ def check_output_dir(folder: str | os.PathLike, overwrite: bool, marker: str, is
     if all(_is_stale_temp(entry) for entry in folder.iterdir()):
         return folder
     finished = (folder / marker).is_file() and is_ours(folder / marker)
-    if finished or _claimed(folder, what):
+    if finished or claim_of(folder) == what:
         if not overwrite:
             held = f"a {what} ({marker})" if finished else f"an interrupted {what} (no {marker})"
             raise OutputExistsError(f"{folder} already holds {held}; pass --overwrite to replace it, or choose "
@@ -304,10 +304,6 @@ def claim_of(folder: Path) -> str | None:
 def write_claim(folder: Path, what: str) -> None:
     """Claim ``folder`` (which exists) for ``what``: the folder of a run that may be interrupted stays ours."""
     atomic_write_text(json.dumps({"format": RUN_CLAIM, "what": what}) + "\n", folder / RUN_CLAIM)
-
-
-def _claimed(folder: Path, what: str) -> bool:
-    return claim_of(folder) == what
 
 
 @contextmanager

@@ -193,7 +193,8 @@ def is_report_folder(path: Path) -> bool:
 @contextmanager
 def claimed_report_folder(out: Path, report: str, runs: tuple[str, ...] = ("sequences",)) -> Iterator[Path]:
     """Make ``out`` and its ``runs`` folders, and claim ``out`` (:func:`~torch_atr.io.write_claim`) for
-    the experiment whose report format is ``report`` before any work, so that an interrupted run's folder is known as ours and resumed.
+    the experiment whose report format is ``report`` before any work, so that an interrupted run's
+    folder is known as ours and resumed.
     If the block raises before anything but the claim and the empty folders were written, the claim
     and the folders it made go."""
     with ExitStack() as made:
